@@ -1,0 +1,17 @@
+"""gsz: size-aware compression of 3D Gaussian Splatting scenes.
+
+The top-level namespace re-exports the numpy-only core (no torch import here):
+
+    import gsz
+    cloud = gsz.read_ply("point_cloud.ply")
+    gsz.write_ply(cloud, "copy.ply")
+
+Sub-packages: ``gsz.decoder`` (numpy-only bitstream reader), ``gsz.encoder`` (torch CPU
+encoder, renderer, metrics), ``gsz.kernels`` (CUDA/CPU quantisation kernels), ``gsz.viewer``.
+"""
+from gsz.decoder.cloud import GaussianCloud
+from gsz.decoder.errors import GszError, PlyFormatError
+from gsz.decoder.ply import read_ply, write_ply
+
+__version__ = "0.1.0"
+__all__ = ["GaussianCloud", "GszError", "PlyFormatError", "read_ply", "write_ply", "__version__"]

@@ -1,0 +1,134 @@
+"""The in-memory form of a 3DGS scene: :class:`GaussianCloud` (numpy only)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import CloudValidationError
+
+#: Number of higher-order SH coefficients per colour channel for SH degree 0..3.
+SH_REST_COUNT = {0: 0, 1: 3, 2: 8, 3: 15}
+
+
+def sh_rest_count(degree: int) -> int:
+    """K = (d+1)^2 - 1 coefficients per colour channel beyond the DC term."""
+    if degree not in SH_REST_COUNT:
+        raise CloudValidationError(f"SH degree must be 0..3, got {degree}")
+    return SH_REST_COUNT[degree]
+
+
+@dataclass
+class GaussianCloud:
+    """A 3D Gaussian Splatting scene as float32 numpy arrays, in pre-activation form.
+
+    Shapes and dtypes (N Gaussians, K = (d+1)^2 - 1):
+
+    ========== ========== ===============================================================
+    field      shape      meaning
+    ========== ========== ===============================================================
+    positions  [N, 3] f32 centres x, y, z
+    scales     [N, 3] f32 natural log of the per-axis standard deviation
+    rotations  [N, 4] f32 quaternion (w, x, y, z), not necessarily unit length
+    opacities  [N]    f32 logit of alpha
+    sh_dc      [N, 3] f32 SH degree-0 coefficient per colour channel (RGB)
+    sh_rest    [N,K,3]f32 higher-order SH, coefficient-major, RGB last
+    sh_degree  int        0..3
+    ========== ========== ===============================================================
+    """
+
+    positions: np.ndarray
+    scales: np.ndarray
+    rotations: np.ndarray
+    opacities: np.ndarray
+    sh_dc: np.ndarray
+    sh_rest: np.ndarray
+    sh_degree: int
+    extra: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def __post_init__(self):
+        self.positions = np.ascontiguousarray(self.positions, dtype=np.float32)
+        self.scales = np.ascontiguousarray(self.scales, dtype=np.float32)
+        self.rotations = np.ascontiguousarray(self.rotations, dtype=np.float32)
+        self.opacities = np.ascontiguousarray(self.opacities, dtype=np.float32).reshape(-1)
+        self.sh_dc = np.ascontiguousarray(self.sh_dc, dtype=np.float32)
+        k = sh_rest_count(int(self.sh_degree))
+        self.sh_degree = int(self.sh_degree)
+        sr = np.asarray(self.sh_rest, dtype=np.float32)
+        if sr.size == 0 and k == 0:
+            sr = np.zeros((self.positions.shape[0], 0, 3), np.float32)
+        self.sh_rest = np.ascontiguousarray(sr)
+
+    def __len__(self) -> int:
+        return int(self.positions.shape[0])
+
+    @property
+    def num_gaussians(self) -> int:
+        return len(self)
+
+    def validate(self, check_finite: bool = True, name: str | None = None) -> "GaussianCloud":
+        """Check shapes, degree and (optionally) that every value is finite.
+
+        Raises :class:`CloudValidationError` naming the offending field; returns ``self``.
+        """
+        n = self.positions.shape[0] if self.positions.ndim == 2 else -1
+        k = sh_rest_count(self.sh_degree)
+        expected = {
+            "positions": (n, 3),
+            "scales": (n, 3),
+            "rotations": (n, 4),
+            "opacities": (n,),
+            "sh_dc": (n, 3),
+            "sh_rest": (n, k, 3),
+        }
+        for fname, shape in expected.items():
+            arr = getattr(self, fname)
+            if arr.shape != shape:
+                raise CloudValidationError(
+                    f"field '{fname}' has shape {arr.shape}, expected {shape} "
+                    f"(N={n}, SH degree {self.sh_degree})", name)
+        if check_finite:
+            for fname in expected:
+                arr = getattr(self, fname)
+                bad = ~np.isfinite(arr)
+                if bad.any():
+                    idx = int(np.argwhere(bad.reshape(len(arr), -1).any(axis=1))[0, 0]) if len(arr) else 0
+                    raise CloudValidationError(
+                        f"field '{fname}' has {int(bad.sum())} non-finite values (first at Gaussian {idx})",
+                        name)
+            zero_q = ~(np.abs(self.rotations).sum(axis=1) > 0)
+            if zero_q.any():
+                raise CloudValidationError(
+                    f"{int(zero_q.sum())} Gaussians have an all-zero quaternion "
+                    f"(first at {int(np.argmax(zero_q))})", name)
+        return self
+
+    def subset(self, index) -> "GaussianCloud":
+        """A new cloud holding the Gaussians selected by ``index`` (mask or integer array)."""
+        return GaussianCloud(
+            positions=self.positions[index], scales=self.scales[index],
+            rotations=self.rotations[index], opacities=self.opacities[index],
+            sh_dc=self.sh_dc[index], sh_rest=self.sh_rest[index], sh_degree=self.sh_degree)
+
+    def with_sh_degree(self, degree: int) -> "GaussianCloud":
+        """A copy truncated (or zero-padded) to SH degree ``degree``."""
+        k_new = sh_rest_count(degree)
+        k_old = self.sh_rest.shape[1]
+        if k_new <= k_old:
+            rest = self.sh_rest[:, :k_new]
+        else:
+            rest = np.zeros((len(self), k_new, 3), np.float32)
+            rest[:, :k_old] = self.sh_rest
+        return GaussianCloud(self.positions, self.scales, self.rotations, self.opacities,
+                             self.sh_dc, rest, degree)
+
+    def copy(self) -> "GaussianCloud":
+        return GaussianCloud(self.positions.copy(), self.scales.copy(), self.rotations.copy(),
+                             self.opacities.copy(), self.sh_dc.copy(), self.sh_rest.copy(),
+                             self.sh_degree)
+
+    def equals(self, other: "GaussianCloud") -> bool:
+        """Bit-exact equality of every array and the SH degree."""
+        return (self.sh_degree == other.sh_degree and len(self) == len(other) and all(
+            np.array_equal(getattr(self, f), getattr(other, f))
+            for f in ("positions", "scales", "rotations", "opacities", "sh_dc", "sh_rest")))

@@ -1,0 +1,30 @@
+"""Exception types of gsz.
+
+Every error a user can cause with bad input is a :class:`GszError` whose message names the
+file (when there is one) and the problem.  Callers that embed the decoder catch this one type.
+"""
+from __future__ import annotations
+
+
+class GszError(Exception):
+    """Base class of every error gsz raises on bad input."""
+
+    def __init__(self, message: str, path: str | None = None):
+        self.path = None if path is None else str(path)
+        super().__init__(f"{self.path}: {message}" if self.path else message)
+
+
+class PlyFormatError(GszError, ValueError):
+    """A PLY file is not a readable 3DGS (graphdeco layout) point cloud."""
+
+
+class GszFormatError(GszError, ValueError):
+    """A .gsz bitstream is corrupt, truncated, hostile or of an unsupported version."""
+
+
+class CloudValidationError(GszError, ValueError):
+    """A GaussianCloud's arrays are inconsistent (shapes, dtypes, non-finite values)."""
+
+
+class CameraFormatError(GszError, ValueError):
+    """A cameras.json or COLMAP model cannot be read."""

@@ -1,0 +1,153 @@
+"""Read and write the graphdeco-inria 3DGS PLY layout.
+
+Layout (one ``vertex`` element, float32 properties)::
+
+    x y z nx ny nz f_dc_0 f_dc_1 f_dc_2 f_rest_0 .. f_rest_{3K-1} opacity
+    scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3
+
+``f_rest`` is channel-major in the file (all K coefficients of R, then G, then B); in
+:class:`GaussianCloud` it is held coefficient-major as ``sh_rest[N, K, 3]``.
+"""
+from __future__ import annotations
+
+import os
+import warnings
+
+import numpy as np
+
+from .cloud import SH_REST_COUNT, GaussianCloud
+from .errors import PlyFormatError
+from .io_util import atomic_write
+
+_BASE = ["x", "y", "z"]
+_DC = ["f_dc_0", "f_dc_1", "f_dc_2"]
+_SCALE = ["scale_0", "scale_1", "scale_2"]
+_ROT = ["rot_0", "rot_1", "rot_2", "rot_3"]
+_NORMALS = ["nx", "ny", "nz"]
+_REST_TO_DEGREE = {3 * k: d for d, k in SH_REST_COUNT.items()}
+
+
+def read_ply(path, *, check_finite: bool = True) -> GaussianCloud:
+    """Read a 3DGS PLY file into a :class:`GaussianCloud` (any SH degree 0..3).
+
+    Properties other than the graphdeco ones are ignored with a warning; a missing property,
+    an f_rest count that matches no SH degree, or a non-finite value raises
+    :class:`PlyFormatError` naming the file and the property.
+    """
+    from plyfile import PlyData, PlyParseError
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise PlyFormatError("file not found", path)
+    if os.path.isdir(path):
+        raise PlyFormatError("is a directory, expected a .ply file", path)
+    try:
+        with open(path, "rb") as f:
+            magic = f.read(4)
+            if magic[:3] != b"ply":
+                raise PlyFormatError("not a PLY file (missing 'ply' magic line)", path)
+            f.seek(0)
+            ply = PlyData.read(f)
+    except PlyFormatError:
+        raise
+    except (PlyParseError, ValueError, EOFError, OSError, IndexError, KeyError) as e:
+        raise PlyFormatError(f"cannot parse PLY: {e}", path) from None
+    if "vertex" not in [el.name for el in ply.elements]:
+        raise PlyFormatError("has no 'vertex' element", path)
+    vertex = ply["vertex"]
+    data = vertex.data
+    names = list(data.dtype.names or ())
+    n = len(data)
+
+    rest_names = sorted((p for p in names if p.startswith("f_rest_")),
+                        key=lambda s: int(s[7:]) if s[7:].isdigit() else -1)
+    for i, p in enumerate(rest_names):
+        if p != f"f_rest_{i}":
+            raise PlyFormatError(
+                f"f_rest properties are not numbered 0..{len(rest_names) - 1} (found '{p}')", path)
+    if len(rest_names) not in _REST_TO_DEGREE:
+        raise PlyFormatError(
+            f"has {len(rest_names)} f_rest properties; expected 0, 9, 24 or 45 (SH degree 0-3)", path)
+    degree = _REST_TO_DEGREE[len(rest_names)]
+    k = SH_REST_COUNT[degree]
+
+    required = _BASE + _DC + rest_names + ["opacity"] + _SCALE + _ROT
+    for p in required:
+        if p not in names:
+            raise PlyFormatError(f"missing vertex property '{p}'", path)
+    known = set(required) | set(_NORMALS)
+    extra = [p for p in names if p not in known]
+    if extra:
+        warnings.warn(f"{path}: ignoring {len(extra)} extra vertex properties: {', '.join(extra[:8])}"
+                      + (" ..." if len(extra) > 8 else ""), stacklevel=2)
+
+    # Fast path: every property float32 little-endian -> view the records as a 2-D matrix.
+    if all(data.dtype[p] == np.dtype("<f4") for p in names) and data.dtype.itemsize == 4 * len(names):
+        mat = np.ascontiguousarray(data).view("<f4").reshape(n, len(names))
+        col = {p: i for i, p in enumerate(names)}
+
+        def cols(ps):
+            return mat[:, [col[p] for p in ps]].astype(np.float32)
+    else:
+        def cols(ps):
+            out = np.empty((n, len(ps)), np.float32)
+            for j, p in enumerate(ps):
+                try:
+                    out[:, j] = data[p]
+                except (ValueError, TypeError) as e:
+                    raise PlyFormatError(f"property '{p}' cannot be read as float: {e}", path) from None
+            return out
+
+    rest = cols(rest_names).reshape(n, 3, k).transpose(0, 2, 1) if k else np.zeros((n, 0, 3), np.float32)
+    cloud = GaussianCloud(
+        positions=cols(_BASE), scales=cols(_SCALE), rotations=cols(_ROT),
+        opacities=cols(["opacity"])[:, 0], sh_dc=cols(_DC), sh_rest=rest, sh_degree=degree)
+    if check_finite:
+        for fname, props in (("positions", _BASE), ("scales", _SCALE), ("rotations", _ROT),
+                             ("opacities", ["opacity"]), ("sh_dc", _DC), ("sh_rest", rest_names)):
+            arr = getattr(cloud, fname).reshape(n, -1)
+            bad = ~np.isfinite(arr)
+            if bad.any():
+                r, c = np.argwhere(bad)[0]
+                prop = props[c] if fname != "sh_rest" else _rest_prop_name(c, k)
+                raise PlyFormatError(
+                    f"property '{prop}' has {int(bad[:, c].sum())} non-finite values "
+                    f"(first at vertex {int(r)})", path)
+    return cloud
+
+
+def _rest_prop_name(flat_col: int, k: int) -> str:
+    # flat column of sh_rest[N, K, 3] reshaped to [N, 3K] -> coefficient k_i, channel c
+    k_i, c = divmod(flat_col, 3)
+    return f"f_rest_{c * k + k_i}"
+
+
+def cloud_to_ply_bytes(cloud: GaussianCloud) -> bytes:
+    """Serialise a cloud as a binary little-endian graphdeco PLY (float32 everywhere)."""
+    n = len(cloud)
+    k = cloud.sh_rest.shape[1]
+    rest_names = [f"f_rest_{i}" for i in range(3 * k)]
+    names = _BASE + _NORMALS + _DC + rest_names + ["opacity"] + _SCALE + _ROT
+    mat = np.empty((n, len(names)), dtype="<f4")
+    mat[:, 0:3] = cloud.positions
+    mat[:, 3:6] = 0.0
+    mat[:, 6:9] = cloud.sh_dc
+    o = 9
+    if k:
+        mat[:, o:o + 3 * k] = cloud.sh_rest.transpose(0, 2, 1).reshape(n, 3 * k)
+    o += 3 * k
+    mat[:, o] = cloud.opacities
+    mat[:, o + 1:o + 4] = cloud.scales
+    mat[:, o + 4:o + 8] = cloud.rotations
+    header = ["ply", "format binary_little_endian 1.0", "comment written by gsz",
+              f"element vertex {n}"] + [f"property float {p}" for p in names] + ["end_header"]
+    return ("\n".join(header) + "\n").encode("ascii") + mat.tobytes()
+
+
+def write_ply(cloud: GaussianCloud, path) -> None:
+    """Write ``cloud`` as a graphdeco 3DGS PLY, atomically (no partial file on failure).
+
+    ``read_ply(write_ply(c))`` reproduces ``c`` bit for bit.
+    """
+    cloud.validate(check_finite=False)
+    atomic_write(path, cloud_to_ply_bytes(cloud))
