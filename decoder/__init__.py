@@ -8,3 +8,6 @@ from .ply import read_ply, write_ply
 
 __all__ = ["GaussianCloud", "sh_rest_count", "GszError", "GszFormatError", "PlyFormatError",
            "CloudValidationError", "CameraFormatError", "read_ply", "write_ply"]
+from .decode import decode, inspect  # noqa: E402
+
+__all__ += ["decode", "inspect"]

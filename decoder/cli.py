@@ -1,0 +1,76 @@
+"""gsz-decode and gsz-info (numpy-only command-line tools)."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from .errors import GszError
+
+
+def _fail(prog: str, e: Exception) -> int:
+    print(f"{prog}: error: {e}", file=sys.stderr)
+    return 2
+
+
+def decode_main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="gsz-decode", description="Decode a .gsz file to a 3DGS PLY.")
+    p.add_argument("input", help="input .gsz file")
+    p.add_argument("-o", "--output", required=True, help="output .ply file (written atomically)")
+    p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    a = p.parse_args(argv)
+    from .decode import decode
+    from .ply import write_ply
+    try:
+        t0 = time.perf_counter()
+        cloud = decode(a.input)
+        dt = time.perf_counter() - t0
+        write_ply(cloud, a.output)
+    except (GszError, OSError) as e:
+        return _fail("gsz-decode", e)
+    summary = {"input": a.input, "output": a.output, "num_gaussians": len(cloud),
+               "sh_degree": cloud.sh_degree, "decode_seconds": round(dt, 4),
+               "gaussians_per_second": round(len(cloud) / dt) if dt > 0 else None}
+    if a.json:
+        print(json.dumps(summary))
+    else:
+        print(f"decoded {len(cloud)} Gaussians (SH degree {cloud.sh_degree}) in {dt:.3f} s -> {a.output}",
+              file=sys.stderr)
+    return 0
+
+
+def info_main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="gsz-info", description="Show the header and chunk table of a .gsz file.")
+    p.add_argument("input", help="input .gsz file")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    a = p.parse_args(argv)
+    from .decode import inspect
+    try:
+        info = inspect(a.input)
+    except GszError as e:
+        return _fail("gsz-info", e)
+    if a.json:
+        print(json.dumps(info, indent=1))
+        return 0
+    frames = {0: "unspecified", 1: "RDF (x right, y down, z forward)", 2: "RUB (x right, y up, z back)"}
+    print(f"file        {info['file']}")
+    print(f"size        {info['bytes']:,} bytes ({info['bytes'] / max(1, info['num_gaussians']):.2f} B/Gaussian)")
+    print(f"version     {info['version']}")
+    print(f"gaussians   {info['num_gaussians']:,}")
+    print(f"SH degree   {info['sh_degree']}")
+    print(f"frame       {frames.get(info['frame'], info['frame'])}")
+    print("bbox        " + " .. ".join("(" + ", ".join(f"{v:.4g}" for v in b) + ")"
+                                     for b in (info["bbox_min"], info["bbox_max"])))
+    print(f"{'chunk':6} {'offset':>10} {'bytes':>12} {'share':>7}  layer  description")
+    for c in info["chunks"]:
+        print(f"{c['type']:6} {c['offset']:>10,} {c['bytes']:>12,} {100 * c['bytes'] / info['bytes']:6.2f}%"
+              f"  {c['layer']:>5}  {c['name']}{'' if c['required'] else ' (optional)'}")
+    opts = info.get("meta", {}).get("options")
+    if opts:
+        print("encoder     " + " ".join(f"{k}={v}" for k, v in sorted(opts.items())))
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(decode_main())

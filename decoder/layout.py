@@ -1,0 +1,14 @@
+"""Chunk type codes and channel layouts shared by the encoder and the decoder (GSZ.md §4)."""
+
+CHUNK_GEOM = b"GEOM"   # octree geometry (required)
+CHUNK_ATTR = b"ATTR"   # RAHT + direct quantised attributes (required)
+CHUNK_SHVQ = b"SHVQ"   # higher-degree SH: codebook, kept vectors, indices (required when degree > 0)
+CHUNK_META = b"META"   # zstd-compressed UTF-8 JSON, informative only (optional)
+KNOWN_CHUNKS = (CHUNK_GEOM, CHUNK_ATTR, CHUNK_SHVQ, CHUNK_META)
+
+#: Channels that go through RAHT, in stream order.
+RAHT_CHANNELS = ("opacity", "roll", "pitch", "yaw", "f_dc_0", "f_dc_1", "f_dc_2")
+#: Channels quantised directly in Morton point order.
+DIRECT_CHANNELS = ("scale_0", "scale_1", "scale_2")
+#: Rotation parameterisation codes (ATTR byte 0).
+ROTATION_EULER_ZYX = 0

@@ -1,0 +1,376 @@
+"""Lossless octree geometry decoder (numpy-only): context-adaptive binary occupancy coding.
+
+The normative description is ``format_spec/OCTREE.md``; this module is the shared truth: the
+encoder (``gsz.encoder.octree``) imports :func:`walk_octree` and the tables below and runs the very
+same traversal, so encoder and decoder cannot drift apart.
+
+Coding order (why it is vectorisable).  The octree of the ``M`` occupied voxels is walked level by
+level from the root (level 0, one node) to level ``depth - 1``; the nodes of a level are in
+ascending Morton order.  Within a level the eight child-occupancy bits of all nodes are coded
+*bit-plane by bit-plane*: first child 0 of every node, then child 1 of every node, ..., child 7.
+The context of child ``k`` depends only on the node set of the level and on child bits ``< k`` of
+the node *and of its 26 neighbours*, all known before bit-plane ``k`` starts, so a whole bit-plane's
+contexts are computed in one vectorised step.
+
+Context of child ``k`` (child position ``c`` at level ``l + 1``):
+
+* ``kn`` -- how many of the 26 neighbours of ``c`` (at level ``l + 1``) are known to be occupied
+  (they lie in neighbour nodes and have child index ``< k``),
+* ``unk`` -- how many of the 26 are still unknown but lie in an occupied node (child index ``>= k``),
+* ``sib`` -- min(3, number of this node's children ``< k`` already occupied),
+* ``k`` itself and the level bucket ``lb = min(3, depth - 1 - l)`` (distance from the leaves).
+
+Probability estimate (integer arithmetic only, so it is bit-exact on every platform): a *coarse*
+context (``k, kn, unk, sib``) and a *fine* one (coarse x ``lb``) keep counts ``(n0, n1)``;
+
+    p_coarse = ((2*c1 + 1) << 16) // (2*(c0 + c1) + 2)             # KT estimate, 16-bit
+    p_fine   = (f1 << 16 + MIX_WEIGHT * p_coarse) // (f0 + f1 + MIX_WEIGHT)
+
+``p_fine`` (probability of a 1, 16-bit) is mapped to the nearest of ``len(BANK_F1)`` fixed binary
+models, and the bit is entropy-coded with that model.  Counts are updated after each *chunk* of a
+bit-plane (chunks of ``min(CHUNK_MAX, max(CHUNK_MIN, symbols already coded in the bit-plane))``
+symbols), which keeps the adaptation near-sequential while every chunk stays vectorised.
+A count pair whose total exceeds ``COUNT_LIMIT`` is halved (rounding up), which tracks drift.
+
+The last child of a node whose first seven child bits are all 0 is 1 and is not coded.
+"""
+from __future__ import annotations
+
+import functools
+from typing import Callable
+
+import numpy as np
+
+from gsz.decoder.errors import GszFormatError
+from gsz.decoder.morton import MAX_DEPTH, morton_decode
+from gsz.decoder.rans import LAPLACE, ModelSet, RansDecoder, lut_budget, read_varint
+
+# ---------------------------------------------------------------- model constants (normative)
+#: Coding precision of the binary probability bank (frequencies out of 2**BANK_BITS).
+BANK_BITS = 12
+#: Chunk schedule of the adaptive counts (symbols per vectorised update).
+CHUNK_MIN = 64
+CHUNK_MAX = 4096
+COUNT_LIMIT = 1 << 14
+MIX_WEIGHT = 16
+NUM_LEVEL_BUCKETS = 4
+NUM_SIB = 4
+#: 26 neighbours -> kn, unk in 0..26
+NUM_COARSE = 8 * 27 * 27 * NUM_SIB
+NUM_FINE = NUM_COARSE * NUM_LEVEL_BUCKETS
+
+
+def _make_bank() -> np.ndarray:
+    """Frequencies of symbol 1 (out of 2**BANK_BITS) of the fixed binary models, ascending.
+
+    Integer-only so that it is identical everywhere: v_0 = 2048, v_{i+1} = (7 * v_i) // 8 down to 1,
+    mirrored to 4096 - v (geometric spacing: the loss from rounding a probability to its nearest
+    bank entry is < 0.2 % of the coded size).
+    """
+    half = [1 << (BANK_BITS - 1)]
+    while half[-1] > 1:
+        half.append((half[-1] * 7) // 8)
+    lo = sorted(set(half))
+    hi = [(1 << BANK_BITS) - v for v in lo if v != 1 << (BANK_BITS - 1)]
+    return np.array(sorted(set(lo + hi)), dtype=np.int64)
+
+
+BANK_F1 = _make_bank()
+NUM_MODELS = len(BANK_F1)
+
+
+def _make_lut() -> np.ndarray:
+    """Map a 16-bit probability of a 1 to the bank entry nearest in the linear domain (ties: lower)."""
+    centres16 = BANK_F1 << (16 - BANK_BITS)
+    mids = (centres16[:-1] + centres16[1:] + 1) // 2          # integer midpoints
+    p = np.arange(1 << 16, dtype=np.int64)
+    return np.searchsorted(mids, p, side="right").astype(np.int64)
+
+
+P16_TO_MODEL = _make_lut()
+
+
+def bank_precision(num_symbols: int) -> int:
+    """rANS precision n of the bank models: as high as the decoder's LUT budget for a stream of
+    ``num_symbols`` symbols allows (``rans.lut_budget``), between 9 and 15."""
+    per_model = lut_budget(num_symbols) // NUM_MODELS
+    return int(min(15, max(9, per_model.bit_length() - 1)))
+
+
+def bank_model_set(num_symbols: int) -> ModelSet:
+    """The fixed binary models for a stream of ``num_symbols`` decisions (see :func:`_bank_model_set`)."""
+    return _bank_model_set(bank_precision(num_symbols))
+
+
+@functools.lru_cache(maxsize=8)
+def _bank_model_set(precision: int) -> ModelSet:
+    """The fixed binary models as an rANS :class:`ModelSet` (values 0/1, LAPLACE type, span 1).
+
+    Bank entry i with v = BANK_F1[i] (probability of a 1 ~ v / 4096) is a two-value LAPLACE model:
+    v <= 2048: centre 0 (value 0 the mode), r_right = round(65536 v / (4096 - v)) capped at 65535;
+    v >  2048: centre 1 (value 1 the mode), r_left = round(65536 (4096 - v) / v).
+    Nothing of it is transmitted: encoder and decoder build it from the stream's symbol count
+    (which fixes the precision).  Cached: the set and its decoding tables are read-only.
+    """
+    one = 1 << BANK_BITS
+    v = BANK_F1
+    low = v <= one // 2
+    r_small = np.minimum(65535, (v * 65536 + (one - v) // 2) // (one - v))
+    r_big = np.minimum(65535, ((one - v) * 65536 + v // 2) // v)
+    m = NUM_MODELS
+    z = np.zeros(m, dtype=np.int64)
+    ms = ModelSet(types=np.full(m, LAPLACE, dtype=np.int64), lo=z.copy(), span=np.ones(m, np.int64),
+                  prec=np.full(m, precision, dtype=np.int64), group=z.copy(),
+                  centre=np.where(low, 0, 1).astype(np.int64),
+                  r_left=np.where(low, 0, r_big).astype(np.int64),
+                  r_right=np.where(low, r_small, 0).astype(np.int64))
+    ms.validate()
+    ms.build()
+    return ms
+
+
+# ---------------------------------------------------------------- neighbourhood plan
+#: 27 parent-level offsets (dx, dy, dz) in {-1,0,1}^3, index (dx+1)*9 + (dy+1)*3 + (dz+1); 13 = self.
+OFFSETS = np.array([(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)],
+                   dtype=np.int64)
+SELF = 13
+
+
+def _make_plan():
+    """For child k and parent-level offset t: mask of child bits (< k) of node t that are
+    known 26-neighbours of child k, and how many unknown (>= k) 26-neighbours node t holds."""
+    known = np.zeros((8, 27), dtype=np.int64)
+    unknown = np.zeros((8, 27), dtype=np.int64)
+    for k in range(8):
+        b = np.array([(k >> 2) & 1, (k >> 1) & 1, k & 1])
+        for d in OFFSETS:
+            if not d.any():
+                continue
+            s = b + d
+            o = s // 2                       # parent-level offset of the neighbour, in {-1,0,1}
+            j = int((s[0] % 2) * 4 + (s[1] % 2) * 2 + (s[2] % 2))
+            t = int((o[0] + 1) * 9 + (o[1] + 1) * 3 + (o[2] + 1))
+            if j < k:
+                known[k, t] |= 1 << j
+            else:
+                unknown[k, t] += 1
+    return known, unknown
+
+
+PLAN_KNOWN, PLAN_UNKNOWN = _make_plan()
+POPCOUNT8 = np.array([bin(v).count("1") for v in range(256)], dtype=np.int64)
+#: RANK8[j, o] = number of set bits of byte o below bit j
+RANK8 = np.array([[bin(o & ((1 << j) - 1)).count("1") for o in range(256)] for j in range(8)],
+                 dtype=np.int64)
+
+
+def _make_child_plan():
+    """For a node with child bits ``b`` (its index in its parent) and a neighbour offset ``t``:
+    the parent-level offset (0..26) of the neighbour's parent and the neighbour's child index."""
+    par = np.zeros((8, 27), dtype=np.int64)
+    child = np.zeros((8, 27), dtype=np.int64)
+    for k in range(8):
+        b = np.array([(k >> 2) & 1, (k >> 1) & 1, k & 1])
+        for t, d in enumerate(OFFSETS):
+            s = b + d
+            o = s // 2
+            par[k, t] = (o[0] + 1) * 9 + (o[1] + 1) * 3 + (o[2] + 1)
+            child[k, t] = (s[0] % 2) * 4 + (s[1] % 2) * 2 + (s[2] % 2)
+    return par, child
+
+
+CHILD_PAR, CHILD_IDX = _make_child_plan()
+
+
+def _child_neighbour_table(nbr: np.ndarray, occ: np.ndarray, rows: np.ndarray,
+                           ks: np.ndarray) -> np.ndarray:
+    """27-neighbour table of the next level, derived from the current one without any search.
+
+    nbr: int64 [27, N] neighbour table of the current level (row t = offset t, -1 where absent);
+    occ: int64 [N] its occupancy bytes; rows, ks: int64 [C] parent index and child index of each
+    child (Morton order).  Returns int64 [27, C].
+    A neighbour of child c lies in a neighbour (or self) of c's parent, so it exists iff that
+    node exists and has the corresponding child bit; its index is the parent's first-child index
+    plus the rank of the bit among the parent's children.
+    """
+    n = occ.shape[0]
+    start = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(POPCOUNT8[occ], out=start[1:])
+    # one gather per neighbour: (first-child index << 8) | occupancy byte; slot n = absent (0)
+    packed = np.append((start[:n] << 8) | occ, 0)
+    c = rows.shape[0]
+    out = np.empty((27, c), dtype=np.int64)
+    # children grouped by their index k (a stable counting sort), so that the neighbour's
+    # parent offset and child index are scalars within a group
+    order = np.argsort(ks, kind="stable")
+    bounds = np.searchsorted(ks[order], np.arange(9))
+    for k in range(8):
+        sel = order[bounds[k]:bounds[k + 1]]
+        if sel.size == 0:
+            continue
+        r = rows[sel]
+        # the 26 neighbours of child k lie in the 8 parent-level nodes of k's octant
+        par_v = {int(o): packed[nbr[o][r]] for o in np.unique(CHILD_PAR[k])}
+        for t in range(27):
+            if t == SELF:
+                out[t, sel] = sel
+                continue
+            j = int(CHILD_IDX[k, t])
+            v = par_v[int(CHILD_PAR[k, t])]
+            idx = (v >> 8) + RANK8[j][v & 255]
+            out[t, sel] = np.where((v >> j) & 1, idx, -1)
+    return out
+
+
+def plane_contexts(k: int, occ: np.ndarray, nbr: np.ndarray, present: np.ndarray,
+                   level_bucket: int):
+    """Coarse and fine context ids of child ``k`` of every node of a level.
+
+    occ: int64 [N] occupancy bytes decoded so far (bits < k valid, others 0).
+    nbr: int64 [27, N] from :func:`_child_neighbour_table`; present: int8 [27, N] = nbr >= 0.
+    Returns (coarse int64 [N], fine int64 [N], sib int64 [N] = number of set child bits < k).
+    """
+    occ_ext = np.append(occ, 0)                 # index -1 (absent neighbour) reads a 0 byte
+    kn = np.zeros(occ.shape[0], dtype=np.int64)
+    unk = np.zeros(occ.shape[0], dtype=np.int64)
+    for t in np.flatnonzero(PLAN_KNOWN[k] | PLAN_UNKNOWN[k]):
+        km, uc = int(PLAN_KNOWN[k, t]), int(PLAN_UNKNOWN[k, t])
+        if km:
+            kn += POPCOUNT8[occ_ext[nbr[t]] & km]
+        if uc:
+            unk += present[t] * uc if uc > 1 else present[t]
+    sib = POPCOUNT8[occ & ((1 << k) - 1)]
+    coarse = ((k * 27 + kn) * 27 + unk) * NUM_SIB + np.minimum(sib, NUM_SIB - 1)
+    fine = coarse * NUM_LEVEL_BUCKETS + level_bucket
+    return coarse, fine, sib
+
+
+def _chunk_bounds(n: int):
+    """Start/end of the adaptive-update chunks of a bit-plane of ``n`` coded symbols."""
+    s = 0
+    while s < n:
+        step = min(CHUNK_MAX, max(CHUNK_MIN, s))
+        e = min(n, s + step)
+        yield s, e
+        s = e
+
+
+# A bit source: given (level, k, node indices of the chunk, model ids) return the chunk's bits.
+BitSource = Callable[[int, int, np.ndarray, np.ndarray], np.ndarray]
+
+
+def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
+    """Run the normative traversal; return the uint64 Morton codes of the leaves, ascending.
+
+    ``bits(level, k, node_idx, model_ids)`` supplies the occupancy bits (int64 0/1 [n]) of child
+    ``k`` of nodes ``node_idx`` (indices into the level's Morton-ordered node list), coded with the
+    given bank models: the decoder reads them from the rANS stream, the encoder looks them up.
+    Raises GszFormatError if a level would hold more than ``num_points`` nodes or the leaf count
+    differs from ``num_points``.
+    """
+    if not 1 <= depth <= MAX_DEPTH:
+        raise GszFormatError(f"octree depth {depth} outside [1, {MAX_DEPTH}]")
+    if num_points == 0:
+        return np.zeros(0, dtype=np.uint64)
+    # counts: [2 * ctx] = zeros seen, [2 * ctx + 1] = ones seen
+    cc_n = np.zeros(2 * NUM_COARSE, dtype=np.int64)
+    ff_n = np.zeros(2 * NUM_FINE, dtype=np.int64)
+    codes = np.zeros(1, dtype=np.uint64)
+    nbr = np.full((27, 1), -1, dtype=np.int64)
+    nbr[SELF, 0] = 0
+    for level in range(depth):
+        n = codes.shape[0]
+        occ = np.zeros(n, dtype=np.int64)
+        lb = min(NUM_LEVEL_BUCKETS - 1, depth - 1 - level)
+        present = (nbr >= 0).view(np.int8)
+        for k in range(8):
+            coarse, fine, sib = plane_contexts(k, occ, nbr, present, lb)
+            if k == 7:
+                coded = np.flatnonzero(sib > 0)     # nodes with no child yet get child 7 for free
+                occ[sib == 0] |= 1 << 7
+                coarse, fine = 2 * coarse[coded], 2 * fine[coded]
+            else:
+                coded = None
+                coarse, fine = 2 * coarse, 2 * fine
+            for s, e in _chunk_bounds(coarse.shape[0]):
+                cc, ff = coarse[s:e], fine[s:e]
+                c0, c1 = cc_n[cc], cc_n[cc + 1]
+                pc = ((2 * c1 + 1) << 16) // (2 * (c0 + c1) + 2)
+                f0, f1 = ff_n[ff], ff_n[ff + 1]
+                pf = ((f1 << 16) + MIX_WEIGHT * pc) // (f0 + f1 + MIX_WEIGHT)
+                idx = np.arange(s, e) if coded is None else coded[s:e]
+                b = np.asarray(bits(level, k, idx, P16_TO_MODEL[pf]), dtype=np.int64)
+                occ[idx] |= b << k
+                np.add.at(cc_n, cc + b, 1)
+                np.add.at(ff_n, ff + b, 1)
+            _halve(cc_n, coarse)
+            _halve(ff_n, fine)
+        # children in Morton order: node-major, child index ascending
+        child_bits = (occ[:, None] >> np.arange(8)) & 1
+        total = int(child_bits.sum())
+        if total > num_points:
+            raise GszFormatError(f"octree level {level + 1} decodes to {total} nodes, more than "
+                                 f"the {num_points} points declared")
+        rows, ks = np.nonzero(child_bits)
+        codes = (codes[rows] << np.uint64(3)) | ks.astype(np.uint64)
+        if level + 1 < depth:
+            nbr = _child_neighbour_table(nbr, occ, rows, ks)
+    if codes.shape[0] != num_points:
+        raise GszFormatError(f"octree decodes to {codes.shape[0]} points, header declares {num_points}")
+    return codes
+
+
+def _halve(counts: np.ndarray, touched: np.ndarray) -> None:
+    """Halve (rounding up) the count pairs (zeros at ``2c``, ones at ``2c + 1``) among the
+    ``touched`` even indices whose total exceeds COUNT_LIMIT, in place.  Applied after each
+    bit-plane to the contexts that plane used."""
+    over = touched[(counts[touched] + counts[touched + 1]) > COUNT_LIMIT]
+    if over.size:
+        over = np.unique(over)
+        counts[over] = (counts[over] + 1) >> 1
+        counts[over + 1] = (counts[over + 1] + 1) >> 1
+
+
+# ---------------------------------------------------------------- payload
+#: First payload byte: the coding scheme (only scheme 0, this module's, exists).
+SCHEME_ADAPTIVE_BITWISE = 0
+
+
+def max_symbols(depth: int, num_points: int) -> int:
+    """Upper bound on the coded binary decisions of a valid payload: every level holds at most
+    ``num_points`` nodes and each node codes at most 8 child bits."""
+    return 8 * depth * num_points
+
+
+def decode_octree(payload, depth: int, num_points: int) -> np.ndarray:
+    """Decode a geometry payload (``format_spec/OCTREE.md``) to voxel coordinates.
+
+    payload: bytes-like; depth: octree depth d in 1..21 (coordinates in [0, 2^d));
+    num_points: the number of occupied voxels M declared by the container.
+    Returns int64 [M, 3] (x, y, z), unique, in ascending Morton order.
+    Raises GszFormatError on any corrupt, truncated or inconsistent payload.
+    """
+    if not 1 <= depth <= MAX_DEPTH:
+        raise GszFormatError(f"octree depth {depth} outside [1, {MAX_DEPTH}]")
+    if num_points < 0 or num_points > (1 << (3 * depth)):
+        raise GszFormatError(f"octree point count {num_points} impossible at depth {depth}")
+    buf = np.frombuffer(payload, dtype=np.uint8)
+    if buf.size < 1:
+        raise GszFormatError("octree payload is empty")
+    if int(buf[0]) != SCHEME_ADAPTIVE_BITWISE:
+        raise GszFormatError(f"octree payload: unknown coding scheme {int(buf[0])}")
+    num_symbols, pos = read_varint(buf, 1, "octree symbol count")
+    if num_symbols > max_symbols(depth, num_points):
+        raise GszFormatError(f"octree payload declares {num_symbols} symbols, more than "
+                             f"{max_symbols(depth, num_points)} possible for {num_points} points")
+    dec = RansDecoder(memoryview(buf)[pos:], num_symbols, bank_model_set(num_symbols))
+
+    def read_bits(level, k, idx, model):
+        b = dec.decode(model)
+        if b.size and (b.min() < 0 or b.max() > 1):  # cannot happen with the bank; cheap guard
+            raise GszFormatError("octree payload: non-binary symbol")
+        return b
+
+    codes = walk_octree(depth, num_points, read_bits)
+    dec.finish()
+    return morton_decode(codes)

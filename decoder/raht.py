@@ -1,0 +1,146 @@
+"""RAHT (region-adaptive Haar transform) tree and inverse transform -- numpy only.
+
+Normative text: ``format_spec/TRANSFORMS.md`` section 2.  Summary:
+
+* Leaves are the N occupied voxels in ascending Morton order (``gsz.decoder.morton``), each of
+  weight 1.  The tree has 3*depth binary levels.  At level l = 0 .. 3*depth-1 every node carries
+  a code (its leaves' Morton code >> l), a weight (its leaf count) and a *slot* (the Morton
+  index of its first leaf).  Two consecutive nodes whose codes differ only in bit 0 are siblings
+  and are merged by the orthonormal butterfly (a = sqrt(w1 + w2))
+
+      L = ( sqrt(w1) C1 + sqrt(w2) C2) / a        (kept in the left node's slot)
+      H = (-sqrt(w2) C1 + sqrt(w1) C2) / a        (written to the right node's slot)
+
+  unpaired nodes pass up unchanged; then codes are shifted right by one.  After 3*depth levels a
+  single root remains in slot 0; its low-pass value is the DC = sqrt(N) * mean.
+* AC layout in the stream ("level order"): the N-1 high-pass coefficients grouped by level,
+  COARSEST level first (l = 3*depth-1 down to 0), ascending slot (= Morton) order within a
+  level.  Coefficients of one level have similar variance, so contiguous quantisation blocks
+  stay homogeneous (measured against the Morton-leaf interleave in bench/RESULTS.md).
+
+The encoder's forward transform (``gsz.encoder.raht``) uses this module's tree.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import GszFormatError
+
+MAX_DEPTH = 21
+
+
+@dataclass(frozen=True)
+class RahtLevel:
+    """The sibling pairs merged at one tree level.
+
+    left, right: int64 [P] slots (Morton leaf indices) of the left / right sibling, ascending.
+    w_left, w_right: float64 [P] leaf counts of the two siblings.
+    """
+
+    level: int
+    left: np.ndarray
+    right: np.ndarray
+    w_left: np.ndarray
+    w_right: np.ndarray
+
+    def butterfly(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(sqrt(w1)/a, sqrt(w2)/a) per pair as float64 [P, 1] columns (and a, [P])."""
+        a = np.sqrt(self.w_left + self.w_right)
+        return (np.sqrt(self.w_left) / a)[:, None], (np.sqrt(self.w_right) / a)[:, None], a
+
+
+@dataclass(frozen=True)
+class RahtTree:
+    """The RAHT tree of one geometry (built once, used by forward and inverse).
+
+    num_points: N leaves.  depth: octree depth (3*depth binary levels).
+    levels: the non-empty levels (at least one pair), FINEST first (level index ascending).
+    ac_slots: int64 [N-1] the slot of every AC coefficient in stream order (coarse level first,
+      ascending slot within a level) -- a permutation of 1..N-1.
+    """
+
+    num_points: int
+    depth: int
+    levels: tuple
+    ac_slots: np.ndarray
+
+    def level_sizes(self) -> list[tuple[int, int]]:
+        """[(level index, number of AC coefficients)] in stream order (coarse first)."""
+        return [(lv.level, lv.left.shape[0]) for lv in reversed(self.levels)]
+
+
+def build_raht_tree(morton_codes: np.ndarray, depth: int) -> RahtTree:
+    """Build the RAHT tree from voxel Morton codes.
+
+    morton_codes: uint64 [N], N >= 1, strictly ascending, every code < 2^(3*depth).
+    depth: 1 .. 21 bits per axis.
+    Raises GszFormatError when the codes violate this contract (e.g. corrupt geometry).
+    Cost: O(N) per level with early exit once a single node remains; ~0.1 s for 500k points.
+    """
+    codes = np.asarray(morton_codes)
+    if not (isinstance(depth, (int, np.integer)) and 1 <= int(depth) <= MAX_DEPTH):
+        raise GszFormatError(f"RAHT depth must be an integer in 1..{MAX_DEPTH}, got {depth!r}")
+    depth = int(depth)
+    if codes.ndim != 1 or codes.shape[0] < 1:
+        raise GszFormatError(f"RAHT needs a non-empty 1-D Morton code array, got shape {codes.shape}")
+    if not (np.issubdtype(codes.dtype, np.unsignedinteger) or np.issubdtype(codes.dtype, np.signedinteger)):
+        raise GszFormatError(f"Morton codes must be integers, got dtype {codes.dtype}")
+    if np.issubdtype(codes.dtype, np.signedinteger) and codes.min() < 0:
+        raise GszFormatError("Morton codes must be non-negative")
+    codes = codes.astype(np.uint64)
+    n = codes.shape[0]
+    if n > 1 and not np.all(codes[1:] > codes[:-1]):
+        raise GszFormatError("Morton codes must be strictly ascending (sorted, unique)")
+    if int(codes[-1]) >> (3 * depth):
+        raise GszFormatError(f"Morton code {int(codes[-1])} exceeds 3*depth = {3 * depth} bits")
+
+    slots = np.arange(n, dtype=np.int64)
+    weights = np.ones(n, dtype=np.int64)
+    levels = []
+    one = np.uint64(1)
+    for level in range(3 * depth):
+        if codes.shape[0] == 1:
+            break
+        # Sorted unique codes: siblings are adjacent, left one even, right one = left + 1.
+        is_left = (codes[:-1] >> one) == (codes[1:] >> one)
+        pos = np.flatnonzero(is_left)
+        if pos.size:
+            levels.append(RahtLevel(level, slots[pos], slots[pos + 1],
+                                    weights[pos].astype(np.float64), weights[pos + 1].astype(np.float64)))
+            weights = weights.copy()
+            weights[pos] += weights[pos + 1]
+            keep = np.ones(codes.shape[0], dtype=bool)
+            keep[pos + 1] = False
+            codes, slots, weights = codes[keep], slots[keep], weights[keep]
+        codes = codes >> one
+    if codes.shape[0] != 1:  # unreachable given the bit-length check; kept as a hard guard
+        raise GszFormatError("RAHT tree did not reduce to a single root")
+    ac_slots = (np.concatenate([lv.right for lv in reversed(levels)]) if levels
+                else np.zeros(0, dtype=np.int64))
+    return RahtTree(num_points=n, depth=depth, levels=tuple(levels), ac_slots=ac_slots)
+
+
+def raht_inverse(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
+    """Attributes of the N leaves (Morton order) from the RAHT coefficients.
+
+    dc: float [C] root low-pass per channel (= sqrt(N) * mean).
+    ac: float [N-1, C] high-pass coefficients in stream (level) order.
+    Returns float64 [N, C].
+    """
+    dc = np.asarray(dc, dtype=np.float64).reshape(-1)
+    ac = np.asarray(ac, dtype=np.float64)
+    n = tree.num_points
+    if ac.ndim != 2 or ac.shape != (n - 1, dc.shape[0]):
+        raise GszFormatError(f"RAHT inverse: expected AC shape ({n - 1}, {dc.shape[0]}), got {ac.shape}")
+    v = np.empty((n, dc.shape[0]), dtype=np.float64)
+    v[0] = dc
+    v[tree.ac_slots] = ac
+    for lv in reversed(tree.levels):  # coarsest first: undo the merges top-down
+        g1, g2, _ = lv.butterfly()
+        low = v[lv.left]
+        high = v[lv.right]
+        v[lv.left] = g1 * low - g2 * high
+        v[lv.right] = g2 * low + g1 * high
+    return v

@@ -1,0 +1,506 @@
+"""Interleaved rANS entropy decoder of the .gsz bitstream (numpy only).
+
+Normative description: ``format_spec/ENTROPY.md``.  This module is the shared truth for the
+encoder (``gsz.encoder.rans``), which imports its constants, the model-parameter container
+:class:`ModelSet`, the frequency normalisation :func:`normalise_weights` and the table builders.
+
+Summary of the scheme
+---------------------
+* A *model set* holds M frequency tables (models).  Model m has precision ``n_m`` in 0..16
+  (total ``T_m = 2**n_m``) and integer frequencies over a contiguous value range; symbols are
+  signed integers.
+* Symbol j (0-based) is coded on lane ``j % L``; 32-bit states in ``[2**16, 2**32)``; one shared
+  stream of 16-bit words, read in symbol order: after decoding symbol j, if the state of its lane
+  is below ``2**16`` the next word is shifted in.  At most one word per symbol.
+* The decoder processes one *row* of up to L consecutive symbols (= L lanes) per numpy step, so a
+  row of symbols costs ~10 vectorised operations.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import GszFormatError
+
+# ---- constants (normative, see ENTROPY.md) ---------------------------------------------------
+STATE_LOW = 1 << 16          # lower bound of a normalised state; also the encoder's start state
+STATE_BITS = 32              # states are < 2**32
+WORD_BITS = 16               # renormalisation words are 16-bit
+MAX_PRECISION = 16           # n_m <= 16 keeps every renormalisation to at most one word
+MAX_SPAN = 1 << 16           # hi - lo <= 65536, i.e. alphabets of at most 2**16 + 1 values
+VALUE_LIMIT = 1 << 31        # every lo and hi lies in [-2**31, 2**31)
+MAX_MODELS = 1 << 20
+MAX_TABLE_BYTES = 1 << 24    # decompressed model-set body limit (hostile zstd frames)
+MIN_LUT_BUDGET = 1 << 16     # sum over used models of 2**n_m <= max(MIN_LUT_BUDGET, 4 * N)
+LUT_PER_SYMBOL = 4
+
+# model types
+EMPTY, SINGLE, COARSE, LAPLACE = 0, 1, 2, 3
+TYPE_NAMES = {EMPTY: "empty", SINGLE: "single", COARSE: "coarse", LAPLACE: "laplace"}
+
+# COARSE weight levels: q >= 1 -> ((2**g + m) << e) with e = (q-1) >> g, m = (q-1) & (2**g-1)
+MAX_LEVEL_GROUPS = 4         # g in 0..3
+MAX_LEVEL_EXP = 24           # e <= 24, so weights < 2**28 and all products fit in int64
+LAPLACE_SCALE_BITS = 24      # LAPLACE weights are floor(v_d * 2**24)
+RATIO_ONE = 1 << 16          # LAPLACE ratios are r / 2**16 with r in 0..65535
+
+
+def max_level_code(g: int) -> int:
+    """Largest valid COARSE level code q for level-group exponent g."""
+    return (MAX_LEVEL_EXP + 1) << g
+
+
+def level_weights(q: np.ndarray, g: int) -> np.ndarray:
+    """COARSE level codes -> integer weights; q == 0 maps to 0 (symbol absent).
+
+    q: int64 array with 0 <= q <= max_level_code(g).  Returns int64 weights < 2**28.
+    """
+    q = np.asarray(q, dtype=np.int64)
+    qm = np.maximum(q - 1, 0)
+    w = ((np.int64(1) << g) + (qm & ((1 << g) - 1))) << (qm >> g)
+    return np.where(q > 0, w, 0).astype(np.int64)
+
+
+def laplace_weights(span: int, centre: int, r_left: int, r_right: int) -> np.ndarray:
+    """LAPLACE model weights over offsets 0..span (value lo + i), int64 in [0, 2**24].
+
+    v_0 = 1.0, v_d = v_{d-1} * (r / 65536) as sequential IEEE-754 binary64 products (exact
+    specification: every language reproduces a sequential product of correctly rounded
+    multiplications), w = floor(v_d * 2**24); d = |i - centre|, r = r_left left of the centre,
+    r_right right of it.
+    """
+    def side(length: int, r: int) -> np.ndarray:
+        if length <= 0:
+            return np.zeros(0, dtype=np.int64)
+        steps = np.full(length, r / RATIO_ONE, dtype=np.float64)
+        v = np.multiply.accumulate(steps)            # sequential left-to-right products
+        return np.floor(v * float(1 << LAPLACE_SCALE_BITS)).astype(np.int64)
+
+    left = side(centre, r_left)[::-1]                # offsets centre-1 .. 0 -> reversed
+    right = side(span - centre, r_right)
+    return np.concatenate([left, np.array([1 << LAPLACE_SCALE_BITS], dtype=np.int64), right])
+
+
+def normalise_weights(w: np.ndarray, n: int) -> np.ndarray:
+    """Normative integer normalisation of weights to frequencies summing to 2**n.
+
+    w: int64 array (length K >= 1, K <= 2**n, every entry 0 <= w < 2**40).  Every entry gets
+    frequency >= 1 (the caller passes only the symbols that must be codable).  Procedure:
+    if sum(w) == 0 every w is taken as 1; then with R = 2**n - K:
+    f_i = 1 + (R * w_i) // W, remainder r_i = (R * w_i) % W; the d = 2**n - sum(f) symbols with
+    the largest r_i (ties: lower index first) get +1.  Returns int64 frequencies.
+    """
+    w = np.asarray(w, dtype=np.int64)
+    k = w.size
+    total = 1 << n
+    if k < 1 or k > total:
+        raise GszFormatError(f"rANS model: {k} symbols do not fit precision {n}")
+    big_w = int(w.sum())
+    if big_w == 0:
+        w = np.ones(k, dtype=np.int64)
+        big_w = k
+    r = total - k
+    prod = w * r                                      # < 2**56: no overflow
+    f = 1 + prod // big_w
+    d = total - int(f.sum())
+    if d > 0:
+        rem = prod % big_w
+        order = np.argsort(-rem, kind="stable")       # descending remainder, ties by index
+        f[order[:d]] += 1
+    return f
+
+
+# ---- byte helpers ------------------------------------------------------------------------------
+def read_varint(buf: np.ndarray, pos: int, what: str) -> tuple[int, int]:
+    """Read one unsigned LEB128 varint (at most 9 bytes, value < 2**63)."""
+    value = 0
+    for i in range(9):
+        if pos >= buf.size:
+            raise GszFormatError(f"rANS: truncated varint ({what})")
+        b = int(buf[pos])
+        pos += 1
+        value |= (b & 0x7F) << (7 * i)
+        if b < 0x80:
+            return value, pos
+    raise GszFormatError(f"rANS: varint too long ({what})")
+
+
+def read_varints(buf: np.ndarray, pos: int, count: int, what: str) -> tuple[np.ndarray, int]:
+    """Read ``count`` consecutive unsigned LEB128 varints (each <= 9 bytes), vectorised.
+
+    Returns (int64 array, new position).  Raises GszFormatError when truncated or overlong.
+    """
+    if count < 0 or count > buf.size - pos:
+        raise GszFormatError(f"rANS: {count} varints ({what}) cannot fit in {buf.size - pos} bytes")
+    if count == 0:
+        return np.zeros(0, dtype=np.int64), pos
+    window = buf[pos:pos + 9 * count]
+    ends = np.flatnonzero(window < 0x80)
+    if ends.size < count:
+        raise GszFormatError(f"rANS: truncated varint array ({what})")
+    ends = ends[:count]
+    starts = np.empty(count, dtype=np.int64)
+    starts[0] = 0
+    starts[1:] = ends[:-1] + 1
+    lengths = ends - starts + 1
+    if lengths.max() > 9:
+        raise GszFormatError(f"rANS: varint too long ({what})")
+    used = window[:ends[-1] + 1].astype(np.uint64)
+    grp = np.repeat(np.arange(count), lengths)
+    shift = (np.arange(used.size) - starts[grp]).astype(np.uint64) * np.uint64(7)
+    vals = np.add.reduceat((used & np.uint64(0x7F)) << shift, starts)
+    return vals.astype(np.int64), pos + int(ends[-1]) + 1
+
+
+def unzigzag(u: np.ndarray) -> np.ndarray:
+    """Zigzag-decoded signed values: 0,1,2,3,4 -> 0,-1,1,-2,2 (int64)."""
+    u = np.asarray(u, dtype=np.int64)
+    return (u >> 1) ^ -(u & 1)
+
+
+# ---- model set ---------------------------------------------------------------------------------
+@dataclass
+class ModelSet:
+    """M frequency tables (the parameters as serialised, plus lazily built decoding tables).
+
+    Parameters (one entry per model, int64 arrays of length M):
+      types  : EMPTY / SINGLE / COARSE / LAPLACE
+      lo     : smallest value of the model's range (0 for EMPTY)
+      span   : hi - lo (0 for EMPTY and SINGLE), <= 65536
+      prec   : precision n_m (0 for SINGLE and EMPTY), <= 16
+      group  : COARSE level-group exponent g in 0..3 (0 otherwise)
+      binshift : COARSE bin shift h in 0..16: one level code per bin of 2**h values (0 otherwise)
+      centre : LAPLACE centre offset in 0..span (0 otherwise)
+      r_left, r_right : LAPLACE ratios in 0..65535 (0 otherwise)
+      bins, levels : tuples (one entry per COARSE model, in model order) of int64 arrays: the
+               indices of the present bins (strictly increasing, first 0, last span >> h) and
+               their level codes (1..max_level_code(g)); absent bins are not stored
+
+    Built tables (``build()``): per present symbol of every model, concatenated in model order:
+      freq, cum (start within its model's [0, 2**n)), value; ``sym_start[m]`` = first index of
+      model m, ``sym_count[m]``; ``lut_base[m]`` = offset of model m's 2**n_m slots in ``lut``;
+      ``lut[lut_base[m] + slot]`` = global symbol index.
+    """
+
+    types: np.ndarray
+    lo: np.ndarray
+    span: np.ndarray
+    prec: np.ndarray
+    group: np.ndarray
+    centre: np.ndarray
+    r_left: np.ndarray
+    r_right: np.ndarray
+    binshift: np.ndarray | None = None
+    bins: tuple = ()
+    levels: tuple = ()
+    _tables: dict | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def num_models(self) -> int:
+        return int(self.types.size)
+
+    def __post_init__(self):
+        if self.binshift is None:
+            self.binshift = np.zeros_like(self.types)
+
+    def lut_entries(self) -> int:
+        """Size of the decoding LUT, sum over non-empty models of 2**n_m."""
+        used = self.types != EMPTY
+        return int((np.int64(1) << self.prec[used]).sum())
+
+    def model_weights(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """(offsets within [0, span] of the present symbols, their weights) of model m."""
+        t = int(self.types[m])
+        if t == SINGLE:
+            return np.zeros(1, np.int64), np.ones(1, np.int64)
+        if t == COARSE:
+            i = int(self._coarse_index()[m])
+            bins, q = self.bins[i], self.levels[i]
+            h = int(self.binshift[m])
+            sizes = np.minimum((bins + 1) << h, int(self.span[m]) + 1) - (bins << h)
+            starts = np.repeat(bins << h, sizes)
+            within = np.arange(starts.size) - np.repeat(np.cumsum(sizes) - sizes, sizes)
+            return starts + within, np.repeat(level_weights(q, int(self.group[m])), sizes)
+        if t == LAPLACE:
+            span = int(self.span[m])
+            return (np.arange(span + 1, dtype=np.int64),
+                    laplace_weights(span, int(self.centre[m]), int(self.r_left[m]),
+                                    int(self.r_right[m])))
+        raise ValueError(f"model {m} is empty")
+
+    def _coarse_index(self) -> np.ndarray:
+        return np.cumsum(self.types == COARSE) - 1
+
+    def build(self, max_lut_entries: int | None = None) -> dict:
+        """Build (once) the decoding tables; ``max_lut_entries`` bounds memory on hostile input."""
+        if self._tables is not None:
+            return self._tables
+        lut_total = self.lut_entries()
+        if max_lut_entries is not None and lut_total > max_lut_entries:
+            raise GszFormatError(f"rANS: model set needs {lut_total} LUT entries, "
+                                 f"more than the {max_lut_entries} this stream allows")
+        m_count = self.num_models
+        freqs, offs = [], []
+        sym_count = np.zeros(m_count, dtype=np.int64)
+        for m in range(m_count):
+            if self.types[m] == EMPTY:
+                continue
+            off, w = self.model_weights(m)
+            f = normalise_weights(w, int(self.prec[m]))
+            freqs.append(f)
+            offs.append(off + self.lo[m])
+            sym_count[m] = f.size
+        freq = np.concatenate(freqs) if freqs else np.zeros(0, np.int64)
+        value = np.concatenate(offs) if offs else np.zeros(0, np.int64)
+        sym_start = np.zeros(m_count, dtype=np.int64)
+        if m_count:
+            sym_start[1:] = np.cumsum(sym_count)[:-1]
+        # exclusive prefix sum within each model
+        csum = np.cumsum(freq) - freq
+        cum = csum - np.repeat(csum[sym_start[sym_count > 0]], sym_count[sym_count > 0]) \
+            if freq.size else csum
+        total = np.where(self.types != EMPTY, np.int64(1) << self.prec, 0)
+        lut_base = np.zeros(m_count, dtype=np.int64)
+        if m_count:
+            lut_base[1:] = np.cumsum(total)[:-1]
+        packed = (np.arange(freq.size, dtype=np.int64) << 33) | (freq << 16) | cum
+        packed_lut = np.repeat(packed, freq)
+        self._tables = dict(freq=freq, cum=cum, value=value, sym_start=sym_start,
+                            sym_count=sym_count, lut_base=lut_base, packed_lut=packed_lut,
+                            total=total, mask=total - 1)
+        return self._tables
+
+    def validate(self) -> None:
+        """Static constraints of ENTROPY.md section 3 (raises GszFormatError)."""
+        t, lo, span, n = self.types, self.lo, self.span, self.prec
+        if np.any((t < 0) | (t > 3)):
+            raise GszFormatError("rANS model set: unknown model type")
+        nonempty = t != EMPTY
+        if np.any(nonempty & ((lo < -VALUE_LIMIT) | (lo + span >= VALUE_LIMIT))):
+            raise GszFormatError("rANS model set: value range outside [-2**31, 2**31)")
+        if np.any(span < 0) or np.any(span > MAX_SPAN):
+            raise GszFormatError("rANS model set: alphabet span above 65536")
+        if np.any(n < 0) or np.any(n > MAX_PRECISION):
+            raise GszFormatError("rANS model set: precision above 16")
+        single = t == SINGLE
+        if np.any((single | (t == EMPTY)) & ((span != 0) | (n != 0))):
+            raise GszFormatError("rANS model set: single/empty model with a span or precision")
+        lap = t == LAPLACE
+        if np.any(lap & (span + 1 > (np.int64(1) << n))):
+            raise GszFormatError("rANS model set: laplace support larger than 2**n")
+        if np.any(lap & ((self.centre < 0) | (self.centre > span))):
+            raise GszFormatError("rANS model set: laplace centre outside the range")
+        if np.any(lap & ((self.r_left > 0xFFFF) | (self.r_right > 0xFFFF))):
+            raise GszFormatError("rANS model set: laplace ratio above 65535")
+        co = np.flatnonzero(t == COARSE)
+        if np.any(self.group[co] >= MAX_LEVEL_GROUPS):
+            raise GszFormatError("rANS model set: coarse level group above 3")
+        if np.any((self.binshift < 0) | (self.binshift > 16)) or np.any(self.binshift[t != COARSE]):
+            raise GszFormatError("rANS model set: coarse bin shift outside 0..16")
+        if len(self.bins) != co.size or len(self.levels) != co.size:
+            raise GszFormatError("rANS model set: coarse code arrays missing")
+        for i, m in enumerate(co):
+            bins, q = self.bins[i], self.levels[i]
+            g, h = int(self.group[m]), int(self.binshift[m])
+            if bins.size == 0 or bins.size != q.size:
+                raise GszFormatError("rANS model set: coarse model without bins")
+            if bins[0] != 0 or bins[-1] != span[m] >> h or np.any(np.diff(bins) <= 0):
+                raise GszFormatError("rANS model set: coarse bins not increasing over the range")
+            if q.min() < 1 or q.max() > max_level_code(g):
+                raise GszFormatError("rANS model set: coarse level code out of range")
+            sizes = np.minimum((bins + 1) << h, span[m] + 1) - (bins << h)
+            if int(sizes.sum()) > (1 << int(n[m])):
+                raise GszFormatError("rANS model set: more coarse symbols than 2**n")
+
+
+def read_model_set(buf: memoryview | bytes, pos: int = 0) -> tuple[ModelSet, int]:
+    """Parse a model set (ENTROPY.md section 3) starting at ``pos``.
+
+    Returns (ModelSet, position after it).  Decoding tables are built lazily by the decoder.
+    """
+    b = np.frombuffer(buf, dtype=np.uint8)
+    head, pos = read_varint(b, pos, "model-set length")
+    length, compressed = head >> 1, head & 1
+    if length > b.size - pos:
+        raise GszFormatError(f"rANS model set: {length} bytes declared, {b.size - pos} available")
+    raw = bytes(b[pos:pos + length])
+    pos += length
+    if compressed:
+        import zstandard
+        try:
+            raw = zstandard.ZstdDecompressor().decompress(raw, max_output_size=MAX_TABLE_BYTES)
+        except zstandard.ZstdError as exc:
+            raise GszFormatError(f"rANS model set: bad zstd frame ({exc})") from None
+    body = np.frombuffer(raw, dtype=np.uint8)
+    p = 0
+    m_count, p = read_varint(body, p, "model count")
+    if m_count > MAX_MODELS or m_count > body.size - p:
+        raise GszFormatError(f"rANS model set: {m_count} models do not fit the table")
+    types, p = read_varints(body, p, m_count, "model types")
+    if np.any(types > 3):
+        raise GszFormatError("rANS model set: unknown model type")
+    nonempty = types != EMPTY
+    wide = (types == COARSE) | (types == LAPLACE)
+    coarse = types == COARSE
+    lap = types == LAPLACE
+    z = np.zeros(m_count, dtype=np.int64)
+    lo, span, prec, group, binshift, centre, rl, rr = (z.copy() for _ in range(8))
+    v, p = read_varints(body, p, int(nonempty.sum()), "lo")
+    lo[nonempty] = unzigzag(v)
+    v, p = read_varints(body, p, int(wide.sum()), "span")
+    span[wide] = v
+    v, p = read_varints(body, p, int(wide.sum()), "precision")
+    prec[wide] = v
+    v, p = read_varints(body, p, int(coarse.sum()), "coarse shape")
+    group[coarse] = v & 3
+    binshift[coarse] = v >> 2
+    for arr, what in ((centre, "centre"), (rl, "left ratio"), (rr, "right ratio")):
+        v, p = read_varints(body, p, int(lap.sum()), what)
+        arr[lap] = v
+    # bounds before the code arrays are allocated
+    if np.any(span > MAX_SPAN) or np.any(prec > MAX_PRECISION) or np.any(binshift > 16):
+        raise GszFormatError("rANS model set: span, precision or bin shift out of range")
+    n_co = int(coarse.sum())
+    counts, p = read_varints(body, p, n_co, "coarse bin counts")
+    if np.any(counts < 1) or np.any(counts > (span[coarse] >> binshift[coarse]) + 1):
+        raise GszFormatError("rANS model set: coarse bin count outside 1..bins")
+    total = int(counts.sum())
+    gaps, p = read_varints(body, p, total, "coarse bin gaps")
+    deltas, p = read_varints(body, p, total, "coarse level deltas")
+    if p != body.size:
+        raise GszFormatError(f"rANS model set: {body.size - p} trailing bytes")
+    cuts = np.cumsum(counts)[:-1]
+    bins = tuple(np.cumsum(gp + 1) - 1 for gp in np.split(gaps, cuts)) if n_co else ()
+    levels = tuple(np.cumsum(unzigzag(d)) for d in np.split(deltas, cuts)) if n_co else ()
+    ms = ModelSet(types=types, lo=lo, span=span, prec=prec, group=group, binshift=binshift, centre=centre,
+                  r_left=rl, r_right=rr, bins=bins, levels=levels)
+    ms.validate()
+    return ms, pos
+
+
+# ---- payload decoding --------------------------------------------------------------------------
+def lut_budget(num_symbols: int) -> int:
+    """Largest LUT (sum of 2**n_m over non-empty models) a stream of N symbols may use."""
+    return max(MIN_LUT_BUDGET, LUT_PER_SYMBOL * int(num_symbols))
+
+
+class RansDecoder:
+    """Incremental decoder of one interleaved-rANS payload (ENTROPY.md section 4).
+
+    ``decode(model_ids)`` returns the next ``len(model_ids)`` symbols (int64); any batch sizes may
+    be used and give the same result as one call.  ``finish()`` checks the end conditions.
+    """
+
+    def __init__(self, payload: bytes | memoryview, num_symbols: int, models: ModelSet):
+        b = np.frombuffer(payload, dtype=np.uint8)
+        n = int(num_symbols)
+        if n < 0:
+            raise GszFormatError("rANS: negative symbol count")
+        lanes, p = read_varint(b, 0, "lane count")
+        words, p = read_varint(b, p, "word count")
+        if lanes < 1 or lanes > max(1, n):
+            raise GszFormatError(f"rANS: lane count {lanes} invalid for {n} symbols")
+        if 4 * lanes + 2 * words != b.size - p:
+            raise GszFormatError(f"rANS: payload holds {b.size - p} bytes after its header, "
+                                 f"expected {4 * lanes} state + {2 * words} word bytes")
+        self._states = np.frombuffer(b, dtype="<u4", count=lanes, offset=p).astype(np.int64)
+        if np.any(self._states < STATE_LOW):
+            raise GszFormatError("rANS: initial state below 2**16")
+        self._words = np.frombuffer(b, dtype="<u2", count=words,
+                                    offset=p + 4 * lanes).astype(np.int64)
+        self._lanes = lanes
+        self._n = n
+        self._pos = 0            # index of the next symbol
+        self._wpos = 0           # index of the next word
+        self._models = models
+        self._t = models.build(lut_budget(n))
+
+    @property
+    def position(self) -> int:
+        """Number of symbols decoded so far."""
+        return self._pos
+
+    def decode(self, model_ids: np.ndarray) -> np.ndarray:
+        """Decode the next ``len(model_ids)`` symbols; model_ids: int array, returns int64 values."""
+        mids = np.asarray(model_ids).astype(np.int64, copy=False).ravel()
+        count = mids.size
+        if count == 0:
+            return np.zeros(0, dtype=np.int64)
+        if self._pos + count > self._n:
+            raise GszFormatError(f"rANS: asked for {self._pos + count} symbols, stream has {self._n}")
+        t = self._t
+        m_count = self._models.num_models
+        if mids.min() < 0 or mids.max() >= m_count:
+            raise GszFormatError(f"rANS: model id outside 0..{m_count - 1}")
+        total = t["total"][mids]
+        if np.any(total == 0):
+            raise GszFormatError("rANS: symbol refers to an empty model")
+        mask = total - 1
+        shift = self._models.prec[mids]
+        base = t["lut_base"][mids]
+        lut = t["packed_lut"]
+        words = self._words
+        nwords = words.size
+        x_all = self._states
+        lanes = self._lanes
+        out = np.empty(count, dtype=np.int64)
+        wpos = self._wpos
+        # scratch buffers: one row of at most `lanes` symbols, reused (no per-row allocation)
+        width = min(lanes, count)
+        slot = np.empty(width, np.int64)
+        e = np.empty(width, np.int64)
+        tmp = np.empty(width, np.int64)
+        j = 0
+        while j < count:
+            lane0 = (self._pos + j) % lanes
+            k = min(lanes - lane0, count - j)
+            sl = slice(j, j + k)
+            x = x_all[lane0:lane0 + k]
+            s_, e_, t_ = slot[:k], e[:k], tmp[:k]
+            np.bitwise_and(x, mask[sl], out=s_)
+            np.add(base[sl], s_, out=t_)
+            np.take(lut, t_, out=e_)
+            # e = (g << 33) | (freq << 16) | cum   (ENTROPY.md 4.3 decode step)
+            np.right_shift(x, shift[sl], out=x)
+            np.right_shift(e_, 16, out=t_)
+            np.bitwise_and(t_, 0x1FFFF, out=t_)
+            np.multiply(x, t_, out=x)
+            np.add(x, s_, out=x)
+            np.bitwise_and(e_, 0xFFFF, out=t_)
+            np.subtract(x, t_, out=x)
+            idx = np.flatnonzero(x < STATE_LOW)
+            r = idx.size
+            if r:
+                if wpos + r > nwords:
+                    raise GszFormatError("rANS: payload truncated (word stream exhausted)")
+                x[idx] = (x[idx] << WORD_BITS) | words[wpos:wpos + r]
+                wpos += r
+            out[sl] = e_
+            j += k
+        self._wpos = wpos
+        self._pos += count
+        np.right_shift(out, 33, out=out)
+        return t["value"][out]
+
+    def finish(self) -> None:
+        """Check that all symbols were decoded, every word consumed and every state is 2**16."""
+        if self._pos != self._n:
+            raise GszFormatError(f"rANS: {self._n - self._pos} symbols left undecoded")
+        if self._wpos != self._words.size:
+            raise GszFormatError(f"rANS: {self._words.size - self._wpos} words left unread")
+        if np.any(self._states != STATE_LOW):
+            raise GszFormatError("rANS: final states differ from 2**16 (corrupt payload)")
+
+
+def decode_stream(blob: bytes | memoryview, model_ids: np.ndarray) -> np.ndarray:
+    """Decode a self-contained stream (model set followed by payload) for the given model ids.
+
+    blob: bytes of ENTROPY.md section 5; model_ids: int array (N,).  Returns int64 values (N,).
+    """
+    models, pos = read_model_set(blob, 0)
+    mids = np.asarray(model_ids).ravel()
+    dec = RansDecoder(memoryview(blob)[pos:], mids.size, models)
+    out = dec.decode(mids)
+    dec.finish()
+    return out

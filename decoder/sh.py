@@ -1,0 +1,57 @@
+"""SHVQ chunk: higher-degree SH as a vector-quantised codebook plus kept exact vectors (GSZ.md §8).
+
+Syntax (D = 3K, K = (d+1)^2 - 1 coefficients per colour)::
+
+    u32  K_cb               codebook entries, 1..65536
+    u32  P                  kept vectors, 0..M
+    u16  D                  vector length, must equal 3K of the header's SH degree
+    ChannelSet codebook     C = D, L = K_cb  (channel j = vector component j)
+    if P > 0:
+      ChannelSet kept       C = D, L = P     (kept vectors in Morton order of their Gaussians)
+      u64 n, byte[n]        rANS stream of M flags (0/1, one model): 1 = the Gaussian uses the
+                            next kept vector
+    u64 n, byte[n]          rANS stream of M - P codeword indices (one model), in Morton order of
+                            the Gaussians whose flag is 0
+
+A vector's components are the Gaussian's sh_rest[K, 3] flattened coefficient-major (RGB last).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .bytesio import Reader
+from .cloud import sh_rest_count
+from .groups import read_channel_set
+from .rans import decode_stream
+
+MAX_CODEBOOK = 1 << 16
+
+
+def read_sh(data, num_points: int, sh_degree: int) -> np.ndarray:
+    """Returns sh_rest float32 [M, K, 3]."""
+    k = sh_rest_count(sh_degree)
+    m = num_points
+    r = Reader(data, "SHVQ chunk")
+    kcb = r.u32()
+    p = r.u32()
+    d = r.u16()
+    r.check(d == 3 * k, f"SH vector length {d} does not match SH degree {sh_degree} (expected {3 * k})")
+    r.check(1 <= kcb <= MAX_CODEBOOK, f"codebook size {kcb} outside 1..{MAX_CODEBOOK}")
+    r.check(p <= m, f"{p} kept SH vectors for {m} Gaussians")
+    codebook = read_channel_set(r, max_length=kcb)
+    r.check(codebook.shape == (d, kcb), f"codebook has shape {codebook.shape}, expected ({d}, {kcb})")
+    out = np.empty((m, d), np.float32)
+    kept_mask = np.zeros(m, bool)
+    if p:
+        kept = read_channel_set(r, max_length=p)
+        r.check(kept.shape == (d, p), f"kept SH set has shape {kept.shape}, expected ({d}, {p})")
+        flags = decode_stream(r.blob(), np.zeros(m, np.int64))
+        r.check(bool(np.all((flags == 0) | (flags == 1))), "kept flag outside 0/1")
+        kept_mask = flags.astype(bool)
+        r.check(int(kept_mask.sum()) == p, f"{int(kept_mask.sum())} kept flags set, header says {p}")
+        out[kept_mask] = kept.T
+    idx = decode_stream(r.blob(), np.zeros(m - p, np.int64))
+    r.check(idx.size == 0 or (idx.min() >= 0 and idx.max() < kcb), "codeword index out of range")
+    out[~kept_mask] = codebook.T[idx]
+    r.expect_end()
+    return out.reshape(m, k, 3)

@@ -1,0 +1,79 @@
+"""gsz-encode: compress a 3DGS PLY into a .gsz file."""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+from gsz.decoder.errors import GszError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .pipeline import EncodeOptions
+    d = EncodeOptions()
+    p = argparse.ArgumentParser(
+        prog="gsz-encode", description="Compress a trained 3DGS point_cloud.ply into a .gsz file.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("input", help="input PLY (graphdeco 3DGS layout, SH degree 0-3)")
+    p.add_argument("-o", "--output", required=True, help="output .gsz file (written atomically)")
+    p.add_argument("--reserve", type=float, default=d.reserve, help="fraction of Gaussians kept by importance pruning (tau)")
+    p.add_argument("--bits", type=int, default=d.bits, help="uniform bit-width of every quantisation group (1-16)")
+    p.add_argument("--codebook", type=int, default=d.codebook, help="SH vector-quantisation codebook size K")
+    p.add_argument("--keep", type=int, default=None, help="number of most important Gaussians whose exact SH is kept (default: 1%% of voxels)")
+    p.add_argument("--blocks", type=int, default=d.blocks, help="blocks per quantised channel")
+    p.add_argument("--depth", type=int, default=None, help="octree depth 1-21 (default: chosen from the position-error budget)")
+    p.add_argument("--rel-error", type=float, default=None, help="auto-depth position-error budget, relative to the robust scene diagonal")
+    p.add_argument("--beta", type=float, default=d.beta, help="volume-term exponent of the importance")
+    p.add_argument("--sh-bits", type=int, default=None, help="bit-width of SH codebook and kept vectors (default: --bits)")
+    p.add_argument("--cameras", default=None, help="cameras.json or COLMAP model for the importance pass (default: generated views)")
+    p.add_argument("--train-views", type=int, default=d.train_views, help="number of generated train views (without --cameras)")
+    p.add_argument("--importance-width", type=int, default=d.importance_width, help="render width of the importance pass")
+    p.add_argument("--seed", type=int, default=d.seed, help="RNG seed (VQ)")
+    p.add_argument("--json", action="store_true", help="print a JSON report on stdout")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    return p
+
+
+def main(argv=None) -> int:
+    a = build_parser().parse_args(argv)
+    from gsz.decoder.io_util import atomic_write
+    from gsz.decoder.ply import read_ply
+    from .pipeline import EncodeOptions, encode
+    from .progress import Progress
+
+    prog = Progress(quiet=a.quiet)
+    try:
+        opts = EncodeOptions(reserve=a.reserve, bits=a.bits, codebook=a.codebook, keep=a.keep,
+                             blocks=a.blocks, depth=a.depth, rel_error=a.rel_error, beta=a.beta,
+                             sh_bits=a.sh_bits, train_views=a.train_views,
+                             importance_width=a.importance_width, seed=a.seed).validate()
+        with prog.stage("read", a.input):
+            cloud = read_ply(a.input)
+        cameras = None
+        if a.cameras:
+            from .cameras import load_cameras
+            cameras = load_cameras(a.cameras, cloud).train
+        result = encode(cloud, opts, cameras=cameras, progress=prog)
+        atomic_write(a.output, result.data)
+    except GszError as e:
+        print(f"gsz-encode: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("gsz-encode: interrupted; no output written", file=sys.stderr)
+        return 130
+    r = result.report
+    in_bytes = os.path.getsize(a.input)
+    r.update(input=a.input, output=a.output, input_bytes=in_bytes, ratio=in_bytes / r["bytes"])
+    if a.json:
+        print(json.dumps(r, indent=1, default=float))
+    else:
+        prog.log(f"wrote {a.output}: {r['bytes']:,} bytes ({r['ratio']:.1f}x smaller than the PLY, "
+                 f"{r['bytes_per_gaussian']:.2f} B/Gaussian, {r['voxels']:,} Gaussians)")
+        comps = r["components"]
+        prog.log("  " + ", ".join(f"{k} {v:,}" for k, v in comps.items()))
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,34 @@
+"""Writer of a quantised channel set (syntax: ``gsz.decoder.groups``)."""
+from __future__ import annotations
+
+import numpy as np
+
+from gsz.decoder.bytesio import Writer
+from gsz.decoder.groups import blocks_for, group_model_ids
+from gsz.decoder.quant import dequantize_groups, split_lengths
+from gsz.encoder.rans import encode_stream
+from gsz.kernels.quantize import quantize_groups
+
+
+def write_channel_set(x: np.ndarray, bits, num_blocks: int) -> tuple[bytes, np.ndarray]:
+    """Quantise x [C, L] (float) group-wise and serialise it.
+
+    bits: int (uniform) or int array [C, B] with B = blocks_for(L, num_blocks).
+    Returns (bytes, dequantised float64 [C, L] exactly as the decoder will reconstruct it).
+    """
+    x = np.ascontiguousarray(x, dtype=np.float32)
+    c, length = x.shape
+    b = blocks_for(length, num_blocks)
+    bits_arr = np.broadcast_to(np.asarray(bits, dtype=np.int64), (c, b)).copy()
+    if length:
+        symbols, mins, maxs = quantize_groups(x, b, bits_arr)
+    else:
+        symbols = np.zeros((c, 0), np.int32)
+        mins = np.zeros((c, b), np.float32)
+        maxs = np.zeros((c, b), np.float32)
+    w = Writer()
+    w.u8(c).u32(length).u16(b)
+    w.array(bits_arr, np.uint8).array(mins, np.float32).array(maxs, np.float32)
+    w.blob(encode_stream(symbols.ravel(), group_model_ids(c, length, b), c * b))
+    recon = dequantize_groups(symbols, mins, maxs, bits_arr, split_lengths(length, b))
+    return w.getvalue(), recon

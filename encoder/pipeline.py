@@ -1,0 +1,264 @@
+"""The MesonGS++ encode pipeline at an explicit configuration.
+
+    encode(cloud, EncodeOptions(reserve=0.8, bits=12)) -> EncodeResult(data=b"...", report={...})
+
+Stages (each timed, progress on stderr):
+ 1. importance   I = I_d * (V / V_ref)^beta over the train views (reference renderer)
+ 2. prune        keep the top reserve*N Gaussians
+ 3. voxelize     octree depth (auto from a position-error budget, or given), merge per voxel
+ 4. geometry     octree occupancy, context-coded (GEOM chunk)
+ 5. attributes   quaternion -> Euler, RAHT of opacity/Euler/DC, group-wise quantisation of the
+                 AC coefficients and the log-scales, rANS (ATTR chunk)
+ 6. sh           importance-weighted VQ of the higher SH + kept exact vectors (SHVQ chunk)
+ 7. container    header, chunk table, checksums, META JSON
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from gsz.decoder.attributes import attributes_from_channels
+from gsz.decoder.bytesio import Writer
+from gsz.decoder.cloud import GaussianCloud
+from gsz.decoder.container import CHUNK_REQUIRED, FRAME_RDF, FileHeader, Chunk, write_container
+from gsz.decoder.errors import GszError
+from gsz.decoder.groups import blocks_for
+from gsz.decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHVQ, RAHT_CHANNELS,
+                                ROTATION_EULER_ZYX)
+from gsz.decoder.morton import morton_encode
+from gsz.decoder.raht import build_raht_tree
+from gsz.decoder.rotation import quaternion_to_euler
+from gsz.decoder.sh import MAX_CODEBOOK
+
+from .geometry import write_geometry
+from .groups import write_channel_set
+from .progress import Progress
+
+
+class EncodeOptionsError(GszError, ValueError):
+    """An encoder option is out of range."""
+
+
+@dataclass
+class EncodeOptions:
+    """Every knob of the codec at a fixed configuration (the size search chooses them later).
+
+    reserve          tau: fraction of Gaussians kept after importance pruning, (0, 1]
+    bits             uniform bit-width of every quantisation group, 1..16
+    codebook         SH VQ codebook size K (1..65536); capped at the number of Gaussians
+    keep             number of most important Gaussians whose exact SH vectors are kept
+                     (None: 1 % of the voxels)
+    blocks           blocks per quantised channel (groups = channels x blocks)
+    depth            octree depth 1..21 (None: chosen from the position-error budget)
+    rel_error        position-error budget relative to the robust scene diagonal (auto depth)
+    beta             exponent of the volume term of the importance
+    sh_bits          bit-width of SH codebook / kept vectors (None: same as ``bits``)
+    train_views      number of default train cameras (when no camera file is given)
+    importance_width render width of the importance pass
+    vq_iters         mini-batch k-means iterations
+    seed             RNG seed (VQ); the same input and options give byte-identical output
+    """
+
+    reserve: float = 0.8
+    bits: int = 12
+    codebook: int = 4096
+    keep: int | None = None
+    blocks: int = 80
+    depth: int | None = None
+    rel_error: float | None = None
+    beta: float = 0.1
+    sh_bits: int | None = None
+    train_views: int = 24
+    importance_width: int = 400
+    vq_iters: int | None = None
+    seed: int = 0
+
+    def validate(self) -> "EncodeOptions":
+        def bad(msg):
+            raise EncodeOptionsError(msg)
+        if not (0.0 < float(self.reserve) <= 1.0):
+            bad(f"--reserve must be in (0, 1], got {self.reserve}")
+        if not (1 <= int(self.bits) <= 16):
+            bad(f"--bits must be 1..16, got {self.bits}")
+        if self.sh_bits is not None and not (1 <= int(self.sh_bits) <= 16):
+            bad(f"--sh-bits must be 1..16, got {self.sh_bits}")
+        if not (1 <= int(self.codebook) <= MAX_CODEBOOK):
+            bad(f"--codebook must be 1..{MAX_CODEBOOK}, got {self.codebook}")
+        if self.keep is not None and int(self.keep) < 0:
+            bad(f"--keep must be >= 0, got {self.keep}")
+        if not (1 <= int(self.blocks) <= 65535):
+            bad(f"--blocks must be 1..65535, got {self.blocks}")
+        if self.depth is not None and not (1 <= int(self.depth) <= 21):
+            bad(f"--depth must be 1..21, got {self.depth}")
+        if self.rel_error is not None and not (float(self.rel_error) > 0):
+            bad(f"--rel-error must be > 0, got {self.rel_error}")
+        if not (float(self.beta) >= 0):
+            bad(f"--beta must be >= 0, got {self.beta}")
+        if int(self.train_views) < 1:
+            bad(f"--train-views must be >= 1, got {self.train_views}")
+        if int(self.importance_width) < 16:
+            bad(f"--importance-width must be >= 16, got {self.importance_width}")
+        return self
+
+
+@dataclass
+class EncodeResult:
+    data: bytes
+    cloud: GaussianCloud          # what the decoder will reconstruct (for reports / evaluation)
+    report: dict = field(default_factory=dict)
+
+
+def _top_k_mask(importance: np.ndarray, k: int) -> np.ndarray:
+    """Mask of the k most important entries; ties broken by lower index (deterministic)."""
+    mask = np.zeros(importance.shape[0], bool)
+    if k > 0:
+        order = np.lexsort((np.arange(importance.shape[0]), -importance))
+        mask[order[:k]] = True
+    return mask
+
+
+def encode_sh(sh_rest: np.ndarray, importance: np.ndarray, opts: EncodeOptions, progress: Progress):
+    """SHVQ chunk payload and the SH the decoder will reconstruct ([M, K, 3] float32)."""
+    from .vq import assign, compact, train_codebook
+
+    m, k, _ = sh_rest.shape
+    d = 3 * k
+    x = sh_rest.reshape(m, d).astype(np.float32)
+    keep = int(round(0.01 * m)) if opts.keep is None else min(int(opts.keep), m)
+    kept = _top_k_mask(importance, keep)
+    rest = ~kept
+    sh_bits = int(opts.sh_bits or opts.bits)
+    stats = {"kept": keep}
+    if rest.any():
+        w = importance[rest]
+        w = w / w.max() if w.max() > 0 else np.ones_like(w)
+        kcb = min(int(opts.codebook), int(rest.sum()))
+        kw = {} if opts.vq_iters is None else {"iters": int(opts.vq_iters)}
+        cb = train_codebook(x[rest], w, kcb, seed=opts.seed,
+                            progress=progress.bar(1, "vq") if False else None, **kw)
+        idx = assign(x[rest], cb)
+        cb, idx = compact(cb, idx)
+    else:
+        cb, idx = np.zeros((1, d), np.float32), np.zeros(0, np.int32)
+    from .rans import encode_stream
+    w = Writer()
+    w.u32(cb.shape[0]).u32(keep).u16(d)
+    cb_bytes, cb_rec = write_channel_set(cb.T, sh_bits, opts.blocks)
+    w.bytes(cb_bytes)
+    out = np.empty((m, d), np.float32)
+    if keep:
+        kept_bytes, kept_rec = write_channel_set(x[kept].T, sh_bits, opts.blocks)
+        w.bytes(kept_bytes)
+        w.blob(encode_stream(kept.astype(np.int64), np.zeros(m, np.int64), 1))
+        out[kept] = kept_rec.T
+        stats["kept_bytes"] = len(kept_bytes)
+    idx_blob = encode_stream(idx.astype(np.int64), np.zeros(idx.size, np.int64), 1)
+    w.blob(idx_blob)
+    out[rest] = cb_rec.T[idx]
+    stats.update(codebook_size=int(cb.shape[0]), codebook_bytes=len(cb_bytes),
+                 index_bytes=len(idx_blob) + 8)
+    return w.getvalue(), out.reshape(m, k, 3), stats
+
+
+def encode_attributes(cloud: GaussianCloud, tree, opts: EncodeOptions):
+    """ATTR chunk payload, the decoded attributes the decoder will reconstruct, and stats."""
+    from .raht import raht_forward
+
+    euler = quaternion_to_euler(cloud.rotations.astype(np.float64))
+    attrs = np.concatenate([cloud.opacities.astype(np.float64)[:, None], euler,
+                            cloud.sh_dc.astype(np.float64)], axis=1)
+    dc, ac = raht_forward(attrs, tree)
+    w = Writer()
+    w.u8(ROTATION_EULER_ZYX).u8(len(RAHT_CHANNELS)).array(dc, np.float64)
+    ac_bytes, ac_rec = write_channel_set(ac.T, opts.bits, opts.blocks)
+    sc_bytes, sc_rec = write_channel_set(cloud.scales.T, opts.bits, opts.blocks)
+    w.bytes(ac_bytes).bytes(sc_bytes)
+    from gsz.decoder.raht import raht_inverse
+    decoded = attributes_from_channels(raht_inverse(dc, ac_rec.T, tree), sc_rec)
+    return w.getvalue(), decoded, {"raht_bytes": len(ac_bytes), "scale_bytes": len(sc_bytes)}
+
+
+def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, cameras=None,
+           progress: Progress | None = None) -> EncodeResult:
+    """Compress ``cloud`` with ``options``; ``cameras`` are the train views for importance
+    (default: the deterministic default camera set).  Returns the .gsz bytes, the cloud the
+    decoder will reconstruct, and a report (sizes per component, seconds per stage)."""
+    from .cameras import load_cameras
+    from .importance import compute_importance, prune
+    from .voxelize import DEFAULT_REL_ERROR, choose_depth, voxelize
+
+    opts = (options or EncodeOptions()).validate()
+    progress = progress or Progress(quiet=True)
+    cloud.validate()
+    n_in = len(cloud)
+    t_start = time.perf_counter()
+
+    if cameras is None:
+        cameras = load_cameras(None, cloud, n_train=opts.train_views, n_test=8,
+                               width=opts.importance_width).train
+    else:
+        cameras = [c.scaled(opts.importance_width) if c.width > opts.importance_width else c
+                   for c in cameras]
+    with progress.stage("importance", f"{len(cameras)} views at {cameras[0].width}x{cameras[0].height}"):
+        importance = compute_importance(cloud, cameras, beta=opts.beta,
+                                        progress=progress.bar(len(cameras), "importance"))
+    with progress.stage("prune", f"reserve {opts.reserve}"):
+        kept = prune(importance, opts.reserve)
+        pruned = cloud.subset(kept)
+        imp = importance[kept]
+    with progress.stage("voxelize"):
+        rel = DEFAULT_REL_ERROR if opts.rel_error is None else float(opts.rel_error)
+        depth = int(opts.depth) if opts.depth is not None else choose_depth(pruned.positions, rel_error=rel)
+        vox = voxelize(pruned, imp, depth)
+        m = len(vox.ijk)
+        progress.log(f"depth {depth}: {len(pruned)} Gaussians -> {m} voxels "
+                     f"({100 * vox.merged_fraction:.2f} % merged)")
+    with progress.stage("geometry"):
+        geom = write_geometry(vox.ijk, vox.origin, vox.side, depth)
+    with progress.stage("attributes", f"{opts.bits} bits, {opts.blocks} blocks"):
+        tree = build_raht_tree(morton_encode(vox.ijk), depth)
+        attr, decoded, attr_stats = encode_attributes(vox.cloud, tree, opts)
+    sh_stats = {}
+    chunks = [Chunk(CHUNK_GEOM, geom, CHUNK_REQUIRED), Chunk(CHUNK_ATTR, attr, CHUNK_REQUIRED)]
+    if cloud.sh_degree > 0:
+        with progress.stage("sh", f"codebook {opts.codebook}"):
+            shc, sh_rest, sh_stats = encode_sh(vox.cloud.sh_rest, vox.importance, opts, progress)
+        chunks.append(Chunk(CHUNK_SHVQ, shc, CHUNK_REQUIRED))
+    else:
+        sh_rest = np.zeros((m, 0, 3), np.float32)
+
+    from gsz.decoder.geometry import voxel_centres
+    out_cloud = GaussianCloud(
+        positions=voxel_centres(vox.ijk, vox.origin, vox.side, depth).astype(np.float32),
+        scales=decoded.scales, rotations=decoded.rotations, opacities=decoded.opacities,
+        sh_dc=decoded.sh_dc, sh_rest=sh_rest, sh_degree=cloud.sh_degree)
+    with progress.stage("container"):
+        options_json = {k: v for k, v in asdict(opts).items()}
+        options_json["depth"] = depth
+        meta = {"encoder": "gsz 0.1.0", "codec": "mesongs++", "options": options_json,
+                "input_gaussians": n_in, "voxels": m}
+        import zstandard
+        meta_bytes = zstandard.ZstdCompressor(level=19).compress(
+            json.dumps(meta, sort_keys=True, separators=(",", ":")).encode())
+        chunks.append(Chunk(CHUNK_META, meta_bytes, 0))
+        header = FileHeader(num_gaussians=m, sh_degree=cloud.sh_degree, frame=FRAME_RDF,
+                            bbox_min=tuple(out_cloud.positions.min(0)),
+                            bbox_max=tuple(out_cloud.positions.max(0)))
+        data = write_container(header, chunks)
+    sizes = {"geometry": len(geom), "attributes": len(attr), **{k: v for k, v in attr_stats.items()},
+             "metadata": len(meta_bytes), "container_overhead": len(data) - sum(len(c.data) for c in chunks)}
+    if cloud.sh_degree > 0:
+        sizes["sh"] = len(chunks[2].data)
+        sizes.update({f"sh_{k}": v for k, v in sh_stats.items() if k.endswith("bytes")})
+    report = {
+        "bytes": len(data), "input_gaussians": n_in, "kept_after_prune": len(pruned), "voxels": m,
+        "bytes_per_gaussian": len(data) / m, "depth": depth, "merged_fraction": vox.merged_fraction,
+        "sh_degree": cloud.sh_degree, "components": sizes,
+        "sh": {k: v for k, v in sh_stats.items() if not k.endswith("bytes")},
+        "seconds": dict(progress.seconds), "total_seconds": time.perf_counter() - t_start,
+        "options": options_json,
+    }
+    return EncodeResult(data=data, cloud=out_cloud, report=report)

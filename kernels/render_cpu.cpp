@@ -1,0 +1,386 @@
+// CPU tile rasteriser for gsz.encoder.render (graphdeco 3DGS forward semantics).
+//
+// Built at run time by torch.utils.cpp_extension.load() from gsz/encoder/render.py; the
+// pure-torch rasteriser there is the reference this kernel is tested against.
+//
+// Inputs are the *preprocessed*, depth-sorted visible Gaussians (projection, EWA covariance,
+// SH colour and tile rectangles are computed in torch, shared by both paths):
+//   means   [M, 2] f32   pixel-space centre (pixel (px, py) is evaluated at (px, py))
+//   conic   [M, 3] f32   inverse 2D covariance (a, b, c): power = -0.5(a dx^2 + c dy^2) - b dx dy
+//   opac    [M]    f32   sigmoid(opacity)
+//   colors  [M, 3] f32   SH colour (+0.5, clamped at 0)
+//   rects   [M, 4] i32   graphdeco tile rectangle (x0, y0, x1, y1), x1/y1 exclusive
+//   boxes   [M, 4] i32   conservative pixel box (x0, y0, x1, y1) outside of which
+//                        alpha < 1/255 everywhere (so skipping it is exact); empty = never drawn
+// Outputs: image [H, W, 3] f32 (without background), trans [H, W] f32 (final T),
+//          importance [M] f64 (sum over pixels of alpha*T) when want_importance.
+//
+// Determinism: tiles are distributed over threads dynamically, but every tile writes only its
+// own pixels and its own per-entry importance slots; the per-Gaussian reduction afterwards runs
+// sequentially in (tile, depth) order. The result does not depend on the thread count.
+// Compiled with -ffp-contract=off so float32 arithmetic rounds exactly like the torch reference.
+#include <torch/extension.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <thread>
+#include <vector>
+
+namespace {
+constexpr int BLOCK = 16;
+constexpr int BLOCK_PIX = BLOCK * BLOCK;
+}  // namespace
+
+std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, torch::Tensor opac,
+                                     torch::Tensor colors, torch::Tensor rects,
+                                     torch::Tensor boxes, torch::Tensor order, int64_t width,
+                                     int64_t height, bool want_importance, int64_t num_threads) {
+  TORCH_CHECK(means.dtype() == torch::kFloat32 && conic.dtype() == torch::kFloat32 &&
+                  opac.dtype() == torch::kFloat32 && colors.dtype() == torch::kFloat32,
+              "float32 inputs expected");
+  TORCH_CHECK(rects.dtype() == torch::kInt32 && boxes.dtype() == torch::kInt32,
+              "int32 rects/boxes expected");
+  TORCH_CHECK(order.dtype() == torch::kInt64, "int64 order expected");
+  order = order.contiguous();
+  means = means.contiguous();
+  conic = conic.contiguous();
+  opac = opac.contiguous();
+  colors = colors.contiguous();
+  rects = rects.contiguous();
+  boxes = boxes.contiguous();
+  const int64_t N = means.size(0);      // rows of the per-Gaussian arrays
+  const int64_t M = order.size(0);      // visible Gaussians, front to back
+  const int64_t* ordp = order.data_ptr<int64_t>();
+  const int W = static_cast<int>(width), H = static_cast<int>(height);
+  const int gx = (W + BLOCK - 1) / BLOCK, gy = (H + BLOCK - 1) / BLOCK;
+  const int64_t ntiles = static_cast<int64_t>(gx) * gy;
+
+  const float* mp = means.data_ptr<float>();
+  const float* cp = conic.data_ptr<float>();
+  const float* op = opac.data_ptr<float>();
+  const float* colp = colors.data_ptr<float>();
+  const int32_t* rp = rects.data_ptr<int32_t>();
+  const int32_t* bp = boxes.data_ptr<int32_t>();
+
+  // Binning: only tiles of the graphdeco rectangle that also meet the pixel box can receive a
+  // contribution. Counting sort keyed by tile; filling in depth order keeps each list sorted
+  // front-to-back with ties in index order (what graphdeco's stable radix sort gives).
+  std::vector<int32_t> tr(4 * M);
+  std::vector<int64_t> offsets(ntiles + 1, 0);
+  for (int64_t j = 0; j < M; ++j) {
+    const int64_t g = ordp[j];
+    TORCH_CHECK(g >= 0 && g < N, "order index out of range");
+    const int32_t* b = bp + 4 * g;
+    const int32_t* r = rp + 4 * g;
+    int tx0 = 0, ty0 = 0, tx1 = 0, ty1 = 0;
+    if (b[2] > b[0] && b[3] > b[1]) {
+      tx0 = std::max(r[0], b[0] / BLOCK);
+      ty0 = std::max(r[1], b[1] / BLOCK);
+      tx1 = std::min(r[2], (b[2] - 1) / BLOCK + 1);
+      ty1 = std::min(r[3], (b[3] - 1) / BLOCK + 1);
+    }
+    if (tx1 <= tx0 || ty1 <= ty0) tx0 = ty0 = tx1 = ty1 = 0;
+    tr[4 * j] = tx0; tr[4 * j + 1] = ty0; tr[4 * j + 2] = tx1; tr[4 * j + 3] = ty1;
+    for (int ty = ty0; ty < ty1; ++ty)
+      for (int tx = tx0; tx < tx1; ++tx) offsets[static_cast<int64_t>(ty) * gx + tx + 1]++;
+  }
+  for (int64_t t = 0; t < ntiles; ++t) offsets[t + 1] += offsets[t];
+  const int64_t E = offsets[ntiles];
+  std::vector<int64_t> entries(E);
+  {
+    std::vector<int64_t> fill(offsets.begin(), offsets.end() - 1);
+    for (int64_t j = 0; j < M; ++j) {
+      const int32_t* r = tr.data() + 4 * j;
+      for (int ty = r[1]; ty < r[3]; ++ty)
+        for (int tx = r[0]; tx < r[2]; ++tx)
+          entries[fill[static_cast<int64_t>(ty) * gx + tx]++] = ordp[j];
+    }
+  }
+  std::vector<double> entry_imp(want_importance ? E : 0, 0.0);
+
+  auto image = torch::zeros({H, W, 3}, torch::kFloat32);
+  auto trans = torch::ones({H, W}, torch::kFloat32);
+  float* img = image.data_ptr<float>();
+  float* trp = trans.data_ptr<float>();
+
+  std::atomic<int64_t> next_tile(0);
+  auto worker = [&]() {
+    float T[BLOCK_PIX];
+    float C[BLOCK_PIX * 3];
+    bool done[BLOCK_PIX];
+    for (;;) {
+      const int64_t tile = next_tile.fetch_add(1);
+      if (tile >= ntiles) break;
+      const int tyi = static_cast<int>(tile / gx), txi = static_cast<int>(tile % gx);
+      const int px0 = txi * BLOCK, py0 = tyi * BLOCK;
+      const int px1 = std::min(px0 + BLOCK, W), py1 = std::min(py0 + BLOCK, H);
+      const int npix = (px1 - px0) * (py1 - py0);
+      for (int i = 0; i < BLOCK_PIX; ++i) { T[i] = 1.0f; done[i] = false; }
+      for (int i = 0; i < BLOCK_PIX * 3; ++i) C[i] = 0.0f;
+      int ndone = 0;
+      for (int64_t e = offsets[tile]; e < offsets[tile + 1] && ndone < npix; ++e) {
+        const int64_t g = entries[e];
+        const int32_t* b = bp + 4 * g;
+        const int bx0 = std::max(px0, b[0]), by0 = std::max(py0, b[1]);
+        const int bx1 = std::min(px1, b[2]), by1 = std::min(py1, b[3]);
+        if (bx1 <= bx0 || by1 <= by0) continue;
+        const float mx = mp[2 * g], my = mp[2 * g + 1];
+        const float ca = cp[3 * g], cb = cp[3 * g + 1], cc = cp[3 * g + 2];
+        const float o = op[g];
+        const float cr = colp[3 * g], cgn = colp[3 * g + 1], cbl = colp[3 * g + 2];
+        double acc = 0.0;
+        for (int py = by0; py < by1; ++py) {
+          const float dy = my - static_cast<float>(py);
+          for (int px = bx0; px < bx1; ++px) {
+            const int li = (py - py0) * BLOCK + (px - px0);
+            if (done[li]) continue;
+            const float dx = mx - static_cast<float>(px);
+            const float power = -0.5f * (ca * dx * dx + cc * dy * dy) - cb * dx * dy;
+            if (power > 0.0f) continue;
+            const float alpha = std::min(0.99f, o * std::exp(power));
+            if (alpha < 1.0f / 255.0f) continue;
+            const float t = T[li];
+            const float test_t = t * (1.0f - alpha);
+            if (test_t < 0.0001f) {
+              done[li] = true;
+              ++ndone;
+              continue;
+            }
+            C[3 * li] += cr * alpha * t;
+            C[3 * li + 1] += cgn * alpha * t;
+            C[3 * li + 2] += cbl * alpha * t;
+            acc += static_cast<double>(alpha) * static_cast<double>(t);
+            T[li] = test_t;
+          }
+        }
+        if (want_importance) entry_imp[e] = acc;
+      }
+      for (int py = py0; py < py1; ++py)
+        for (int px = px0; px < px1; ++px) {
+          const int li = (py - py0) * BLOCK + (px - px0);
+          const int64_t o = static_cast<int64_t>(py) * W + px;
+          img[3 * o] = C[3 * li];
+          img[3 * o + 1] = C[3 * li + 1];
+          img[3 * o + 2] = C[3 * li + 2];
+          trp[o] = T[li];
+        }
+    }
+  };
+  const int nt = static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(num_threads, ntiles)));
+  if (nt == 1) {
+    worker();
+  } else {
+    std::vector<std::thread> pool;
+    for (int i = 0; i < nt; ++i) pool.emplace_back(worker);
+    for (auto& th : pool) th.join();
+  }
+
+  auto importance = torch::zeros({want_importance ? N : 0}, torch::kFloat64);
+  if (want_importance) {
+    double* ip = importance.data_ptr<double>();
+    for (int64_t e = 0; e < E; ++e) ip[entries[e]] += entry_imp[e];  // fixed (tile, depth) order
+  }
+  return {image, trans, importance};
+}
+
+// Runs f(begin, end) over [0, n) in contiguous chunks on up to num_threads threads. Every index
+// is written by exactly one thread, so results do not depend on the thread count.
+template <typename F>
+static void parallel_chunks(int64_t n, int64_t num_threads, F f) {
+  const int64_t nt = std::max<int64_t>(1, std::min<int64_t>(num_threads, (n + 4095) / 4096));
+  if (nt == 1) { f(int64_t(0), n); return; }
+  std::vector<std::thread> pool;
+  const int64_t chunk = (n + nt - 1) / nt;
+  for (int64_t i = 0; i < nt; ++i) {
+    const int64_t b = i * chunk, e = std::min(n, b + chunk);
+    if (b < e) pool.emplace_back(f, b, e);
+  }
+  for (auto& th : pool) th.join();
+}
+
+// Per-Gaussian preprocessing, the same steps as render.py::_preprocess (see there for the
+// graphdeco references). Returns the per-Gaussian arrays (N rows; rows of culled Gaussians are
+// garbage) and `order` [M] int64: the visible Gaussians sorted front to back, ties by index.
+//   positions [N,3], log_scales [N,3], rotations [N,4] (w,x,y,z), opacity_logits [N],
+//   sh_dc [N,3], sh_rest [N,K,3] (K >= (deg+1)^2-1), cam = [R (9, row-major), t (3), fx, fy,
+//   cx, cy] float64.
+std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log_scales,
+                                      torch::Tensor rotations, torch::Tensor opacity_logits,
+                                      torch::Tensor sh_dc, torch::Tensor sh_rest,
+                                      torch::Tensor cam, int64_t width, int64_t height,
+                                      int64_t deg, double scale_modifier, bool want_color,
+                                      int64_t num_threads) {
+  positions = positions.contiguous(); log_scales = log_scales.contiguous();
+  rotations = rotations.contiguous(); opacity_logits = opacity_logits.contiguous();
+  sh_dc = sh_dc.contiguous(); sh_rest = sh_rest.contiguous(); cam = cam.contiguous();
+  TORCH_CHECK(cam.dtype() == torch::kFloat64 && cam.numel() == 16, "cam: 16 float64 expected");
+  const int64_t N = positions.size(0);
+  const int64_t K = sh_rest.dim() == 3 ? sh_rest.size(1) : 0;
+  TORCH_CHECK((deg + 1) * (deg + 1) - 1 <= K, "sh_rest too small for the SH degree");
+  const double* cm = cam.data_ptr<double>();
+  const double fx = cm[12], fy = cm[13], cx = cm[14], cy = cm[15];
+  const int W = static_cast<int>(width), H = static_cast<int>(height);
+  const int gx = (W + BLOCK - 1) / BLOCK, gy = (H + BLOCK - 1) / BLOCK;
+  const float Rf[9] = {(float)cm[0], (float)cm[1], (float)cm[2], (float)cm[3], (float)cm[4],
+                       (float)cm[5], (float)cm[6], (float)cm[7], (float)cm[8]};
+  // Camera centre -R^T t, as float (render.py: torch.from_numpy(camera.center).float()).
+  float campos[3];
+  for (int i = 0; i < 3; ++i)
+    campos[i] = (float)(-(cm[0 + i] * cm[9] + cm[3 + i] * cm[10] + cm[6 + i] * cm[11]));
+  const float limx = (float)(1.3 * (W / (2.0 * fx))), limy = (float)(1.3 * (H / (2.0 * fy)));
+  const float ffx = (float)fx, ffy = (float)fy, smod = (float)scale_modifier;
+
+  auto means = torch::empty({N, 2}, torch::kFloat32);
+  auto conic = torch::empty({N, 3}, torch::kFloat32);
+  auto opac = torch::empty({N}, torch::kFloat32);
+  auto colors = torch::zeros({N, 3}, torch::kFloat32);
+  auto rects = torch::zeros({N, 4}, torch::kInt32);
+  auto boxes = torch::zeros({N, 4}, torch::kInt32);
+  auto depth = torch::empty({N}, torch::kFloat32);
+  std::vector<uint8_t> valid(N, 0);
+  const float* P = positions.data_ptr<float>();
+  const float* S = log_scales.data_ptr<float>();
+  const float* Q = rotations.data_ptr<float>();
+  const float* O = opacity_logits.data_ptr<float>();
+  const float* DC = sh_dc.data_ptr<float>();
+  const float* REST = K ? sh_rest.data_ptr<float>() : nullptr;
+  float* mp = means.data_ptr<float>(); float* cp = conic.data_ptr<float>();
+  float* op = opac.data_ptr<float>(); float* colp = colors.data_ptr<float>();
+  int32_t* rp = rects.data_ptr<int32_t>(); int32_t* bp = boxes.data_ptr<int32_t>();
+  float* dp = depth.data_ptr<float>();
+
+  parallel_chunks(N, num_threads, [&](int64_t begin, int64_t end) {
+    for (int64_t i = begin; i < end; ++i) {
+      const double px = P[3 * i], py = P[3 * i + 1], pz = P[3 * i + 2];
+      const double vx = cm[0] * px + cm[1] * py + cm[2] * pz + cm[9];
+      const double vy = cm[3] * px + cm[4] * py + cm[5] * pz + cm[10];
+      const double vz = cm[6] * px + cm[7] * py + cm[8] * pz + cm[11];
+      if (!(vz > 0.2)) continue;
+      const float tx = (float)vx, ty = (float)vy, tz = (float)vz;
+      // 3D covariance from the normalised quaternion and exp(log-scale) * modifier.
+      float qr = Q[4 * i], qx = Q[4 * i + 1], qy = Q[4 * i + 2], qz = Q[4 * i + 3];
+      const float qn = std::sqrt(qr * qr + qx * qx + qy * qy + qz * qz);
+      qr /= qn; qx /= qn; qy /= qn; qz /= qn;
+      const float Rq[9] = {1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qr * qz), 2 * (qx * qz + qr * qy),
+                           2 * (qx * qy + qr * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qr * qx),
+                           2 * (qx * qz - qr * qy), 2 * (qy * qz + qr * qx), 1 - 2 * (qx * qx + qy * qy)};
+      const float s[3] = {std::exp(S[3 * i]) * smod, std::exp(S[3 * i + 1]) * smod,
+                          std::exp(S[3 * i + 2]) * smod};
+      float Ms[9];
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) Ms[3 * r + c] = Rq[3 * r + c] * s[c];
+      float sig[9];
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c)
+          sig[3 * r + c] = Ms[3 * r] * Ms[3 * c] + Ms[3 * r + 1] * Ms[3 * c + 1] + Ms[3 * r + 2] * Ms[3 * c + 2];
+      // EWA with the clamped perspective Jacobian, T = J W.
+      const float txc = std::min(limx, std::max(-limx, tx / tz)) * tz;
+      const float tyc = std::min(limy, std::max(-limy, ty / tz)) * tz;
+      const float J[6] = {ffx / tz, 0.0f, -(ffx * txc) / (tz * tz), 0.0f, ffy / tz, -(ffy * tyc) / (tz * tz)};
+      float T[6];
+      for (int r = 0; r < 2; ++r)
+        for (int c = 0; c < 3; ++c)
+          T[3 * r + c] = J[3 * r] * Rf[c] + J[3 * r + 1] * Rf[3 + c] + J[3 * r + 2] * Rf[6 + c];
+      float TS[6];
+      for (int r = 0; r < 2; ++r)
+        for (int c = 0; c < 3; ++c)
+          TS[3 * r + c] = T[3 * r] * sig[c] + T[3 * r + 1] * sig[3 + c] + T[3 * r + 2] * sig[6 + c];
+      const float c00 = TS[0] * T[0] + TS[1] * T[1] + TS[2] * T[2];
+      const float c01 = TS[0] * T[3] + TS[1] * T[4] + TS[2] * T[5];
+      const float c11 = TS[3] * T[3] + TS[4] * T[4] + TS[5] * T[5];
+      const float a = c00 + 0.3f, b = c01, c = c11 + 0.3f;
+      const float det = a * c - b * b;
+      if (det == 0.0f) continue;
+      const float det_inv = 1.0f / det;
+      const float ca = c * det_inv, cb = -b * det_inv, cc = a * det_inv;
+      const float mid = 0.5f * (a + c);
+      const float lam1 = mid + std::sqrt(std::max(mid * mid - det, 0.1f));
+      const float radius = std::ceil(3.0f * std::sqrt(lam1));
+      const float mx = (float)(fx * vx / vz + (cx - 0.5)), my = (float)(fy * vy / vz + (cy - 0.5));
+      auto clampi = [](float v, int hi) {
+        const int64_t k = (int64_t)v;  // truncation towards zero, as graphdeco's (int) cast
+        return (int)std::min<int64_t>(hi, std::max<int64_t>(0, k));
+      };
+      const int x0 = clampi((mx - radius) / BLOCK, gx), y0 = clampi((my - radius) / BLOCK, gy);
+      const int x1 = clampi((mx + radius + (BLOCK - 1)) / BLOCK, gx);
+      const int y1 = clampi((my + radius + (BLOCK - 1)) / BLOCK, gy);
+      if (!(radius > 0) || (int64_t)(x1 - x0) * (y1 - y0) <= 0) continue;
+      valid[i] = 1;
+      dp[i] = tz;
+      mp[2 * i] = mx; mp[2 * i + 1] = my;
+      cp[3 * i] = ca; cp[3 * i + 1] = cb; cp[3 * i + 2] = cc;
+      rp[4 * i] = x0; rp[4 * i + 1] = y0; rp[4 * i + 2] = x1; rp[4 * i + 3] = y1;
+      const float o = 1.0f / (1.0f + std::exp(-O[i]));
+      op[i] = o;
+      // Conservative alpha >= 1/255 box (render.py::_alpha_boxes), in double.
+      {
+        const double qa = ca, qb = cb, qc = cc, od = o;
+        const double detq = qa * qc - qb * qb;
+        int32_t* bx = bp + 4 * i;
+        if (255.0 * od < 1.0 - 1e-4) {
+          bx[0] = bx[1] = bx[2] = bx[3] = 0;
+        } else {
+          const bool pd = detq > 0 && qa > 0 && qc > 0 && std::isfinite(detq);
+          const double L = std::max(std::log(std::max(255.0 * od, 1e-30)), 0.0);
+          const double kappa = pd ? qa * qc / detq : 1.0;
+          const double Lm = L + 1e-6 * kappa * (L + 1.0) + 1e-4;
+          const double hx = std::sqrt(2.0 * Lm * (pd ? qc : 0.0) / (pd ? detq : 1.0)) + 1.0;
+          const double hy = std::sqrt(2.0 * Lm * (pd ? qa : 0.0) / (pd ? detq : 1.0)) + 1.0;
+          if (!pd || !std::isfinite(hx) || !std::isfinite(hy) || !std::isfinite((double)mx) ||
+              !std::isfinite((double)my)) {
+            bx[0] = 0; bx[1] = 0; bx[2] = W; bx[3] = H;
+          } else {
+            auto cl = [](double v, int hi) { return (int32_t)std::min<double>(hi, std::max<double>(0, v)); };
+            bx[0] = cl(std::ceil(mx - hx), W); bx[2] = cl(std::floor(mx + hx) + 1, W);
+            bx[1] = cl(std::ceil(my - hy), H); bx[3] = cl(std::floor(my + hy) + 1, H);
+          }
+        }
+      }
+      if (want_color) {
+        float dx = P[3 * i] - campos[0], dy = P[3 * i + 1] - campos[1], dz = P[3 * i + 2] - campos[2];
+        const float dn = std::sqrt(dx * dx + dy * dy + dz * dz);
+        const float x = dx / dn, y = dy / dn, z = dz / dn;
+        const float* rs = REST ? REST + 3 * K * i : nullptr;
+        for (int ch = 0; ch < 3; ++ch) {
+          auto sh = [&](int k) { return rs[3 * k + ch]; };
+          float res = (float)0.28209479177387814 * DC[3 * i + ch];
+          if (deg > 0) {
+            const float C1 = (float)0.4886025119029199;
+            res = res - C1 * y * sh(0) + C1 * z * sh(1) - C1 * x * sh(2);
+            if (deg > 1) {
+              const float xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
+              res = res + (float)1.0925484305920792 * xy * sh(3) + (float)-1.0925484305920792 * yz * sh(4) +
+                    (float)0.31539156525252005 * (2.0f * zz - xx - yy) * sh(5) +
+                    (float)-1.0925484305920792 * xz * sh(6) + (float)0.5462742152960396 * (xx - yy) * sh(7);
+              if (deg > 2) {
+                res = res + (float)-0.5900435899266435 * y * (3.0f * xx - yy) * sh(8) +
+                      (float)2.890611442640554 * xy * z * sh(9) +
+                      (float)-0.4570457994644658 * y * (4.0f * zz - xx - yy) * sh(10) +
+                      (float)0.3731763325901154 * z * (2.0f * zz - 3.0f * xx - 3.0f * yy) * sh(11) +
+                      (float)-0.4570457994644658 * x * (4.0f * zz - xx - yy) * sh(12) +
+                      (float)1.445305721320277 * z * (xx - yy) * sh(13) +
+                      (float)-0.5900435899266435 * x * (xx - 3.0f * yy) * sh(14);
+              }
+            }
+          }
+          colp[3 * i + ch] = std::max(res + 0.5f, 0.0f);
+        }
+      }
+    }
+  });
+  // Front-to-back order of the visible Gaussians; stable so equal depths keep index order.
+  std::vector<int64_t> vis;
+  vis.reserve(N);
+  for (int64_t i = 0; i < N; ++i)
+    if (valid[i]) vis.push_back(i);
+  std::stable_sort(vis.begin(), vis.end(), [dp](int64_t l, int64_t r) { return dp[l] < dp[r]; });
+  auto order = torch::empty({(int64_t)vis.size()}, torch::kInt64);
+  std::copy(vis.begin(), vis.end(), order.data_ptr<int64_t>());
+  return {means, conic, opac, colors, rects, boxes, order};
+}
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("preprocess", &preprocess, "gsz CPU 3DGS per-Gaussian preprocessing");
+  m.def("rasterize", &rasterize, "gsz CPU 3DGS tile rasteriser (forward + importance)");
+}
