@@ -8,8 +8,8 @@ exactly as the anchor did (per-axis min of the centres, cube side = largest exte
 q = floor((p - min) / side * 2^d) clipped to [0, 2^d - 1], duplicates removed), prints:
 voxels M, payload bytes, bits per occupied voxel, ratio to tmc3-best (the anchor's bytes),
 ratio to zstd-19 over the occupancy bytes (one byte per internal node, breadth-first, Morton
-order within a level), encode / decode seconds (wall clock, one process, no PLY I/O), and a
-lossless check.  One scene at a time keeps the peak memory < 1 GB.
+order within a level), encode / decode seconds (wall clock and process CPU time -- the latter is
+the fairer figure on a shared, oversubscribed machine; no PLY I/O), and a lossless check.  One scene at a time keeps the peak memory < 1 GB.
 """
 from __future__ import annotations
 
@@ -56,11 +56,11 @@ def bench_scene(name: str, path: Path, depth: int | None) -> dict:
     d = depth or op_depth or 11
     ijk = anchor_voxels(path, d)
     m = len(ijk)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     payload = encode_octree(ijk, d)
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), time.process_time()
     out = decode_octree(payload, d, m)
-    t2 = time.perf_counter()
+    t2, c2 = time.perf_counter(), time.process_time()
     codes = np.sort(morton_encode(ijk))
     lossless = bool(np.array_equal(morton_encode(out), codes))
     occ = np.concatenate(occupancy_levels(codes, d)).astype(np.uint8).tobytes()
@@ -69,7 +69,8 @@ def bench_scene(name: str, path: Path, depth: int | None) -> dict:
     return dict(scene=name, d=d, M=m, bytes=len(payload), bpv=8 * len(payload) / m,
                 tmc3=(len(payload) / anchor_bytes) if comparable else float("nan"),
                 tmc3_bpv=(8 * anchor_bytes / anchor_m) if comparable else float("nan"),
-                zstd=len(payload) / zstd, enc=t1 - t0, dec=t2 - t1, ok=lossless, cfg=cfg or "-")
+                zstd=len(payload) / zstd, enc=t1 - t0, dec=t2 - t1, enc_cpu=c1 - c0, dec_cpu=c2 - c1,
+                ok=lossless, cfg=cfg or "-")
 
 
 def main() -> None:
@@ -79,7 +80,7 @@ def main() -> None:
     ap.add_argument("--shared", type=Path, default=SHARED)
     args = ap.parse_args()
     print(f"{'scene':30s} {'d':>2s} {'M':>8s} {'bytes':>9s} {'bits/vox':>8s} {'tmc3 b/v':>8s} "
-          f"{'/tmc3':>6s} {'/zstd19':>7s} {'enc s':>6s} {'dec s':>6s} lossless")
+          f"{'/tmc3':>6s} {'/zstd19':>7s} {'enc s':>6s} {'dec s':>6s} {'cpu e/d s':>11s} lossless")
     rows = []
     for name in args.scenes.split(","):
         path = args.shared / f"{name}.ply"
@@ -90,7 +91,7 @@ def main() -> None:
         rows.append(r)
         print(f"{r['scene']:30s} {r['d']:2d} {r['M']:8d} {r['bytes']:9d} {r['bpv']:8.3f} "
               f"{r['tmc3_bpv']:8.2f} {r['tmc3']:6.3f} {r['zstd']:7.3f} {r['enc']:6.2f} "
-              f"{r['dec']:6.2f} {r['ok']}", flush=True)
+              f"{r['dec']:6.2f} {r['enc_cpu']:5.2f}/{r['dec_cpu']:5.2f} {r['ok']}", flush=True)
     ratios = [r["tmc3"] for r in rows if np.isfinite(r["tmc3"]) and r["M"] > 50_000]
     if ratios:
         print(f"ratio to tmc3-best over scenes with an operating depth: median {np.median(ratios):.3f}, "

@@ -86,9 +86,15 @@ def decode_container(container: Container, *, max_gaussians: int = DEFAULT_MAX_G
         sh_rest = read_sh(container.get(CHUNK_SHVQ).data, m, h.sh_degree)
     else:
         sh_rest = np.zeros((m, 0, 3), np.float32)
-    return GaussianCloud(positions=geom.positions, scales=attrs.scales, rotations=attrs.rotations,
-                         opacities=attrs.opacities, sh_dc=attrs.sh_dc, sh_rest=sh_rest,
-                         sh_degree=h.sh_degree)
+    cloud = GaussianCloud(positions=geom.positions, scales=attrs.scales, rotations=attrs.rotations,
+                          opacities=attrs.opacities, sh_dc=attrs.sh_dc, sh_rest=sh_rest,
+                          sh_degree=h.sh_degree)
+    # Well-formed streams always decode to finite float32 values; hostile parameters (huge
+    # min/max, DC) can overflow float32, which is rejected rather than returned.
+    for name in ("positions", "scales", "rotations", "opacities", "sh_dc", "sh_rest"):
+        if not np.isfinite(getattr(cloud, name)).all():
+            raise GszFormatError(f"decoded {name} contain non-finite values (corrupt parameters)")
+    return cloud
 
 
 def decode(src, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS) -> GaussianCloud:
@@ -99,8 +105,11 @@ def decode(src, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS) -> GaussianCloud:
     ``max_gaussians`` bounds what a hostile header can make the decoder allocate.
     """
     data, path = _load_bytes(src)
-    return _guard(lambda: decode_container(read_container(data, known_types=KNOWN_CHUNKS),
-                                           max_gaussians=max_gaussians), path)
+    def run():
+        with np.errstate(over="ignore", invalid="ignore"):
+            return decode_container(read_container(data, known_types=KNOWN_CHUNKS),
+                                    max_gaussians=max_gaussians)
+    return _guard(run, path)
 
 
 def inspect(src) -> dict:

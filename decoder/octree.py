@@ -12,25 +12,30 @@ The context of child ``k`` depends only on the node set of the level and on chil
 the node *and of its 26 neighbours*, all known before bit-plane ``k`` starts, so a whole bit-plane's
 contexts are computed in one vectorised step.
 
-Context of child ``k`` (child position ``c`` at level ``l + 1``):
+Context of child ``k`` (child position ``c`` at level ``l + 1``), from its 26 neighbours at
+level ``l + 1``, split into the 6 face neighbours (``_f``) and the 20 edge/corner ones (``_o``):
 
-* ``kn`` -- how many of the 26 neighbours of ``c`` (at level ``l + 1``) are known to be occupied
-  (they lie in neighbour nodes and have child index ``< k``),
-* ``unk`` -- how many of the 26 are still unknown but lie in an occupied node (child index ``>= k``),
+* ``kn_f, kn_o`` -- how many are known to be occupied (they lie in neighbour nodes and have child
+  index ``< k``, in *any* direction, also across parent boundaries),
+* ``unk_f, unk_o`` -- how many are still unknown but lie in an occupied node (child index ``>= k``),
 * ``sib`` -- min(3, number of this node's children ``< k`` already occupied),
 * ``k`` itself and the level bucket ``lb = min(3, depth - 1 - l)`` (distance from the leaves).
 
-Probability estimate (integer arithmetic only, so it is bit-exact on every platform): a *coarse*
-context (``k, kn, unk, sib``) and a *fine* one (coarse x ``lb``) keep counts ``(n0, n1)``;
+The *coarse* context is (k, kn_f + kn_o, unk_f + unk_o, sib); the *fine* one adds the face split
+and ``lb``.
+
+Probability estimate (integer arithmetic only, so it is bit-exact on every platform): the coarse
+and the fine context keep counts ``(n0, n1)``;
 
     p_coarse = ((2*c1 + 1) << 16) // (2*(c0 + c1) + 2)             # KT estimate, 16-bit
-    p_fine   = (f1 << 16 + MIX_WEIGHT * p_coarse) // (f0 + f1 + MIX_WEIGHT)
+    p_fine   = ((f1 << 16) + MIX_WEIGHT * p_coarse) // (f0 + f1 + MIX_WEIGHT)
 
 ``p_fine`` (probability of a 1, 16-bit) is mapped to the nearest of ``len(BANK_F1)`` fixed binary
 models, and the bit is entropy-coded with that model.  Counts are updated after each *chunk* of a
 bit-plane (chunks of ``min(CHUNK_MAX, max(CHUNK_MIN, symbols already coded in the bit-plane))``
 symbols), which keeps the adaptation near-sequential while every chunk stays vectorised.
-A count pair whose total exceeds ``COUNT_LIMIT`` is halved (rounding up), which tracks drift.
+After each level, every count pair whose total exceeds ``COUNT_LIMIT`` is halved (rounding up),
+which tracks drift.
 
 The last child of a node whose first seven child bits are all 0 is 1 and is not coded.
 """
@@ -43,7 +48,7 @@ import numpy as np
 
 from gsz.decoder.errors import GszFormatError
 from gsz.decoder.morton import MAX_DEPTH, morton_decode
-from gsz.decoder.rans import LAPLACE, ModelSet, RansDecoder, lut_budget, read_varint
+from gsz.decoder.rans import COARSE, ModelSet, RansDecoder, lut_budget, read_varint
 
 # ---------------------------------------------------------------- model constants (normative)
 #: Coding precision of the binary probability bank (frequencies out of 2**BANK_BITS).
@@ -57,7 +62,8 @@ NUM_LEVEL_BUCKETS = 4
 NUM_SIB = 4
 #: 26 neighbours -> kn, unk in 0..26
 NUM_COARSE = 8 * 27 * 27 * NUM_SIB
-NUM_FINE = NUM_COARSE * NUM_LEVEL_BUCKETS
+#: face neighbours kn_f, unk_f in 0..6; edge/corner neighbours kn_o, unk_o in 0..20
+NUM_FINE = 8 * 7 * 7 * 21 * 21 * NUM_SIB * NUM_LEVEL_BUCKETS
 
 
 def _make_bank() -> np.ndarray:
@@ -102,28 +108,37 @@ def bank_model_set(num_symbols: int) -> ModelSet:
     return _bank_model_set(bank_precision(num_symbols))
 
 
+def _level_code_g3(w: int) -> int:
+    """COARSE level code (group g = 3, ENTROPY.md) whose weight ``m << e`` (8 <= m <= 15) is
+    nearest to the integer ``w >= 16`` (ties round up)."""
+    e = w.bit_length() - 4
+    m = (w + (1 << (e - 1))) >> e
+    if m == 16:
+        m, e = 8, e + 1
+    return 1 + (e << 3) + (m - 8)
+
+
 @functools.lru_cache(maxsize=8)
 def _bank_model_set(precision: int) -> ModelSet:
-    """The fixed binary models as an rANS :class:`ModelSet` (values 0/1, LAPLACE type, span 1).
+    """The fixed binary models (values 0/1) as an rANS :class:`ModelSet`.
 
-    Bank entry i with v = BANK_F1[i] (probability of a 1 ~ v / 4096) is a two-value LAPLACE model:
-    v <= 2048: centre 0 (value 0 the mode), r_right = round(65536 v / (4096 - v)) capped at 65535;
-    v >  2048: centre 1 (value 1 the mode), r_left = round(65536 (4096 - v) / v).
+    Bank entry i with v = BANK_F1[i] (probability of a 1 ~ v / 4096) is a COARSE model with
+    lo = 0, span = 1, group 3, bin shift 0, bins [0, 1] and level codes
+    [_level_code_g3(16 (4096 - v)), _level_code_g3(16 v)]: weights within 1/16 of 4096 - v and v,
+    normalised by ENTROPY.md to 2**precision.
     Nothing of it is transmitted: encoder and decoder build it from the stream's symbol count
     (which fixes the precision).  Cached: the set and its decoding tables are read-only.
     """
     one = 1 << BANK_BITS
-    v = BANK_F1
-    low = v <= one // 2
-    r_small = np.minimum(65535, (v * 65536 + (one - v) // 2) // (one - v))
-    r_big = np.minimum(65535, ((one - v) * 65536 + v // 2) // v)
     m = NUM_MODELS
     z = np.zeros(m, dtype=np.int64)
-    ms = ModelSet(types=np.full(m, LAPLACE, dtype=np.int64), lo=z.copy(), span=np.ones(m, np.int64),
-                  prec=np.full(m, precision, dtype=np.int64), group=z.copy(),
-                  centre=np.where(low, 0, 1).astype(np.int64),
-                  r_left=np.where(low, 0, r_big).astype(np.int64),
-                  r_right=np.where(low, r_small, 0).astype(np.int64))
+    levels = tuple(np.array([_level_code_g3(16 * (one - int(v))), _level_code_g3(16 * int(v))],
+                            dtype=np.int64) for v in BANK_F1)
+    bins = tuple(np.array([0, 1], dtype=np.int64) for _ in range(m))
+    ms = ModelSet(types=np.full(m, COARSE, dtype=np.int64), lo=z.copy(), span=np.ones(m, np.int64),
+                  prec=np.full(m, precision, dtype=np.int64), group=np.full(m, 3, dtype=np.int64),
+                  centre=z.copy(), r_left=z.copy(), r_right=z.copy(), binshift=z.copy(),
+                  bins=bins, levels=levels)
     ms.validate()
     ms.build()
     return ms
@@ -137,10 +152,11 @@ SELF = 13
 
 
 def _make_plan():
-    """For child k and parent-level offset t: mask of child bits (< k) of node t that are
-    known 26-neighbours of child k, and how many unknown (>= k) 26-neighbours node t holds."""
-    known = np.zeros((8, 27), dtype=np.int64)
-    unknown = np.zeros((8, 27), dtype=np.int64)
+    """For child k and parent-level offset t: masks of the child bits (< k) of node t that are
+    known 26-neighbours of child k, and counts of the unknown (>= k) 26-neighbours node t holds;
+    split into face neighbours (index 0) and edge/corner neighbours (index 1)."""
+    known = np.zeros((2, 8, 27), dtype=np.int64)
+    unknown = np.zeros((2, 8, 27), dtype=np.int64)
     for k in range(8):
         b = np.array([(k >> 2) & 1, (k >> 1) & 1, k & 1])
         for d in OFFSETS:
@@ -150,18 +166,22 @@ def _make_plan():
             o = s // 2                       # parent-level offset of the neighbour, in {-1,0,1}
             j = int((s[0] % 2) * 4 + (s[1] % 2) * 2 + (s[2] % 2))
             t = int((o[0] + 1) * 9 + (o[1] + 1) * 3 + (o[2] + 1))
+            kind = 0 if int(np.abs(d).sum()) == 1 else 1
             if j < k:
-                known[k, t] |= 1 << j
+                known[kind, k, t] |= 1 << j
             else:
-                unknown[k, t] += 1
+                unknown[kind, k, t] += 1
     return known, unknown
 
 
 PLAN_KNOWN, PLAN_UNKNOWN = _make_plan()
 POPCOUNT8 = np.array([bin(v).count("1") for v in range(256)], dtype=np.int64)
+_POPCOUNT8_U8 = POPCOUNT8.astype(np.uint8)
 #: RANK8[j, o] = number of set bits of byte o below bit j
 RANK8 = np.array([[bin(o & ((1 << j) - 1)).count("1") for o in range(256)] for j in range(8)],
                  dtype=np.int64)
+_RANK_OR_ABSENT = np.where(((np.arange(256)[None, :] >> np.arange(8)[:, None]) & 1) == 1, RANK8,
+                           -(1 << 62))
 
 
 def _make_child_plan():
@@ -215,10 +235,10 @@ def _child_neighbour_table(nbr: np.ndarray, occ: np.ndarray, rows: np.ndarray,
             if t == SELF:
                 out[t, sel] = sel
                 continue
-            j = int(CHILD_IDX[k, t])
             v = par_v[int(CHILD_PAR[k, t])]
-            idx = (v >> 8) + RANK8[j][v & 255]
-            out[t, sel] = np.where((v >> j) & 1, idx, -1)
+            # rank of bit j if set, else a large negative number that the max turns into -1
+            idx = (v >> 8) + _RANK_OR_ABSENT[int(CHILD_IDX[k, t])][v & 255]
+            out[t, sel] = np.maximum(idx, -1)
     return out
 
 
@@ -227,21 +247,28 @@ def plane_contexts(k: int, occ: np.ndarray, nbr: np.ndarray, present: np.ndarray
     """Coarse and fine context ids of child ``k`` of every node of a level.
 
     occ: int64 [N] occupancy bytes decoded so far (bits < k valid, others 0).
-    nbr: int64 [27, N] from :func:`_child_neighbour_table`; present: int8 [27, N] = nbr >= 0.
-    Returns (coarse int64 [N], fine int64 [N], sib int64 [N] = number of set child bits < k).
+    nbr: int64 [27, N] from :func:`_child_neighbour_table`; present: uint8 [27, N] = nbr >= 0.
+    Returns (coarse int64 [N], fine int64 [N], sib int64 [N] = min(3, number of set child bits < k)).
     """
-    occ_ext = np.append(occ, 0)                 # index -1 (absent neighbour) reads a 0 byte
-    kn = np.zeros(occ.shape[0], dtype=np.int64)
-    unk = np.zeros(occ.shape[0], dtype=np.int64)
-    for t in np.flatnonzero(PLAN_KNOWN[k] | PLAN_UNKNOWN[k]):
-        km, uc = int(PLAN_KNOWN[k, t]), int(PLAN_UNKNOWN[k, t])
-        if km:
-            kn += POPCOUNT8[occ_ext[nbr[t]] & km]
-        if uc:
-            unk += present[t] * uc if uc > 1 else present[t]
-    sib = POPCOUNT8[occ & ((1 << k) - 1)]
-    coarse = ((k * 27 + kn) * 27 + unk) * NUM_SIB + np.minimum(sib, NUM_SIB - 1)
-    fine = coarse * NUM_LEVEL_BUCKETS + level_bucket
+    # uint8 throughout (counts <= 26): the gathers and sums are memory-bound
+    occ_ext = np.append(occ, 0).astype(np.uint8)   # index -1 (absent neighbour) reads a 0 byte
+    n = occ.shape[0]
+    kn = [np.zeros(n, dtype=np.uint8), np.zeros(n, dtype=np.uint8)]     # face, edge/corner
+    unk = [np.zeros(n, dtype=np.uint8), np.zeros(n, dtype=np.uint8)]
+    for t in np.flatnonzero((PLAN_KNOWN[:, k] | PLAN_UNKNOWN[:, k]).any(axis=0)):
+        v = occ_ext[nbr[t]] if (PLAN_KNOWN[0, k, t] | PLAN_KNOWN[1, k, t]) else None
+        for kind in (0, 1):
+            km, uc = int(PLAN_KNOWN[kind, k, t]), int(PLAN_UNKNOWN[kind, k, t])
+            if km:
+                kn[kind] += _POPCOUNT8_U8[v & np.uint8(km)]
+            if uc:
+                unk[kind] += present[t] * np.uint8(uc) if uc > 1 else present[t]
+    sib = np.minimum(POPCOUNT8[occ & ((1 << k) - 1)], NUM_SIB - 1)
+    kf, ko = kn[0].astype(np.int64), kn[1].astype(np.int64)
+    uf, uo = unk[0].astype(np.int64), unk[1].astype(np.int64)
+    coarse = ((k * 27 + kf + ko) * 27 + uf + uo) * NUM_SIB + sib
+    fine = (((((k * 7 + kf) * 7 + uf) * 21 + ko) * 21 + uo) * NUM_SIB + sib) \
+        * NUM_LEVEL_BUCKETS + level_bucket
     return coarse, fine, sib
 
 
@@ -254,6 +281,8 @@ def _chunk_bounds(n: int):
         yield s, e
         s = e
 
+
+_ONE32 = np.int32(1)
 
 # A bit source: given (level, k, node indices of the chunk, model ids) return the chunk's bits.
 BitSource = Callable[[int, int, np.ndarray, np.ndarray], np.ndarray]
@@ -273,8 +302,11 @@ def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
     if num_points == 0:
         return np.zeros(0, dtype=np.uint64)
     # counts: [2 * ctx] = zeros seen, [2 * ctx + 1] = ones seen
-    cc_n = np.zeros(2 * NUM_COARSE, dtype=np.int64)
-    ff_n = np.zeros(2 * NUM_FINE, dtype=np.int64)
+    # int32 (22 MB for the fine set): k is part of every context, so within a level a total grows
+    # by at most one bit-plane's node count (< 2^31) before the halving that follows the level;
+    # products are taken in int64 below
+    cc_n = np.zeros(2 * NUM_COARSE, dtype=np.int32)
+    ff_n = np.zeros(2 * NUM_FINE, dtype=np.int32)
     codes = np.zeros(1, dtype=np.uint64)
     nbr = np.full((27, 1), -1, dtype=np.int64)
     nbr[SELF, 0] = 0
@@ -282,7 +314,7 @@ def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
         n = codes.shape[0]
         occ = np.zeros(n, dtype=np.int64)
         lb = min(NUM_LEVEL_BUCKETS - 1, depth - 1 - level)
-        present = (nbr >= 0).view(np.int8)
+        present = (nbr >= 0).view(np.uint8)
         for k in range(8):
             coarse, fine, sib = plane_contexts(k, occ, nbr, present, lb)
             if k == 7:
@@ -294,17 +326,17 @@ def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
                 coarse, fine = 2 * coarse, 2 * fine
             for s, e in _chunk_bounds(coarse.shape[0]):
                 cc, ff = coarse[s:e], fine[s:e]
-                c0, c1 = cc_n[cc], cc_n[cc + 1]
+                c0, c1 = cc_n[cc].astype(np.int64), cc_n[cc + 1].astype(np.int64)
                 pc = ((2 * c1 + 1) << 16) // (2 * (c0 + c1) + 2)
-                f0, f1 = ff_n[ff], ff_n[ff + 1]
+                f0, f1 = ff_n[ff].astype(np.int64), ff_n[ff + 1].astype(np.int64)
                 pf = ((f1 << 16) + MIX_WEIGHT * pc) // (f0 + f1 + MIX_WEIGHT)
                 idx = np.arange(s, e) if coded is None else coded[s:e]
                 b = np.asarray(bits(level, k, idx, P16_TO_MODEL[pf]), dtype=np.int64)
                 occ[idx] |= b << k
-                np.add.at(cc_n, cc + b, 1)
-                np.add.at(ff_n, ff + b, 1)
-            _halve(cc_n, coarse)
-            _halve(ff_n, fine)
+                np.add.at(cc_n, cc + b, _ONE32)      # (a typed scalar: numpy's fast path)
+                np.add.at(ff_n, ff + b, _ONE32)
+        _halve(cc_n)
+        _halve(ff_n)
         # children in Morton order: node-major, child index ascending
         child_bits = (occ[:, None] >> np.arange(8)) & 1
         total = int(child_bits.sum())
@@ -320,15 +352,13 @@ def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
     return codes
 
 
-def _halve(counts: np.ndarray, touched: np.ndarray) -> None:
-    """Halve (rounding up) the count pairs (zeros at ``2c``, ones at ``2c + 1``) among the
-    ``touched`` even indices whose total exceeds COUNT_LIMIT, in place.  Applied after each
-    bit-plane to the contexts that plane used."""
-    over = touched[(counts[touched] + counts[touched + 1]) > COUNT_LIMIT]
+def _halve(counts: np.ndarray) -> None:
+    """Halve (rounding up) every count pair (zeros at ``2c``, ones at ``2c + 1``) whose total
+    exceeds COUNT_LIMIT, in place.  Applied after each level."""
+    pairs = counts.reshape(-1, 2)
+    over = np.flatnonzero((counts[0::2] + counts[1::2]) > COUNT_LIMIT)
     if over.size:
-        over = np.unique(over)
-        counts[over] = (counts[over] + 1) >> 1
-        counts[over + 1] = (counts[over + 1] + 1) >> 1
+        pairs[over] = (pairs[over] + 1) >> 1
 
 
 # ---------------------------------------------------------------- payload

@@ -62,6 +62,13 @@ def level_weights(q: np.ndarray, g: int) -> np.ndarray:
     return np.where(q > 0, w, 0).astype(np.int64)
 
 
+def ratio_from_code(u: int) -> int:
+    """LAPLACE ratio code u (0..255) -> ratio numerator r (ratio r / 2**16), integer only:
+    r = 65536 - (((16 + (u & 15)) << 16) >> ((u >> 4) + 5)); covers 1 - r/65536 from ~0.97
+    down to 2**-16 in steps of 1/16..1/32 relative."""
+    return RATIO_ONE - (((16 + (u & 15)) << 16) >> ((u >> 4) + 5))
+
+
 def laplace_weights(span: int, centre: int, r_left: int, r_right: int) -> np.ndarray:
     """LAPLACE model weights over offsets 0..span (value lo + i), int64 in [0, 2**24].
 
@@ -172,7 +179,7 @@ class ModelSet:
       group  : COARSE level-group exponent g in 0..3 (0 otherwise)
       binshift : COARSE bin shift h in 0..16: one level code per bin of 2**h values (0 otherwise)
       centre : LAPLACE centre offset in 0..span (0 otherwise)
-      r_left, r_right : LAPLACE ratios in 0..65535 (0 otherwise)
+      r_left, r_right : LAPLACE ratio codes in 0..255 (see ratio_from_code; 0 otherwise)
       bins, levels : tuples (one entry per COARSE model, in model order) of int64 arrays: the
                indices of the present bins (strictly increasing, first 0, last span >> h) and
                their level codes (1..max_level_code(g)); absent bins are not stored
@@ -225,8 +232,9 @@ class ModelSet:
         if t == LAPLACE:
             span = int(self.span[m])
             return (np.arange(span + 1, dtype=np.int64),
-                    laplace_weights(span, int(self.centre[m]), int(self.r_left[m]),
-                                    int(self.r_right[m])))
+                    laplace_weights(span, int(self.centre[m]),
+                                    ratio_from_code(int(self.r_left[m])),
+                                    ratio_from_code(int(self.r_right[m]))))
         raise ValueError(f"model {m} is empty")
 
     def _coarse_index(self) -> np.ndarray:
@@ -264,8 +272,11 @@ class ModelSet:
         lut_base = np.zeros(m_count, dtype=np.int64)
         if m_count:
             lut_base[1:] = np.cumsum(total)[:-1]
-        packed = (np.arange(freq.size, dtype=np.int64) << 33) | (freq << 16) | cum
-        packed_lut = np.repeat(packed, freq)
+        # LUT entry of slot s of model m: (g << 33) | (freq_g << 16) | (s - cum_g), g the
+        # symbol owning slot s: the decode step then needs no separate cum/slot terms
+        g_of_slot = np.repeat(np.arange(freq.size, dtype=np.int64), freq)
+        slot_local = np.arange(g_of_slot.size, dtype=np.int64) - np.repeat(lut_base, total)
+        packed_lut = (g_of_slot << 33) | (freq[g_of_slot] << 16) | (slot_local - cum[g_of_slot])
         self._tables = dict(freq=freq, cum=cum, value=value, sym_start=sym_start,
                             sym_count=sym_count, lut_base=lut_base, packed_lut=packed_lut,
                             total=total, mask=total - 1)
@@ -291,8 +302,11 @@ class ModelSet:
             raise GszFormatError("rANS model set: laplace support larger than 2**n")
         if np.any(lap & ((self.centre < 0) | (self.centre > span))):
             raise GszFormatError("rANS model set: laplace centre outside the range")
-        if np.any(lap & ((self.r_left > 0xFFFF) | (self.r_right > 0xFFFF))):
-            raise GszFormatError("rANS model set: laplace ratio above 65535")
+        if np.any((self.r_left < 0) | (self.r_left > 255) | (self.r_right < 0)
+                  | (self.r_right > 255)) or np.any((self.r_left | self.r_right)[~lap]):
+            raise GszFormatError("rANS model set: laplace ratio code outside 0..255")
+        if np.any(self.centre[~lap]):
+            raise GszFormatError("rANS model set: centre on a non-laplace model")
         co = np.flatnonzero(t == COARSE)
         if np.any(self.group[co] >= MAX_LEVEL_GROUPS):
             raise GszFormatError("rANS model set: coarse level group above 3")
@@ -314,6 +328,26 @@ class ModelSet:
                 raise GszFormatError("rANS model set: more coarse symbols than 2**n")
 
 
+def _unzstd(frame: bytes) -> bytes:
+    """Decompress exactly one zstd frame that declares its content size (<= MAX_TABLE_BYTES)."""
+    import zstandard
+    try:
+        size = zstandard.get_frame_parameters(frame).content_size
+        if size == zstandard.CONTENTSIZE_UNKNOWN or size > MAX_TABLE_BYTES:
+            raise GszFormatError(f"rANS model set: zstd frame content size {size} missing or "
+                                 f"above {MAX_TABLE_BYTES}")
+        out = zstandard.ZstdDecompressor().decompress(frame, max_output_size=MAX_TABLE_BYTES)
+        obj = zstandard.ZstdDecompressor().decompressobj()
+        obj.decompress(frame)
+        if not obj.eof or obj.unused_data:
+            raise GszFormatError("rANS model set: bytes after the zstd frame")
+    except zstandard.ZstdError as exc:
+        raise GszFormatError(f"rANS model set: bad zstd frame ({exc})") from None
+    if len(out) != size:
+        raise GszFormatError("rANS model set: zstd content size mismatch")
+    return out
+
+
 def read_model_set(buf: memoryview | bytes, pos: int = 0) -> tuple[ModelSet, int]:
     """Parse a model set (ENTROPY.md section 3) starting at ``pos``.
 
@@ -327,11 +361,7 @@ def read_model_set(buf: memoryview | bytes, pos: int = 0) -> tuple[ModelSet, int
     raw = bytes(b[pos:pos + length])
     pos += length
     if compressed:
-        import zstandard
-        try:
-            raw = zstandard.ZstdDecompressor().decompress(raw, max_output_size=MAX_TABLE_BYTES)
-        except zstandard.ZstdError as exc:
-            raise GszFormatError(f"rANS model set: bad zstd frame ({exc})") from None
+        raw = _unzstd(raw)
     body = np.frombuffer(raw, dtype=np.uint8)
     p = 0
     m_count, p = read_varint(body, p, "model count")
@@ -355,9 +385,14 @@ def read_model_set(buf: memoryview | bytes, pos: int = 0) -> tuple[ModelSet, int
     v, p = read_varints(body, p, int(coarse.sum()), "coarse shape")
     group[coarse] = v & 3
     binshift[coarse] = v >> 2
-    for arr, what in ((centre, "centre"), (rl, "left ratio"), (rr, "right ratio")):
-        v, p = read_varints(body, p, int(lap.sum()), what)
-        arr[lap] = v
+    n_lap = int(lap.sum())
+    v, p = read_varints(body, p, n_lap, "centre")
+    centre[lap] = v
+    for arr in (rl, rr):
+        if n_lap > body.size - p:
+            raise GszFormatError("rANS model set: truncated laplace ratio codes")
+        arr[lap] = body[p:p + n_lap]
+        p += n_lap
     # bounds before the code arrays are allocated
     if np.any(span > MAX_SPAN) or np.any(prec > MAX_PRECISION) or np.any(binshift > 16):
         raise GszFormatError("rANS model set: span, precision or bin shift out of range")
@@ -423,20 +458,36 @@ class RansDecoder:
 
     def decode(self, model_ids: np.ndarray) -> np.ndarray:
         """Decode the next ``len(model_ids)`` symbols; model_ids: int array, returns int64 values."""
-        mids = np.asarray(model_ids).astype(np.int64, copy=False).ravel()
+        mids = np.asarray(model_ids).ravel()
+        if mids.size and not np.issubdtype(mids.dtype, np.integer):
+            raise GszFormatError("rANS: model ids must be integers")
+        mids = mids.astype(np.int64, copy=False)
         count = mids.size
         if count == 0:
             return np.zeros(0, dtype=np.int64)
         if self._pos + count > self._n:
             raise GszFormatError(f"rANS: asked for {self._pos + count} symbols, stream has {self._n}")
-        t = self._t
         m_count = self._models.num_models
         if mids.min() < 0 or mids.max() >= m_count:
             raise GszFormatError(f"rANS: model id outside 0..{m_count - 1}")
-        total = t["total"][mids]
-        if np.any(total == 0):
+        if np.any(self._t["total"][mids] == 0):
             raise GszFormatError("rANS: symbol refers to an empty model")
-        mask = total - 1
+        out = np.empty(count, dtype=np.int64)
+        # work in chunks of whole rows (~256k symbols) so the per-symbol arrays stay in cache
+        chunk = max(1, (1 << 18) // self._lanes) * self._lanes
+        j = 0
+        while j < count:
+            end = min(count, j + chunk - (self._pos % self._lanes))
+            self._decode_chunk(mids[j:end], out[j:end])
+            j = end
+        np.right_shift(out, 33, out=out)
+        return self._t["value"][out]
+
+    def _decode_chunk(self, mids: np.ndarray, out: np.ndarray) -> None:
+        """Decode len(mids) symbols; writes their packed LUT entries to ``out``."""
+        t = self._t
+        count = mids.size
+        mask = t["mask"][mids]
         shift = self._models.prec[mids]
         base = t["lut_base"][mids]
         lut = t["packed_lut"]
@@ -444,31 +495,26 @@ class RansDecoder:
         nwords = words.size
         x_all = self._states
         lanes = self._lanes
-        out = np.empty(count, dtype=np.int64)
         wpos = self._wpos
-        # scratch buffers: one row of at most `lanes` symbols, reused (no per-row allocation)
-        width = min(lanes, count)
-        slot = np.empty(width, np.int64)
-        e = np.empty(width, np.int64)
-        tmp = np.empty(width, np.int64)
+        # scratch buffer: one row of at most `lanes` symbols, reused (no per-row allocation)
+        tmp = np.empty(min(lanes, count), np.int64)
         j = 0
         while j < count:
             lane0 = (self._pos + j) % lanes
             k = min(lanes - lane0, count - j)
             sl = slice(j, j + k)
             x = x_all[lane0:lane0 + k]
-            s_, e_, t_ = slot[:k], e[:k], tmp[:k]
-            np.bitwise_and(x, mask[sl], out=s_)
-            np.add(base[sl], s_, out=t_)
-            np.take(lut, t_, out=e_)
-            # e = (g << 33) | (freq << 16) | cum   (ENTROPY.md 4.3 decode step)
+            e_, t_ = out[sl], tmp[:k]
+            # decode step (ENTROPY.md 4.3): x = freq * (x >> n) + (slot - cum)
+            np.bitwise_and(x, mask[sl], out=t_)
+            np.add(t_, base[sl], out=t_)
+            np.take(lut, t_, out=e_)          # e = (g << 33) | (freq << 16) | (slot - cum)
             np.right_shift(x, shift[sl], out=x)
             np.right_shift(e_, 16, out=t_)
             np.bitwise_and(t_, 0x1FFFF, out=t_)
             np.multiply(x, t_, out=x)
-            np.add(x, s_, out=x)
             np.bitwise_and(e_, 0xFFFF, out=t_)
-            np.subtract(x, t_, out=x)
+            np.add(x, t_, out=x)
             idx = np.flatnonzero(x < STATE_LOW)
             r = idx.size
             if r:
@@ -476,12 +522,9 @@ class RansDecoder:
                     raise GszFormatError("rANS: payload truncated (word stream exhausted)")
                 x[idx] = (x[idx] << WORD_BITS) | words[wpos:wpos + r]
                 wpos += r
-            out[sl] = e_
             j += k
         self._wpos = wpos
         self._pos += count
-        np.right_shift(out, 33, out=out)
-        return t["value"][out]
 
     def finish(self) -> None:
         """Check that all symbols were decoded, every word consumed and every state is 2**16."""

@@ -210,8 +210,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="image width (default 800 for default views; camera files: native, at most 1600)")
     p.add_argument("--background", default="0,0,0", metavar="R,G,B",
                    help="background colour in [0,1] (default 0,0,0, the reference protocol)")
-    p.add_argument("--up", default="-y", metavar="AXIS",
-                   help="up axis of default views: -y (default, COLMAP/PLY frame), +z, ...")
+    p.add_argument("--up", default="auto", metavar="AXIS",
+                   help="up axis of default views: auto (default: y, sign from the ground plane), "
+                        "-y, +y, +z, ...")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.add_argument("--out", metavar="DIR", help="write side-by-side and error-map PNGs per view")
     return p

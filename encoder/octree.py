@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from gsz.decoder.errors import CloudValidationError
-from gsz.decoder.morton import MAX_DEPTH, morton_encode
+from gsz.decoder.morton import MAX_DEPTH, morton_decode, morton_encode
 from gsz.decoder.octree import (SCHEME_ADAPTIVE_BITWISE, bank_model_set, walk_octree)
 from gsz.encoder.rans import encode_symbols, varint_bytes
 
@@ -64,9 +64,9 @@ def octree_symbols(ijk: np.ndarray, depth: int):
     if codes.size > 1:
         dup = np.flatnonzero(codes[1:] == codes[:-1])
         if dup.size:
+            first = morton_decode(codes[dup[:1]])[0].tolist()
             raise CloudValidationError(f"encode_octree needs unique voxels: {dup.size} duplicate "
-                                       f"coordinate(s), e.g. {np.asarray(a[0:0]).tolist() or ''}"
-                                       f"Morton code {int(codes[dup[0]])}; merge duplicates first")
+                                       f"coordinate(s), e.g. {first}; merge duplicates first")
     occ = occupancy_levels(codes, depth) if codes.size else []
     syms, mods = [], []
 

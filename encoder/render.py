@@ -40,12 +40,14 @@ Remaining differences to graphdeco (all below ~1e-6 relative unless noted):
 * The camera-space position is computed in float64 (graphdeco: float32).
 * The CPU does not contract multiply-adds (``-ffp-contract=off``) and uses glibc/Sleef ``expf``
   instead of CUDA's fast ``__expf``, so single values differ in the last bits.
-* Non-finite inputs are not checked per render (call ``GaussianCloud.validate`` once).
+* NaN / infinite inputs raise :class:`GszError` (graphdeco would draw garbage), except
+  +-inf opacity logits and -inf log-scales, which are well defined.
 
-Two rasterisers share the preprocessing: a compiled C++ kernel (``kernels/render_cpu.cpp``,
-built once with ``torch.utils.cpp_extension`` and cached in ``~/.cache/torch_extensions``) and
-a pure-torch reference (:func:`_rasterize_torch`), a literal vectorised transcription of the
-per-pixel loop.  The kernel additionally skips, per Gaussian, the pixels outside a conservative
+Two implementations: a compiled C++ kernel (``kernels/render_cpu.cpp``: preprocessing and
+rasterisation, built once with ``torch.utils.cpp_extension`` and cached in
+``~/.cache/torch_extensions``) and a pure-torch reference (:func:`_preprocess`, vectorised over
+Gaussians, and :func:`_rasterize_torch`, a literal transcription of the per-pixel loop,
+vectorised over pixels; ~100x slower).  The kernel additionally skips, per Gaussian, the pixels outside a conservative
 box beyond which ``alpha < 1/255`` holds (an exact shortcut: such pixels are skipped by the rule
 anyway); the tests check both against each other.  If the kernel cannot be built, a warning is
 issued and the torch path is used.  ``GSZ_RENDER_BACKEND=torch`` forces the reference.
@@ -65,10 +67,10 @@ import torch
 
 from gsz.decoder.cloud import GaussianCloud
 from gsz.decoder.errors import GszError
-from gsz.encoder.cameras import Camera
+from gsz.encoder.cameras import Camera, look_at, robust_bounds
 
-__all__ = ["RenderOutput", "render", "accumulate_importance", "look_at_camera",
-           "framing_camera", "kernel_available", "SH_C0", "SH_C1", "SH_C2", "SH_C3"]
+__all__ = ["RenderOutput", "render", "accumulate_importance", "framing_camera",
+           "kernel_available", "SH_C0", "SH_C1", "SH_C2", "SH_C3"]
 
 # graphdeco's real spherical-harmonics constants (auxiliary/forward.cu).
 SH_C0 = 0.28209479177387814
@@ -114,7 +116,6 @@ class _Projected:
     opacity: torch.Tensor  # [M] f32   sigmoid(logit)
     colors: torch.Tensor   # [M, 3] f32 SH colour + 0.5, clamped >= 0
     rects: torch.Tensor    # [M, 4] i32 tile rectangle x0, y0, x1, y1 (exclusive)
-    boxes: torch.Tensor    # [M, 4] i32 conservative pixel box of the alpha >= 1/255 region
 
 
 def _check_inputs(cloud: GaussianCloud, camera: Camera, sh_degree: int | None) -> int:
@@ -126,6 +127,24 @@ def _check_inputs(cloud: GaussianCloud, camera: Camera, sh_degree: int | None) -
         if getattr(cloud, fname).shape != shape:
             raise GszError(f"render: cloud field '{fname}' has shape "
                            f"{getattr(cloud, fname).shape}, expected {shape}")
+    # Non-finite values would silently poison pixels (NaN alpha compares false everywhere), so
+    # reject them; +-inf opacity logits (alpha 0 or 1, produced by some 8-bit formats) and
+    # -inf log-scales (a zero-size Gaussian, still dilated to 0.3 px) are well defined.
+    for fname, arr, ok in (
+            ("positions", cloud.positions, np.isfinite),
+            ("rotations", cloud.rotations, np.isfinite),
+            ("sh_dc", cloud.sh_dc, np.isfinite),
+            ("sh_rest", cloud.sh_rest, np.isfinite),
+            ("scales", cloud.scales, lambda a: ~np.isnan(a) & (a != np.inf)),
+            ("opacities", cloud.opacities, lambda a: ~np.isnan(a))):
+        good = ok(arr)
+        if not good.all():
+            first = int(np.argmin(good.reshape(n, -1).all(axis=1))) if n else 0
+            raise GszError(f"render: cloud field '{fname}' has {int((~good).sum())} invalid "
+                           f"(NaN/inf) values, first at Gaussian {first}")
+    if n and not (np.abs(cloud.rotations).sum(axis=1) > 0).all():
+        raise GszError("render: cloud has an all-zero quaternion (first at Gaussian "
+                       f"{int(np.argmin(np.abs(cloud.rotations).sum(axis=1) > 0))})")
     if camera.width <= 0 or camera.height <= 0:
         raise GszError(f"render: camera '{camera.name}' has an empty image size "
                        f"{camera.width}x{camera.height}")
@@ -247,45 +266,7 @@ def _preprocess(cloud: GaussianCloud, camera: Camera, deg: int, scale_modifier: 
     else:
         colors = torch.zeros((len(idx), 3), dtype=torch.float32)
 
-    boxes = _alpha_boxes(means, conic, opacity, W, H)
-    return _Projected(idx, means, conic, opacity, colors, rects, boxes)
-
-
-def _alpha_boxes(means: torch.Tensor, conic: torch.Tensor, opacity: torch.Tensor,
-                 W: int, H: int) -> torch.Tensor:
-    """[M,4] int32 pixel boxes (x0, y0, x1, y1) outside which alpha < 1/255 for sure.
-
-    alpha >= 1/255 needs o exp(power) >= 1/255, i.e. q(d) = d^T Q d <= 2 ln(255 o) =: 2 L.
-    The ellipse {q <= 2L'} has half-widths sqrt(2 L' Q_c / det Q), sqrt(2 L' Q_a / det Q).
-    L' = L plus a margin for the float32 evaluation of q, whose rounding error is bounded by a
-    few ulps of the largest term (each term <= 2 L kappa with kappa = Q_a Q_c / det Q >= 1),
-    and one extra pixel; everything in float64 from the float32 values the rasteriser uses.
-    Non-positive-definite conics get the full image (no shortcut).
-    """
-    Q = conic.double()
-    qa, qb, qc = Q[:, 0], Q[:, 1], Q[:, 2]
-    o = opacity.double()
-    detq = qa * qc - qb * qb
-    L = torch.log(torch.clamp_min(255.0 * o, 1e-30))
-    pd = (detq > 0) & (qa > 0) & (qc > 0) & torch.isfinite(detq)
-    kappa = torch.where(pd, qa * qc / torch.where(pd, detq, torch.ones_like(detq)),
-                        torch.ones_like(detq))
-    Lm = torch.clamp_min(L, 0.0) + 1e-6 * kappa * (torch.clamp_min(L, 0.0) + 1.0) + 1e-4
-    safe_det = torch.where(pd, detq, torch.ones_like(detq))
-    hx = torch.sqrt(2.0 * Lm * torch.where(pd, qc, torch.zeros_like(qc)) / safe_det) + 1.0
-    hy = torch.sqrt(2.0 * Lm * torch.where(pd, qa, torch.zeros_like(qa)) / safe_det) + 1.0
-    m = means.double()
-    x0 = torch.clamp(torch.ceil(m[:, 0] - hx), 0, W)
-    x1 = torch.clamp(torch.floor(m[:, 0] + hx) + 1, 0, W)
-    y0 = torch.clamp(torch.ceil(m[:, 1] - hy), 0, H)
-    y1 = torch.clamp(torch.floor(m[:, 1] + hy) + 1, 0, H)
-    full = ~pd | ~torch.isfinite(hx) | ~torch.isfinite(hy) | ~torch.isfinite(m).all(1)
-    boxes = torch.stack([x0, y0, x1, y1], 1)
-    boxes[full] = torch.tensor([0.0, 0.0, float(W), float(H)], dtype=torch.float64)
-    # o < 1/255 (with a relative margin): o exp(power) <= o < 1/255 at every pixel.
-    never = 255.0 * o < 1.0 - 1e-4
-    boxes[never] = 0.0
-    return boxes.to(torch.int32).contiguous()
+    return _Projected(idx, means, conic, opacity, colors, rects)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -442,11 +423,10 @@ def _render_arrays(cloud: GaussianCloud, camera: Camera, deg: int, scale_modifie
                           [camera.fx, camera.fy, camera.cx, camera.cy]]).astype(np.float64)
     k = (deg + 1) ** 2 - 1
     rest = cloud.sh_rest[:, :k] if k else np.zeros((len(cloud), 0, 3), np.float32)
+    f32 = [torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32)) for a in (
+        cloud.positions, cloud.scales, cloud.rotations, cloud.opacities, cloud.sh_dc, rest)]
     means, conic, opac, colors, rects, boxes, order = kern.preprocess(
-        torch.from_numpy(cloud.positions), torch.from_numpy(cloud.scales),
-        torch.from_numpy(cloud.rotations), torch.from_numpy(cloud.opacities),
-        torch.from_numpy(cloud.sh_dc), torch.from_numpy(np.ascontiguousarray(rest)),
-        torch.from_numpy(cam), W, H, deg, float(scale_modifier), bool(want_color), nthreads)
+        *f32, torch.from_numpy(cam), W, H, deg, float(scale_modifier), bool(want_color), nthreads)
     img, trans, imp = kern.rasterize(means, conic, opac, colors, rects, boxes, order, W, H,
                                      bool(want_importance), nthreads)
     return img, trans, (imp.numpy() if want_importance else None)
@@ -508,26 +488,6 @@ def accumulate_importance(cloud: GaussianCloud, cameras: list[Camera], *,
     return total
 
 
-def look_at_camera(eye, target, width: int, height: int, fov_x_deg: float = 60.0,
-                   down=(0.0, 1.0, 0.0), name: str = "") -> Camera:
-    """A centred pinhole :class:`Camera` at ``eye`` looking at ``target``.
-
-    ``down`` is the world direction that should appear downwards in the image (the scenes of
-    this project have +y down).  fy = fx (square pixels), principal point at the image centre.
-    """
-    eye = np.asarray(eye, np.float64)
-    f = np.asarray(target, np.float64) - eye
-    f /= np.linalg.norm(f)
-    xr = np.cross(np.asarray(down, np.float64), f)
-    if np.linalg.norm(xr) < 1e-9:  # looking along `down`: pick any perpendicular
-        xr = np.cross(np.array([1.0, 0.0, 0.0]), f)
-    xr /= np.linalg.norm(xr)
-    yd = np.cross(f, xr)
-    R = np.stack([xr, yd, f])
-    fx = width / (2.0 * math.tan(math.radians(fov_x_deg) / 2.0))
-    return Camera(R, -R @ eye, fx, fx, width / 2.0, height / 2.0, width, height, name)
-
-
 def framing_camera(positions: np.ndarray, width: int, height: int, *,
                    direction=(0.3, -0.5, -1.0), distance_factor: float = 2.0,
                    fov_x_deg: float = 60.0) -> Camera:
@@ -536,9 +496,10 @@ def framing_camera(positions: np.ndarray, width: int, height: int, *,
     +y down, so the default looks slightly from above)."""
     pos = np.asarray(positions, np.float64)
     centre = np.median(pos, axis=0)
-    lo, hi = np.percentile(pos, 1, axis=0), np.percentile(pos, 99, axis=0)
+    lo, hi, _ = robust_bounds(pos)
     extent = float(np.max(hi - lo))
     d = np.asarray(direction, np.float64)
     d /= np.linalg.norm(d)
-    return look_at_camera(centre + d * distance_factor * extent, centre, width, height,
-                          fov_x_deg, name="framing")
+    fx = width / (2.0 * math.tan(math.radians(fov_x_deg) / 2.0))
+    return look_at(centre + d * distance_factor * extent, centre, (0.0, -1.0, 0.0), fx=fx, fy=fx,
+                   width=width, height=height, name="framing")

@@ -7,7 +7,7 @@ Grid
     ``origin + ijk * pitch .. origin + (ijk + 1) * pitch`` with ``pitch = side / 2^d`` and is
     decoded at its CENTRE ``origin + (ijk + 0.5) * pitch`` (the reference decodes the lower
     corner: a half-voxel bias).  The cube is the bounding cube of ALL centres -- no point is
-    ever dropped -- with a relative 2^-20 of padding so the maximum lands strictly inside, and
+    ever dropped -- with a relative 2^-30 of padding (far below a voxel even at d = 21) so the maximum lands strictly inside, and
     indices are clipped to ``[0, 2^d - 1]`` as a second guard (the reference's edge bug put a
     point at the axis maximum into voxel 2^d, corrupting the key).
 
@@ -57,13 +57,15 @@ import numpy as np
 
 from gsz.decoder.cloud import GaussianCloud
 from gsz.decoder.errors import GszError
+# The decoder's reconstruction rule is the normative one; re-exported for encoder callers.
+from gsz.decoder.geometry import voxel_centres  # noqa: F401  (origin + (ijk + 0.5) * pitch)
 from gsz.decoder.morton import MAX_DEPTH, morton_encode
 from gsz.decoder.rotation import quaternion_to_matrix
 
 #: Default relative position-error budget of :func:`choose_depth` (see module docstring).
 DEFAULT_REL_ERROR = 5e-4
 #: Relative padding of the bounding cube, so the maximum centre falls strictly inside.
-CUBE_PAD = 2.0 ** -20
+CUBE_PAD = 2.0 ** -30
 #: Percentiles of the robust box used for the error budget.
 ROBUST_PERCENTILES = (1.0, 99.0)
 
@@ -124,7 +126,7 @@ def _check_depth(depth) -> int:
 def bounding_cube(positions: np.ndarray) -> tuple[np.ndarray, float]:
     """The cube ``(origin [3] float64, side float)`` holding every centre.
 
-    origin = per-axis minimum; side = largest per-axis extent * (1 + 2^-20).  A degenerate cloud
+    origin = per-axis minimum; side = largest per-axis extent * (1 + 2^-30).  A degenerate cloud
     (a single point, all points equal) gets side 1.0 (any positive side holds it).
     """
     x = _check_positions(positions)
@@ -150,12 +152,6 @@ def voxel_coords(positions: np.ndarray, depth: int, origin: np.ndarray, side: fl
     n = float(1 << d)
     q = np.floor((x - np.asarray(origin, np.float64)) * (n / float(side)))
     return np.clip(q, 0, n - 1).astype(np.int64)
-
-
-def voxel_centres(ijk: np.ndarray, origin: np.ndarray, side: float, depth: int) -> np.ndarray:
-    """Decoded positions ``origin + (ijk + 0.5) * side / 2^d`` as [M, 3] float64."""
-    pitch = float(side) / float(1 << _check_depth(depth))
-    return np.asarray(origin, np.float64) + (np.asarray(ijk, np.float64) + 0.5) * pitch
 
 
 def merge_fraction(positions: np.ndarray, depth: int, cube=None) -> float:

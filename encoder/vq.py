@@ -26,9 +26,9 @@ Objective: minimise the weighted distortion ``sum_i w_i ||x_i - c_{a(i)}||^2``.
 """
 from __future__ import annotations
 
+import contextlib
 import math
-import time
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 import torch
@@ -39,10 +39,15 @@ from gsz.decoder.errors import GszError
 DEFAULT_ITERS = 100
 DEFAULT_BATCH = 16384
 DEFAULT_LLOYD = 2
+#: torch intra-op threads used by the VQ maths (see :func:`_threads`).
+DEFAULT_THREADS = 1
 #: Subsample size for the seeding (points).
 SEED_SAMPLE = 65536
-#: Rows per distance chunk: chunk * K floats ~ 4 MB at K = 4096.
-_CHUNK_ELEMS = 1 << 20
+#: Elements per distance chunk (rows * K'): 8 MB, allocated once per search and reused (fresh
+#: big tensors cost page faults here, platform-notes §6; small chunks stay cache-resident).
+_CHUNK_ELEMS = 1 << 21
+#: From this K on, the argmin is done in two levels (see :func:`_nearest`).
+_TWO_LEVEL_MIN_K = 256
 
 
 class VQError(GszError, ValueError):
@@ -72,42 +77,89 @@ def _check_weights(weights, n: int) -> np.ndarray:
     return w / total * n          # mean 1: keeps the float32 maths well scaled
 
 
-def _chunk_rows(k: int) -> int:
-    return max(256, _CHUNK_ELEMS // max(k, 1))
+@contextlib.contextmanager
+def _threads(n: int | None) -> Iterator[None]:
+    """Run the torch maths with ``n`` intra-op threads (None: leave torch's setting).
+
+    Default 1: measured on the shared 2-core machine under other jobs' load, the chunked search
+    took 0.9 s with 1 thread and 3.7-14 s with 2 (OpenMP barriers stall when a core is taken),
+    and a fixed thread count keeps the float summation order, hence the codebook, identical
+    from run to run.  On a dedicated multi-core machine pass more.
+    """
+    if n is None:
+        yield
+        return
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise VQError(f"threads must be an integer >= 1 or None, got {n!r}")
+    old = torch.get_num_threads()
+    torch.set_num_threads(int(n))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
 
 
-def _nearest(x: torch.Tensor, c: torch.Tensor, c_sq: torch.Tensor, buf: torch.Tensor | None = None
-             ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Nearest codeword and squared distance for every row of ``x`` (one chunk).
+class _Prepared:
+    """A codebook laid out for the chunked search (internal).
 
-    x [n, D] f32, c [K, D] f32, c_sq [K] f32 = ||c||^2.  Returns (idx [n] int64, d2 [n] f32 >= 0).
+    c    [K', D] f32, K' = K rounded up to a multiple of the group width g; pad rows are zero
+    c_sq [K'] f32 = ||c||^2, +inf on pad rows (so a pad row can never be nearest)
+    g    group width of the two-level argmin (K' = G * g), or 0 for a plain argmin
+    """
+
+    def __init__(self, c: torch.Tensor):
+        k, dim = c.shape
+        g = int(math.ceil(math.sqrt(k))) if k >= _TWO_LEVEL_MIN_K else 0
+        kp = int(math.ceil(k / g)) * g if g else k
+        self.k, self.g = k, g
+        self.c = torch.zeros((kp, dim), dtype=torch.float32)
+        self.c[:k] = c
+        self.c_sq = torch.full((kp,), math.inf, dtype=torch.float32)
+        self.c_sq[:k] = (c * c).sum(dim=1)
+        self.rows = max(64, min(4096, _CHUNK_ELEMS // kp))
+        self.buf = torch.empty((self.rows, kp), dtype=torch.float32)
+        self.ar = torch.arange(self.rows)
+
+
+def _nearest(x: torch.Tensor, x_sq: torch.Tensor, p: _Prepared) -> tuple[torch.Tensor, torch.Tensor]:
+    """Nearest codeword and squared distance for every row of ``x`` (n <= p.rows rows).
+
+    x [n, D] f32, x_sq [n] f32 = ||x||^2.  Returns (idx [n] int64, d2 [n] f32 >= 0); ties go to
+    the lower index.  Scores ``||c||^2 - 2 x c^T`` come from one addmm into the reused buffer.
+    torch's min-with-index over 4096 columns is ~2x slower than the GEMM itself, so for large K
+    the argmin runs in two levels: a vectorised amin per group of g columns, the best group,
+    then an argmin inside that group only (same result, first minimum wins at both levels).
     """
     n = x.shape[0]
-    if buf is None or buf.shape[0] < n:
-        buf = torch.empty((n, c.shape[0]), dtype=torch.float32)
-    scores = buf[:n]
-    torch.addmm(c_sq.unsqueeze(0), x, c.T, beta=1.0, alpha=-2.0, out=scores)
-    best, idx = scores.min(dim=1)
-    d2 = (best + (x * x).sum(dim=1)).clamp_min_(0.0)
-    return idx, d2
+    scores = p.buf[:n]
+    torch.addmm(p.c_sq.unsqueeze(0), x, p.c.T, beta=1.0, alpha=-2.0, out=scores)
+    if p.g:
+        v = scores.view(n, -1, p.g)
+        best, grp = torch.min(v.amin(dim=2), dim=1)
+        idx = grp * p.g + torch.argmin(v[p.ar[:n], grp], dim=1)
+    else:
+        best, idx = torch.min(scores, dim=1)
+    return idx, (best + x_sq).clamp_min_(0.0)
 
 
-def _assign_all(x: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def _assign_all(x: torch.Tensor, c: torch.Tensor, x_sq: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor]:
     """Chunked nearest-codeword search over all rows of x: (idx [N] int64, d2 [N] f32)."""
     n = x.shape[0]
-    rows = _chunk_rows(c.shape[0])
-    c_sq = (c * c).sum(dim=1)
-    buf = torch.empty((min(rows, max(n, 1)), c.shape[0]), dtype=torch.float32)
+    p = _Prepared(c)
+    if x_sq is None:
+        x_sq = (x * x).sum(dim=1)
     idx = torch.empty(n, dtype=torch.int64)
     d2 = torch.empty(n, dtype=torch.float32)
-    for s in range(0, n, rows):
-        i, d = _nearest(x[s:s + rows], c, c_sq, buf)
-        idx[s:s + rows] = i
-        d2[s:s + rows] = d
+    for s in range(0, n, p.rows):
+        i, d = _nearest(x[s:s + p.rows], x_sq[s:s + p.rows], p)
+        idx[s:s + p.rows] = i
+        d2[s:s + p.rows] = d
     return idx, d2
 
 
-def assign(x: np.ndarray, codebook: np.ndarray) -> np.ndarray:
+def assign(x: np.ndarray, codebook: np.ndarray, *, threads: int | None = DEFAULT_THREADS
+           ) -> np.ndarray:
     """Index of the nearest codeword (squared L2) of every vector.
 
     x [N, D] float32, codebook [K, D] float32 (K >= 1)  ->  [N] int32.
@@ -121,7 +173,8 @@ def assign(x: np.ndarray, codebook: np.ndarray) -> np.ndarray:
         raise VQError(f"dimension mismatch: vectors have D={a.shape[1]}, codebook D={cb.shape[1]}")
     if a.shape[0] == 0:
         return np.zeros(0, np.int32)
-    idx, _ = _assign_all(torch.from_numpy(a), torch.from_numpy(cb))
+    with _threads(threads):
+        idx, _ = _assign_all(torch.from_numpy(a), torch.from_numpy(cb))
     return idx.numpy().astype(np.int32)
 
 
@@ -166,6 +219,7 @@ def _seed(x: np.ndarray, w: np.ndarray, k: int, rng: np.random.Generator) -> np.
         xs, ws = x, w
     m = xs.shape[0]
     xt = torch.from_numpy(np.ascontiguousarray(xs))
+    xt_sq = (xt * xt).sum(dim=1)
     first = int(rng.choice(m, p=ws / ws.sum()))
     centres = [xs[first]]
     d2 = ((xs - xs[first]) ** 2).sum(axis=1).astype(np.float64)
@@ -184,7 +238,7 @@ def _seed(x: np.ndarray, w: np.ndarray, k: int, rng: np.random.Generator) -> np.
         new = xs[pick]
         centres.extend(new)
         c = torch.from_numpy(np.ascontiguousarray(new))
-        _, dn = _assign_all(xt, c)
+        _, dn = _assign_all(xt, c, xt_sq)
         d2 = np.minimum(d2, dn.numpy().astype(np.float64))
     return np.stack(centres[:k]).astype(np.float32)
 
@@ -202,6 +256,7 @@ def _reseed(c: np.ndarray, dead: np.ndarray, cand_x: np.ndarray, cand_err: np.nd
 def train_codebook(x: np.ndarray, weights: np.ndarray | None, K: int, *,
                    iters: int = DEFAULT_ITERS, batch: int = DEFAULT_BATCH,
                    lloyd: int = DEFAULT_LLOYD, seed: int = 0,
+                   threads: int | None = DEFAULT_THREADS,
                    progress: Callable[[str, int, int], None] | None = None) -> np.ndarray:
     """Train an importance-weighted codebook.
 
@@ -211,6 +266,7 @@ def train_codebook(x: np.ndarray, weights: np.ndarray | None, K: int, *,
     iters    mini-batch iterations; batch: points per mini-batch (uniform draw)
     lloyd    full weighted Lloyd passes after the mini-batches (each costs one full assignment)
     seed     RNG seed (numpy Generator); same input + options -> identical codebook
+    threads  torch intra-op threads for the maths (default 1, see :func:`_threads`)
     progress optional callback(stage: str, done: int, total: int)
     returns  [K, D] float32 codebook
     """
@@ -232,28 +288,34 @@ def train_codebook(x: np.ndarray, weights: np.ndarray | None, K: int, *,
         pad = np.repeat(few[:1], K - few.shape[0], axis=0)
         return np.ascontiguousarray(np.concatenate([few, pad]), dtype=np.float32)
 
+    with _threads(threads):
+        return _train(a, w, K, iters, batch, lloyd, rng, progress)
+
+
+def _train(a: np.ndarray, w: np.ndarray, K: int, iters: int, batch: int, lloyd: int,
+           rng: np.random.Generator, progress) -> np.ndarray:
+    """The k-means proper (inputs validated, thread count set): [K, D] float32."""
+    n, dim = a.shape
     c = _seed(a, w, K, rng)
     if progress:
         progress("seed", 1, 1)
     xt = torch.from_numpy(a)
+    xt_sq = (xt * xt).sum(dim=1)
     acc_w = np.zeros(K)                    # accumulated weight per codeword (learning rates)
     last_hit = np.zeros(K, dtype=np.int64)
     refresh = 10                           # iterations without weight before a re-seed
     bsz = min(batch, n)
-    buf = torch.empty((_chunk_rows(K), K), dtype=torch.float32)
     for it in range(iters):
-        bi = np.sort(rng.choice(n, size=bsz, replace=bsz > n))
-        xb = xt[torch.from_numpy(bi)]
-        wb = w[bi]
-        ct = torch.from_numpy(c)
-        c_sq = (ct * ct).sum(dim=1)
-        rows = buf.shape[0]
+        bi = torch.from_numpy(np.sort(rng.choice(n, size=bsz, replace=False)))
+        xb, xb_sq = xt[bi], xt_sq[bi]
+        wb = w[bi.numpy()]
+        p = _Prepared(torch.from_numpy(c))
         idx = np.empty(bsz, np.int64)
         d2 = np.empty(bsz, np.float64)
-        for s in range(0, bsz, rows):
-            i, d = _nearest(xb[s:s + rows], ct, c_sq, buf)
-            idx[s:s + rows] = i.numpy()
-            d2[s:s + rows] = d.numpy()
+        for s in range(0, bsz, p.rows):
+            i, d = _nearest(xb[s:s + p.rows], xb_sq[s:s + p.rows], p)
+            idx[s:s + p.rows] = i.numpy()
+            d2[s:s + p.rows] = d.numpy()
         bw = np.bincount(idx, weights=wb, minlength=K)
         xbn = xb.numpy()
         bsum = np.stack([np.bincount(idx, weights=wb * xbn[:, j], minlength=K)
@@ -274,7 +336,7 @@ def train_codebook(x: np.ndarray, weights: np.ndarray | None, K: int, *,
             progress("minibatch", it + 1, iters)
 
     for p in range(lloyd):
-        idx, d2 = _assign_all(xt, torch.from_numpy(c))
+        idx, d2 = _assign_all(xt, torch.from_numpy(c), xt_sq)
         idx = idx.numpy()
         cw = np.bincount(idx, weights=w, minlength=K)
         sums = np.stack([np.bincount(idx, weights=w * a[:, j], minlength=K) for j in range(dim)], 1)

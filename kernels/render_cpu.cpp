@@ -3,17 +3,21 @@
 // Built at run time by torch.utils.cpp_extension.load() from gsz/encoder/render.py; the
 // pure-torch rasteriser there is the reference this kernel is tested against.
 //
-// Inputs are the *preprocessed*, depth-sorted visible Gaussians (projection, EWA covariance,
-// SH colour and tile rectangles are computed in torch, shared by both paths):
-//   means   [M, 2] f32   pixel-space centre (pixel (px, py) is evaluated at (px, py))
-//   conic   [M, 3] f32   inverse 2D covariance (a, b, c): power = -0.5(a dx^2 + c dy^2) - b dx dy
-//   opac    [M]    f32   sigmoid(opacity)
-//   colors  [M, 3] f32   SH colour (+0.5, clamped at 0)
-//   rects   [M, 4] i32   graphdeco tile rectangle (x0, y0, x1, y1), x1/y1 exclusive
-//   boxes   [M, 4] i32   conservative pixel box (x0, y0, x1, y1) outside of which
+// Two entry points, both mirroring the pure-torch reference in render.py step by step:
+//   preprocess(...)  per-Gaussian projection, EWA covariance, SH colour, tile rectangle and a
+//                    conservative pixel box; returns per-Gaussian arrays plus the front-to-back
+//                    order of the visible ones.
+//   rasterize(...)   tile binning + per-pixel compositing of those arrays:
+//   means   [N, 2] f32   pixel-space centre (pixel (px, py) is evaluated at (px, py))
+//   conic   [N, 3] f32   inverse 2D covariance (a, b, c): power = -0.5(a dx^2 + c dy^2) - b dx dy
+//   opac    [N]    f32   sigmoid(opacity)
+//   colors  [N, 3] f32   SH colour (+0.5, clamped at 0)
+//   rects   [N, 4] i32   graphdeco tile rectangle (x0, y0, x1, y1), x1/y1 exclusive
+//   boxes   [N, 4] i32   conservative pixel box (x0, y0, x1, y1) outside of which
 //                        alpha < 1/255 everywhere (so skipping it is exact); empty = never drawn
+//   order   [M]    i64   visible Gaussians, front to back
 // Outputs: image [H, W, 3] f32 (without background), trans [H, W] f32 (final T),
-//          importance [M] f64 (sum over pixels of alpha*T) when want_importance.
+//          importance [N] f64 (sum over pixels of alpha*T) when want_importance.
 //
 // Determinism: tiles are distributed over threads dynamically, but every tile writes only its
 // own pixels and its own per-entry importance slots; the per-Gaussian reduction afterwards runs
@@ -24,6 +28,8 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <thread>
 #include <vector>
 
@@ -52,6 +58,7 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
   const int64_t N = means.size(0);      // rows of the per-Gaussian arrays
   const int64_t M = order.size(0);      // visible Gaussians, front to back
   const int64_t* ordp = order.data_ptr<int64_t>();
+  TORCH_CHECK(N < (int64_t(1) << 31), "too many Gaussians");
   const int W = static_cast<int>(width), H = static_cast<int>(height);
   const int gx = (W + BLOCK - 1) / BLOCK, gy = (H + BLOCK - 1) / BLOCK;
   const int64_t ntiles = static_cast<int64_t>(gx) * gy;
@@ -87,14 +94,14 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
   }
   for (int64_t t = 0; t < ntiles; ++t) offsets[t + 1] += offsets[t];
   const int64_t E = offsets[ntiles];
-  std::vector<int64_t> entries(E);
+  std::vector<int32_t> entries(E);  // Gaussian row (N < 2^31 is checked)
   {
     std::vector<int64_t> fill(offsets.begin(), offsets.end() - 1);
     for (int64_t j = 0; j < M; ++j) {
       const int32_t* r = tr.data() + 4 * j;
       for (int ty = r[1]; ty < r[3]; ++ty)
         for (int tx = r[0]; tx < r[2]; ++tx)
-          entries[fill[static_cast<int64_t>(ty) * gx + tx]++] = ordp[j];
+          entries[fill[static_cast<int64_t>(ty) * gx + tx]++] = static_cast<int32_t>(ordp[j]);
     }
   }
   std::vector<double> entry_imp(want_importance ? E : 0, 0.0);
@@ -313,7 +320,12 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
       rp[4 * i] = x0; rp[4 * i + 1] = y0; rp[4 * i + 2] = x1; rp[4 * i + 3] = y1;
       const float o = 1.0f / (1.0f + std::exp(-O[i]));
       op[i] = o;
-      // Conservative alpha >= 1/255 box (render.py::_alpha_boxes), in double.
+      // Conservative box of the alpha >= 1/255 region, in double. alpha >= 1/255 needs
+      // o exp(power) >= 1/255, i.e. q(d) = d^T Q d <= 2 ln(255 o) =: 2L. The ellipse q <= 2L'
+      // has half-widths sqrt(2L' Q_c / det Q), sqrt(2L' Q_a / det Q). L' adds a margin for the
+      // float32 evaluation of q (its rounding error is a few ulps of the largest term, and each
+      // term is <= 2L kappa with kappa = Q_a Q_c / det Q >= 1), then one more pixel is added.
+      // Non-positive-definite conics get the whole image (no shortcut); o < 1/255 never draws.
       {
         const double qa = ca, qb = cb, qc = cc, od = o;
         const double detq = qa * qc - qb * qb;
@@ -370,13 +382,21 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
     }
   });
   // Front-to-back order of the visible Gaussians; stable so equal depths keep index order.
-  std::vector<int64_t> vis;
-  vis.reserve(N);
-  for (int64_t i = 0; i < N; ++i)
-    if (valid[i]) vis.push_back(i);
-  std::stable_sort(vis.begin(), vis.end(), [dp](int64_t l, int64_t r) { return dp[l] < dp[r]; });
-  auto order = torch::empty({(int64_t)vis.size()}, torch::kInt64);
-  std::copy(vis.begin(), vis.end(), order.data_ptr<int64_t>());
+  // Key = (float bits of the depth, index): depths are > 0.2, so their IEEE bit patterns sort
+  // like the numbers, and the index in the low word breaks ties exactly as a stable sort would.
+  TORCH_CHECK(N < (int64_t(1) << 32), "too many Gaussians");
+  std::vector<uint64_t> keys;
+  keys.reserve(N);
+  for (int64_t i = 0; i < N; ++i) {
+    if (!valid[i]) continue;
+    uint32_t bits;
+    std::memcpy(&bits, dp + i, sizeof(bits));
+    keys.push_back((static_cast<uint64_t>(bits) << 32) | static_cast<uint64_t>(i));
+  }
+  std::sort(keys.begin(), keys.end());
+  auto order = torch::empty({(int64_t)keys.size()}, torch::kInt64);
+  int64_t* orp = order.data_ptr<int64_t>();
+  for (size_t j = 0; j < keys.size(); ++j) orp[j] = static_cast<int64_t>(keys[j] & 0xffffffffu);
   return {means, conic, opac, colors, rects, boxes, order};
 }
 

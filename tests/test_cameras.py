@@ -9,7 +9,7 @@ import pytest
 import gsz
 from conftest import SAMPLE_SH0, SAMPLE_SH3, shared_scene
 from gsz.decoder.errors import CameraFormatError
-from gsz.encoder.cameras import (Camera, default_cameras, load_cameras, look_at, qvec_to_rotmat,
+from gsz.encoder.cameras import (Camera, default_cameras, detect_up, load_cameras, look_at, qvec_to_rotmat,
                                  read_cameras_json, read_colmap, robust_bounds, rotmat_to_qvec,
                                  write_cameras_json)
 
@@ -85,7 +85,7 @@ def test_cameras_json_errors_name_file_and_problem(tmp_path, content, problem):
 def test_missing_camera_file(tmp_path):
     with pytest.raises(CameraFormatError, match="nope.json.*not found"):
         load_cameras(tmp_path / "nope.json", None)
-    with pytest.raises(CameraFormatError, match="no COLMAP model"):
+    with pytest.raises(CameraFormatError, match="no cameras.json and no COLMAP model"):
         load_cameras(tmp_path, None)
 
 
@@ -275,6 +275,7 @@ def test_default_cameras_show_content_shared(name):
 def test_default_cameras_deterministic_upright_and_robust_to_outliers(sample_sh0):
     a = default_cameras(sample_sh0, n_train=6, n_test=3, width=160, height=120)
     b = default_cameras(sample_sh0.copy(), n_train=6, n_test=3, width=160, height=120)
+    assert detect_up(sample_sh0.positions) == "-y"
     assert [c.name for c in a.test] == ["test_000", "test_001", "test_002"]
     for x, y in zip(a.train + a.test, b.train + b.test):
         assert np.array_equal(x.R, y.R) and np.array_equal(x.t, y.t)
@@ -305,3 +306,22 @@ def test_load_cameras_default_width_and_aspect(sample_sh3):
     cs = load_cameras(None, sample_sh3, n_train=3, n_test=2, width=160)
     assert len(cs.train) == 3 and len(cs.test) == 2
     assert (cs.test[0].width, cs.test[0].height) == (160, 120)
+
+
+def test_detect_up_reads_the_ground_plane(sample_sh0, sample_sh3):
+    # houseplant: pot on the ground at +y (y down, as its source states); jug: its file is
+    # y-up, the blue table it stands on is at low y.
+    assert detect_up(sample_sh0.positions) == "-y"
+    assert detect_up(sample_sh3.positions) == "+y"
+    flipped = sample_sh0.positions * np.array([1, -1, 1], np.float32)
+    assert detect_up(flipped) == "+y"
+    cams = default_cameras(sample_sh3, n_train=3, n_test=1)
+    assert all(c.R[1] @ np.array([0, -1.0, 0]) > 0.3 for c in cams.train + cams.test)
+
+
+@pytest.mark.shared
+@pytest.mark.parametrize("name", ["houseplant_sh0.ply", "flowers_daffodils_sh2.ply",
+                                  "plaza_taebak_crop_sh0.ply", "measuring_jug_sh3.ply"])
+def test_detect_up_shared(name):
+    expected = "+y" if name.startswith("measuring_jug") else "-y"
+    assert detect_up(gsz.read_ply(shared_scene(name)).positions) == expected

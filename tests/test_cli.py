@@ -1,0 +1,73 @@
+"""gsz-encode / gsz-decode / gsz-info as a user runs them."""
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+import gsz
+from conftest import SAMPLE_SH0
+
+FAST = ["--codebook", "64", "--train-views", "4", "--importance-width", "120"]
+
+
+def run(*args, check=True):
+    code = ("import sys; from gsz.encoder.cli import main as e; from gsz.decoder.cli import decode_main as d, "
+            "info_main as i; sys.exit({'encode': e, 'decode': d, 'info': i}[sys.argv[1]](sys.argv[2:]))")
+    p = subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True, text=True)
+    if check:
+        assert p.returncode == 0, p.stderr
+    return p
+
+
+@pytest.fixture(scope="module")
+def gsz_file(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cli") / "plant.gsz"
+    p = run("encode", SAMPLE_SH0, "-o", out, "--bits", "10", "--json", *FAST)
+    report = json.loads(p.stdout)
+    return out, report, p.stderr
+
+
+def test_encode_reports_sizes_stages_and_progress(gsz_file):
+    out, report, stderr = gsz_file
+    assert report["bytes"] == os.path.getsize(out)
+    assert report["ratio"] > 5
+    for k in ("geometry", "attributes", "metadata"):
+        assert report["components"][k] > 0
+    for stage in ("importance", "prune", "voxelize", "geometry", "attributes", "container"):
+        assert stage in report["seconds"]
+        assert f"[gsz] {stage}" in stderr
+
+
+def test_decode_and_info(gsz_file, tmp_path):
+    out, report, _ = gsz_file
+    ply = tmp_path / "back.ply"
+    p = run("decode", out, "-o", ply, "--json")
+    assert json.loads(p.stdout)["num_gaussians"] == report["voxels"]
+    cloud = gsz.read_ply(ply)
+    assert len(cloud) == report["voxels"] and cloud.sh_degree == 0
+    info = json.loads(run("info", out, "--json").stdout)
+    assert info["num_gaussians"] == report["voxels"]
+    assert [c["type"] for c in info["chunks"]][:2] == ["GEOM", "ATTR"]
+    assert sum(c["bytes"] for c in info["chunks"]) < info["bytes"]
+    text = run("info", out).stdout
+    assert "GEOM" in text and "gaussians" in text
+
+
+def test_bad_inputs_give_one_line_errors_and_no_output(tmp_path):
+    junk = tmp_path / "junk.ply"
+    junk.write_bytes(b"not a ply at all")
+    out = tmp_path / "x.gsz"
+    p = run("encode", junk, "-o", out, *FAST, check=False)
+    assert p.returncode == 2 and "junk.ply" in p.stderr and "Traceback" not in p.stderr
+    assert not out.exists()
+    p = run("encode", SAMPLE_SH0, "-o", out, "--bits", "17", check=False)
+    assert p.returncode == 2 and "--bits" in p.stderr and not out.exists()
+    bad = tmp_path / "bad.gsz"
+    bad.write_bytes(b"\x89GSZ\r\n\x1a\n" + b"\x00" * 100)
+    p = run("decode", bad, "-o", tmp_path / "y.ply", check=False)
+    assert p.returncode == 2 and "bad.gsz" in p.stderr and "Traceback" not in p.stderr
+    assert not (tmp_path / "y.ply").exists()
+    p = run("info", tmp_path / "missing.gsz", check=False)
+    assert p.returncode == 2 and "not found" in p.stderr

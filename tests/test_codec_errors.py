@@ -1,0 +1,113 @@
+"""Corrupt, truncated and hostile .gsz files: one documented exception type, no hang, no
+silent mis-decode, bounded memory."""
+import struct
+import zlib
+
+import numpy as np
+import pytest
+
+from gsz.decoder import GszError, GszFormatError, decode
+from gsz.decoder.container import CHUNK_ENTRY_SIZE, HEADER_SIZE, read_container
+from codec_util import encoded
+
+
+@pytest.fixture(scope="module")
+def small():
+    return encoded("sh3", 1500, bits=8).data
+
+
+def _fix_crcs(buf: bytearray) -> bytes:
+    """Recompute every checksum so that corruption reaches the payload parsers (hostile files)."""
+    n = struct.unpack_from("<I", buf, 28)[0]
+    table_end = HEADER_SIZE + CHUNK_ENTRY_SIZE * n
+    off = table_end + 4
+    for i in range(n):
+        e = HEADER_SIZE + CHUNK_ENTRY_SIZE * i
+        length = struct.unpack_from("<Q", buf, e + 8)[0]
+        struct.pack_into("<I", buf, e + 16, zlib.crc32(bytes(buf[off:off + length])))
+        off += length
+    struct.pack_into("<I", buf, table_end, zlib.crc32(bytes(buf[HEADER_SIZE:table_end])))
+    struct.pack_into("<I", buf, 60, zlib.crc32(bytes(buf[:60])))
+    return bytes(buf)
+
+
+def test_every_truncation_is_detected(small):
+    cuts = sorted(set(np.linspace(0, len(small) - 1, 300).astype(int)) | {0, 1, 63, 64, 65})
+    for cut in cuts:
+        with pytest.raises(GszFormatError):
+            decode(small[:cut])
+
+
+def test_random_bit_flips_are_detected_by_checksums(small):
+    rng = np.random.default_rng(1)
+    for _ in range(400):
+        buf = bytearray(small)
+        pos = int(rng.integers(len(buf)))
+        buf[pos] ^= 1 << int(rng.integers(8))
+        with pytest.raises(GszFormatError):
+            decode(bytes(buf))
+
+
+def test_hostile_payloads_with_valid_checksums_never_crash(small):
+    """Flip bytes inside chunk payloads and recompute all CRCs: the parsers themselves must
+    reject (GszFormatError) or decode a well-formed cloud; nothing else may escape."""
+    rng = np.random.default_rng(2)
+    c = read_container(small)
+    spans = [(ch.offset, ch.offset + len(ch.data)) for ch in c.chunks if ch.type != b"META"]
+    outcomes = {"rejected": 0, "decoded": 0}
+    for i in range(700):
+        buf = bytearray(small)
+        a, b = spans[i % len(spans)]
+        for _ in range(int(rng.integers(1, 4))):
+            # bias towards the fields at the start of each chunk (counts, lengths, params)
+            pos = a + int(rng.integers(min(b - a, 64))) if rng.random() < 0.5 else int(rng.integers(a, b))
+            buf[pos] = int(rng.integers(256))
+        try:
+            out = decode(_fix_crcs(buf))
+        except GszFormatError:
+            outcomes["rejected"] += 1
+        else:
+            outcomes["decoded"] += 1
+            out.validate(check_finite=True)
+    assert outcomes["rejected"] > 0
+    assert sum(outcomes.values()) == 700
+
+
+def test_hostile_header_counts_do_not_allocate(small):
+    buf = bytearray(small)
+    struct.pack_into("<Q", buf, 16, 1 << 40)   # num_gaussians
+    with pytest.raises(GszFormatError, match="limit"):
+        decode(_fix_crcs(buf))
+    buf = bytearray(small)
+    struct.pack_into("<I", buf, 28, 1 << 30)   # num_chunks
+    with pytest.raises(GszFormatError):
+        decode(_fix_crcs(buf))
+
+
+def test_version_magic_and_trailing_bytes(small):
+    buf = bytearray(small)
+    struct.pack_into("<H", buf, 8, 2)
+    with pytest.raises(GszFormatError, match="version"):
+        decode(_fix_crcs(buf))
+    with pytest.raises(GszFormatError, match="not a .gsz"):
+        decode(b"PK\x03\x04" + small[4:])
+    with pytest.raises(GszFormatError, match="trailing"):
+        decode(small + b"\x00")
+
+
+def test_unknown_chunks_skipped_unless_required(small):
+    from gsz.decoder.container import Chunk, write_container
+    c = read_container(small)
+    base = [Chunk(ch.type, bytes(ch.data), ch.flags) for ch in c.chunks]
+    ok = write_container(c.header, base + [Chunk(b"XTRA", b"hello", 0)])
+    assert decode(ok).equals(decode(small))
+    bad = write_container(c.header, base + [Chunk(b"XTRA", b"hello", 1)])
+    with pytest.raises(GszFormatError, match="XTRA"):
+        decode(bad)
+
+
+def test_missing_file_and_directory(tmp_path):
+    with pytest.raises(GszError, match="not found"):
+        decode(tmp_path / "nope.gsz")
+    with pytest.raises(GszError, match="directory"):
+        decode(tmp_path)

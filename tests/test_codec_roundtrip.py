@@ -1,0 +1,83 @@
+"""Codec round trips on real samples: the decoder reproduces exactly what the encoder predicts,
+errors stay within the quantiser's bounds, and output is deterministic."""
+import numpy as np
+import pytest
+
+import gsz
+from gsz.decoder import decode
+from gsz.decoder.rotation import quaternion_to_matrix
+from codec_util import encoded, sample
+
+
+def _cov(cloud):
+    r = quaternion_to_matrix(cloud.rotations.astype(np.float64))
+    s = np.exp(2 * cloud.scales.astype(np.float64))
+    return np.einsum("nij,nj,nkj->nik", r, s, r)
+
+
+@pytest.mark.parametrize("name", ["sh0", "sh3"])
+def test_decoder_reproduces_encoder_prediction_exactly(name):
+    res = encoded(name, None, bits=12)
+    out = decode(res.data)
+    assert out.sh_degree == sample(name).sh_degree
+    assert out.equals(res.cloud)
+
+
+@pytest.mark.parametrize("name", ["sh0", "sh3"])
+def test_12_bit_attribute_errors_are_small(name):
+    """Every surviving Gaussian is close to an input Gaussian: positions within half a voxel
+    diagonal, opacity/DC within a few quantiser steps of the RAHT-domain error budget."""
+    src = sample(name)
+    res = encoded(name, None, bits=12)
+    out = res.cloud
+    rep = res.report
+    assert rep["voxels"] == len(out) <= len(src)
+    assert rep["merged_fraction"] < 0.02
+    # nearest input Gaussian of each output one (brute force is fine at this size)
+    from scipy.spatial import cKDTree
+    dist, nn = cKDTree(src.positions).query(out.positions)
+    assert np.median(dist) < 1e-2 * np.ptp(src.positions, axis=0).max()
+    matched = dist < np.percentile(dist, 90)
+    assert np.abs(out.scales - src.scales[nn])[matched].mean() < 0.01
+    assert np.abs(out.opacities - src.opacities[nn])[matched].mean() < 0.05
+    assert np.abs(out.sh_dc - src.sh_dc[nn])[matched].mean() < 0.02
+    c_in, c_out = _cov(src.subset(nn[matched])), _cov(out.subset(np.flatnonzero(matched)))
+    rel = np.linalg.norm(c_out - c_in, axis=(1, 2)) / np.linalg.norm(c_in, axis=(1, 2))
+    assert np.median(rel) < 0.02
+
+
+def test_more_bits_means_bigger_file_and_smaller_error():
+    lo, hi = encoded("sh0", 4000, bits=6), encoded("sh0", 4000, bits=12)
+    assert len(lo.data) < len(hi.data)
+    src = sample("sh0", 4000)
+    # same pruning/voxelisation (options differ only in bits) -> same points, same order
+    assert np.array_equal(lo.cloud.positions, hi.cloud.positions)
+    from scipy.spatial import cKDTree
+    _, nn = cKDTree(src.positions).query(hi.cloud.positions)
+    for f in ("opacities", "sh_dc", "scales"):
+        e_lo = np.abs(getattr(lo.cloud, f) - getattr(src, f)[nn]).mean()
+        e_hi = np.abs(getattr(hi.cloud, f) - getattr(src, f)[nn]).mean()
+        assert e_hi < e_lo, f
+
+
+def test_encoding_is_deterministic():
+    from gsz.encoder.pipeline import EncodeOptions, encode
+    from codec_util import FAST
+    c = sample("sh3", 3000)
+    a = encode(c, EncodeOptions(**FAST, bits=10)).data
+    b = encode(c, EncodeOptions(**FAST, bits=10)).data
+    assert a == b
+
+
+def test_file_is_much_smaller_than_ply():
+    res = encoded("sh3", None, bits=12)
+    ply_bytes = len(gsz.decoder.ply.cloud_to_ply_bytes(sample("sh3")))
+    assert len(res.data) * 5 < ply_bytes
+
+
+def test_sh_keep_reproduces_kept_vectors_closely():
+    res = encoded("sh3", 4000, bits=12, keep=400)
+    assert res.report["sh"]["kept"] == 400
+    out = decode(res.data)
+    assert out.sh_rest.shape == (len(out), 15, 3)
+    assert out.equals(res.cloud)
