@@ -272,11 +272,13 @@ class ModelSet:
         lut_base = np.zeros(m_count, dtype=np.int64)
         if m_count:
             lut_base[1:] = np.cumsum(total)[:-1]
-        # LUT entry of slot s of model m: (g << 33) | (freq_g << 16) | (s - cum_g), g the
-        # symbol owning slot s: the decode step then needs no separate cum/slot terms
-        g_of_slot = np.repeat(np.arange(freq.size, dtype=np.int64), freq)
-        slot_local = np.arange(g_of_slot.size, dtype=np.int64) - np.repeat(lut_base, total)
-        packed_lut = (g_of_slot << 33) | (freq[g_of_slot] << 16) | (slot_local - cum[g_of_slot])
+        # LUT entry of slot z of model m: (g << 33) | (freq_g << 16) | (z - cum_g), g the
+        # symbol owning slot z: the decode step then needs no separate cum/slot terms.  Models'
+        # slot ranges are consecutive, so z - cum_g = global slot - global start of g.
+        start = np.cumsum(freq) - freq
+        packed_lut = np.repeat((np.arange(freq.size, dtype=np.int64) << 33) + (freq << 16) - start,
+                               freq)
+        packed_lut += np.arange(packed_lut.size, dtype=np.int64)
         self._tables = dict(freq=freq, cum=cum, value=value, sym_start=sym_start,
                             sym_count=sym_count, lut_base=lut_base, packed_lut=packed_lut,
                             total=total, mask=total - 1)

@@ -176,9 +176,10 @@ def _fit_one(lo: int, hi: int, counts: np.ndarray):
     c_total = int(counts.sum())
     if k > (1 << MAX_PRECISION):
         raise ValueError(f"{k} distinct symbols in one model: at most 65536 are codable")
-    # 2**n <= 4 * N_m keeps the decoder's LUT within its budget (and more precision than the
-    # counts' own resolution buys little)
-    n_cap = min(MAX_PRECISION, max(math.ceil(math.log2(k)), math.ceil(math.log2(c_total)) + 1))
+    # 2**n < 2 * N_m keeps the decoder's LUT (and its build time) within 2 entries per symbol,
+    # well inside the budget of 4; more precision than the counts' own resolution buys ~nothing
+    # (measured on real scenes: 2**n ~ 2 N_m gives the same size as ~N_m)
+    n_cap = min(MAX_PRECISION, max(math.ceil(math.log2(k)), math.ceil(math.log2(c_total))))
     n = max(1, n_cap)
 
     def coarse(h: int, g: int):

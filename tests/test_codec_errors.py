@@ -79,9 +79,14 @@ def test_hostile_header_counts_do_not_allocate(small):
     with pytest.raises(GszFormatError, match="limit"):
         decode(_fix_crcs(buf))
     buf = bytearray(small)
-    struct.pack_into("<I", buf, 28, 1 << 30)   # num_chunks
-    with pytest.raises(GszFormatError):
-        decode(_fix_crcs(buf))
+    struct.pack_into("<I", buf, 28, 1 << 30)   # num_chunks (header CRC fixed, table then too short)
+    struct.pack_into("<I", buf, 60, zlib.crc32(bytes(buf[:60])))
+    with pytest.raises(GszFormatError, match="chunk count"):
+        decode(bytes(buf))
+    struct.pack_into("<I", buf, 28, 4000)
+    struct.pack_into("<I", buf, 60, zlib.crc32(bytes(buf[:60])))
+    with pytest.raises(GszFormatError, match="truncated|checksum"):
+        decode(bytes(buf))
 
 
 def test_version_magic_and_trailing_bytes(small):
