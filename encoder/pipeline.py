@@ -181,13 +181,32 @@ def encode_attributes(cloud: GaussianCloud, tree, opts: EncodeOptions):
     return w.getvalue(), decoded, {"raht_bytes": len(ac_bytes), "scale_bytes": len(sc_bytes)}
 
 
-def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, cameras=None,
-           progress: Progress | None = None) -> EncodeResult:
-    """Compress ``cloud`` with ``options``; ``cameras`` are the train views for importance
-    (default: the deterministic default camera set).  Returns the .gsz bytes, the cloud the
-    decoder will reconstruct, and a report (sizes per component, seconds per stage)."""
+def compute_train_importance(cloud: GaussianCloud, opts: EncodeOptions, *, cameras=None,
+                             progress: Progress | None = None) -> np.ndarray:
+    """Importance I = I_d * (V/V_ref)^beta over the train views (default camera set if None)."""
     from .cameras import load_cameras
-    from .importance import compute_importance, prune
+    from .importance import compute_importance
+
+    progress = progress or Progress(quiet=True)
+    if cameras is None:
+        cameras = load_cameras(None, cloud, n_train=opts.train_views, n_test=8,
+                               width=opts.importance_width).train
+    else:
+        cameras = [c.scaled(opts.importance_width) if c.width > opts.importance_width else c
+                   for c in cameras]
+    with progress.stage("importance", f"{len(cameras)} views at {cameras[0].width}x{cameras[0].height}"):
+        return compute_importance(cloud, cameras, beta=opts.beta,
+                                  progress=progress.bar(len(cameras), "importance"))
+
+
+def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, cameras=None,
+           importance: np.ndarray | None = None, progress: Progress | None = None) -> EncodeResult:
+    """Compress ``cloud`` with ``options``; ``cameras`` are the train views for importance
+    (default: the deterministic default camera set).  ``importance`` [N] skips the importance
+    pass when the caller already has it (e.g. several encodes of one scene).  Returns the .gsz
+    bytes, the cloud the decoder will reconstruct, and a report (sizes per component, seconds
+    per stage)."""
+    from .importance import prune
     from .voxelize import DEFAULT_REL_ERROR, choose_depth, voxelize
 
     opts = (options or EncodeOptions()).validate()
@@ -196,15 +215,12 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
     n_in = len(cloud)
     t_start = time.perf_counter()
 
-    if cameras is None:
-        cameras = load_cameras(None, cloud, n_train=opts.train_views, n_test=8,
-                               width=opts.importance_width).train
+    if importance is None:
+        importance = compute_train_importance(cloud, opts, cameras=cameras, progress=progress)
     else:
-        cameras = [c.scaled(opts.importance_width) if c.width > opts.importance_width else c
-                   for c in cameras]
-    with progress.stage("importance", f"{len(cameras)} views at {cameras[0].width}x{cameras[0].height}"):
-        importance = compute_importance(cloud, cameras, beta=opts.beta,
-                                        progress=progress.bar(len(cameras), "importance"))
+        importance = np.asarray(importance, np.float64)
+        if importance.shape != (n_in,) or not np.all(np.isfinite(importance)):
+            raise EncodeOptionsError(f"importance must be {n_in} finite values")
     with progress.stage("prune", f"reserve {opts.reserve}"):
         kept = prune(importance, opts.reserve)
         pruned = cloud.subset(kept)

@@ -7,9 +7,11 @@ Grid
     ``origin + ijk * pitch .. origin + (ijk + 1) * pitch`` with ``pitch = side / 2^d`` and is
     decoded at its CENTRE ``origin + (ijk + 0.5) * pitch`` (the reference decodes the lower
     corner: a half-voxel bias).  The cube is the bounding cube of ALL centres -- no point is
-    ever dropped -- with a relative 2^-30 of padding (far below a voxel even at d = 21) so the maximum lands strictly inside, and
-    indices are clipped to ``[0, 2^d - 1]`` as a second guard (the reference's edge bug put a
-    point at the axis maximum into voxel 2^d, corrupting the key).
+    ever dropped -- with a relative 2^-30 of padding (far below a voxel even at d = 21) so the
+    maximum lands strictly inside voxel 2^d - 1, and indices are clipped to ``[0, 2^d - 1]`` as
+    a second guard (the reference's edge bug put a point at the axis maximum into voxel 2^d,
+    corrupting the key).  Positions are reconstructed by the decoder's normative
+    :func:`gsz.decoder.geometry.voxel_centres`.
 
 Depth
     :func:`choose_depth` takes the smallest ``d`` whose worst-case position error, the half

@@ -16,8 +16,9 @@ Objective: minimise the weighted distortion ``sum_i w_i ||x_i - c_{a(i)}||^2``.
 * Finish: ``lloyd`` full weighted Lloyd passes over all points (exact centroid updates),
   re-seeding empty clusters from the worst-fit points.
 * Distances use one GEMM per chunk: ``||x||^2 - 2 x c^T + ||c||^2`` (only ``||c||^2 - 2 x c^T``
-  for the argmin), with chunks of ~4 MB and preallocated buffers (platform-notes §6: fresh
-  tensors of 32 MB+ cost ~30 ms of page faults here).
+  for the argmin), in chunks of ~8 MB into one preallocated buffer (platform-notes §6: fresh
+  tensors of 32 MB+ cost ~30 ms of page faults here), with a two-level argmin (torch's
+  min-with-index is slower than the GEMM itself).  One torch thread by default (``threads``).
 * Determinism: a seeded numpy Generator drives every random choice; torch runs the maths on
   the CPU with fixed chunking, so the same input and options give a bit-identical codebook on
   the same machine and thread count.
