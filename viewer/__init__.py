@@ -1,1 +1,1 @@
-"""gsz.viewer"""
+"""gsz.viewer: the interactive viewer (gsz-view) lands here; see the viewer issue."""
