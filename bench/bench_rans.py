@@ -1,12 +1,14 @@
 """Benchmark of the interleaved rANS coder (decoder/rans.py, encoder/rans.py).
 
     .venv/bin/python bench/bench_rans.py [--n 10000000] [--models 100] [--repeat 3]
+    .venv/bin/python bench/bench_rans.py --scene ../shared/data/flowers_daffodils_sh2.ply --bits 8
 
 Data: N symbols in -128..127, M equal blocks, each a rounded Laplace with its own scale
 (U(0.5, 20)), as in platform-notes.md section 5.  Reports encode/decode Msym/s (best of
 --repeat, wall clock and process CPU time), payload and tables versus the per-model empirical
 entropy, incremental decoding in batches of 4096, and constriction's AnsCoder with the same
-quantised probabilities as a yardstick.
+quantised probabilities as a yardstick.  With --scene: opacity, scales, rotation and DC of a
+real PLY, min-max quantised per channel to --bits, 80 blocks per channel (one model each).
 """
 from __future__ import annotations
 
@@ -29,21 +31,43 @@ def timed(fn, repeat):
     return out, best_wall, best_cpu
 
 
+def scene_symbols(path: str, bits: int, blocks: int = 80):
+    """(symbols, model ids, num models): 11 attribute channels of a PLY, per-channel min-max
+    quantised to ``bits``, channel-major, one model per (channel, block of N/blocks points)."""
+    from gsz.decoder.ply import read_ply
+    c = read_ply(path)
+    x = np.concatenate([c.opacities[:, None], c.scales, c.rotations, c.sh_dc], 1).astype(np.float64)
+    n, ch = x.shape
+    lo, hi = x.min(0), x.max(0)
+    q = np.round((x - lo) / np.maximum(hi - lo, 1e-12) * (2 ** bits - 1)).astype(np.int64)
+    block = np.arange(n) * blocks // n
+    mids = (np.arange(ch)[None, :] * blocks + block[:, None]).T.ravel()
+    return q.T.ravel(), mids, ch * blocks
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=10_000_000)
     ap.add_argument("--models", type=int, default=100)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--scene", default=None, help="real PLY instead of synthetic data")
+    ap.add_argument("--bits", type=int, default=8, help="quantisation bits with --scene")
     args = ap.parse_args(argv)
-    n, m = args.n, args.models
-    rng = np.random.default_rng(args.seed)
-    mids = np.repeat(np.arange(m), -(-n // m))[:n]
-    scales = rng.uniform(0.5, 20.0, m)
-    sym = np.clip(np.round(rng.laplace(0.0, scales[mids])), -128, 127).astype(np.int64)
+    if args.scene:
+        sym, mids, m = scene_symbols(args.scene, args.bits)
+        n = sym.size
+    else:
+        n, m = args.n, args.models
+        rng = np.random.default_rng(args.seed)
+        mids = np.repeat(np.arange(m), -(-n // m))[:n]
+        scales = rng.uniform(0.5, 20.0, m)
+        sym = np.clip(np.round(rng.laplace(0.0, scales[mids])), -128, 127).astype(np.int64)
 
-    key = mids.astype(np.int64) * 256 + (sym + 128)
-    cnt = np.bincount(key, minlength=256 * m).reshape(m, 256).astype(np.float64)
+    off = sym - sym.min()
+    width = int(off.max()) + 1
+    key = mids.astype(np.int64) * width + off
+    cnt = np.bincount(key, minlength=width * m).reshape(m, width).astype(np.float64)
     tot = cnt.sum(1, keepdims=True)
     with np.errstate(divide="ignore", invalid="ignore"):
         h_bits = float(-(cnt * np.where(cnt > 0, np.log2(cnt / tot), 0)).sum())
@@ -97,8 +121,10 @@ def main(argv=None):
     print(f"N={n:,} symbols, M={m} models, lanes={lanes}, model types "
           f"empty/single/coarse/laplace={types.tolist()}")
     print(f"empirical entropy      {h_bytes:12,.0f} B  ({h_bits / n:.4f} bit/sym)")
-    print(f"payload                {len(payload):12,} B  ({100 * (len(payload) / h_bytes - 1):+.3f} %)")
-    print(f"tables                 {len(table):12,} B  ({100 * len(table) / h_bytes:.3f} % of entropy)")
+    print(f"payload                {len(payload):12,} B  "
+          f"({100 * (len(payload) / h_bytes - 1):+.3f} %)")
+    print(f"tables                 {len(table):12,} B  "
+          f"({100 * len(table) / h_bytes:.3f} % of entropy)")
     print(f"payload + tables       {len(payload) + len(table):12,} B  "
           f"({100 * ((len(payload) + len(table)) / h_bytes - 1):+.3f} %)")
     if ref is not None:

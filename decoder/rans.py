@@ -242,12 +242,12 @@ class ModelSet:
 
     def build(self, max_lut_entries: int | None = None) -> dict:
         """Build (once) the decoding tables; ``max_lut_entries`` bounds memory on hostile input."""
-        if self._tables is not None:
-            return self._tables
         lut_total = self.lut_entries()
         if max_lut_entries is not None and lut_total > max_lut_entries:
             raise GszFormatError(f"rANS: model set needs {lut_total} LUT entries, "
                                  f"more than the {max_lut_entries} this stream allows")
+        if self._tables is not None:
+            return self._tables
         m_count = self.num_models
         freqs, offs = [], []
         sym_count = np.zeros(m_count, dtype=np.int64)
@@ -410,8 +410,8 @@ def read_model_set(buf: memoryview | bytes, pos: int = 0) -> tuple[ModelSet, int
     cuts = np.cumsum(counts)[:-1]
     bins = tuple(np.cumsum(gp + 1) - 1 for gp in np.split(gaps, cuts)) if n_co else ()
     levels = tuple(np.cumsum(unzigzag(d)) for d in np.split(deltas, cuts)) if n_co else ()
-    ms = ModelSet(types=types, lo=lo, span=span, prec=prec, group=group, binshift=binshift, centre=centre,
-                  r_left=rl, r_right=rr, bins=bins, levels=levels)
+    ms = ModelSet(types=types, lo=lo, span=span, prec=prec, group=group, binshift=binshift,
+                  centre=centre, r_left=rl, r_right=rr, bins=bins, levels=levels)
     ms.validate()
     return ms, pos
 
@@ -459,7 +459,7 @@ class RansDecoder:
         return self._pos
 
     def decode(self, model_ids: np.ndarray) -> np.ndarray:
-        """Decode the next ``len(model_ids)`` symbols; model_ids: int array, returns int64 values."""
+        """Decode the next ``len(model_ids)`` symbols (model_ids: int array); returns int64."""
         mids = np.asarray(model_ids).ravel()
         if mids.size and not np.issubdtype(mids.dtype, np.integer):
             raise GszFormatError("rANS: model ids must be integers")
@@ -468,7 +468,8 @@ class RansDecoder:
         if count == 0:
             return np.zeros(0, dtype=np.int64)
         if self._pos + count > self._n:
-            raise GszFormatError(f"rANS: asked for {self._pos + count} symbols, stream has {self._n}")
+            raise GszFormatError(f"rANS: asked for {self._pos + count} symbols, "
+                                 f"stream has {self._n}")
         m_count = self._models.num_models
         if mids.min() < 0 or mids.max() >= m_count:
             raise GszFormatError(f"rANS: model id outside 0..{m_count - 1}")

@@ -14,7 +14,7 @@ import zstandard
 from gsz.decoder.rans import (COARSE, EMPTY, LAPLACE, MAX_LEVEL_EXP, MAX_PRECISION, MAX_SPAN,
                               RATIO_ONE, SINGLE, STATE_LOW, VALUE_LIMIT, WORD_BITS, ModelSet,
                               laplace_weights, level_weights, lut_budget, max_level_code,
-                              normalise_weights, ratio_from_code)
+                              ratio_from_code)
 
 ZSTD_LEVEL = 19
 MAX_LANES = 4096
@@ -39,10 +39,13 @@ def choose_lanes(num_symbols: int, payload_bits: float | None = None) -> int:
 
 # ---- byte writers ------------------------------------------------------------------------------
 def varint_bytes(values: np.ndarray) -> bytes:
-    """Unsigned LEB128 encoding of a non-negative int64 array, vectorised."""
-    v = np.asarray(values, dtype=np.uint64).ravel()
-    if v.size == 0:
+    """Unsigned LEB128 encoding of a non-negative integer array, vectorised."""
+    a = np.asarray(values).ravel()
+    if a.size == 0:
         return b""
+    if not np.issubdtype(a.dtype, np.integer) or (a.dtype.kind == "i" and a.min() < 0):
+        raise ValueError("varints take non-negative integers")
+    v = a.astype(np.uint64)
     nbytes = np.ones(v.size, dtype=np.int64)
     t = v >> np.uint64(7)
     while np.any(t):
@@ -90,12 +93,6 @@ def _histograms(symbols: np.ndarray, model_ids: np.ndarray, num_models: int):
             raise ValueError(f"model {ms[a]}: values outside int32")
         out[int(ms[a])] = (lo, hi, np.bincount(v - lo, minlength=hi - lo + 1).astype(np.int64))
     return out
-
-
-def _payload_bits(counts: np.ndarray, freq: np.ndarray, n: int) -> float:
-    """Exact ideal code length (bits) of symbols with these counts under these frequencies."""
-    nz = counts > 0
-    return float((counts[nz] * (n - np.log2(freq[nz]))).sum())
 
 
 def _approx_bits(counts: np.ndarray, w: np.ndarray, n: int) -> float:

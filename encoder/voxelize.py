@@ -348,7 +348,13 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
             cov = np.add.reduceat(cov, starts, axis=0) / wsum[:, None, None]
             evals, evecs = np.linalg.eigh(cov)
             evecs[np.linalg.det(evecs) < 0, :, 0] *= -1.0   # proper rotation (det +1)
-            out["scales"][gvox] = (0.5 * np.log(np.maximum(evals, 1e-300))).astype(np.float32)
+            # lambda_min of a convex combination of PSD matrices is >= the combination of their
+            # lambda_min: clamping there removes only rounding error (a flat member would
+            # otherwise give a log of ~0 or a negative eigenvalue -> an extreme log-scale that
+            # would wreck the scale channel's min-max quantiser range).
+            floor = np.add.reduceat(var.min(axis=1) * w, starts) / wsum
+            evals = np.maximum(evals, floor[:, None])
+            out["scales"][gvox] = (0.5 * np.log(evals)).astype(np.float32)
             qm = _matrix_to_quaternion(evecs)
         elif rotation == "max":
             qm = ref

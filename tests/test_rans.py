@@ -5,7 +5,7 @@ import pytest
 
 from gsz.decoder.errors import GszFormatError
 from gsz.decoder.rans import (COARSE, EMPTY, LAPLACE, SINGLE, RansDecoder, decode_stream,
-                              normalise_weights, read_model_set)
+                              normalise_weights, read_model_set, read_varint)
 from gsz.encoder.rans import (encode_stream, encode_symbols, fit_model_set, stream_cost_bits,
                               varint_bytes, write_model_set)
 
@@ -220,14 +220,15 @@ def test_corrupt_payload_detected():
 
 
 def test_payload_consistent_but_short_word_stream():
-    # header claims fewer words than the symbols need: must stop with GszFormatError
+    # a self-consistent header that declares half the words: decoding stops with GszFormatError
     sym, mids = laplace_data(5000, 2, seed=11)
     models = fit_model_set(sym, mids, 2)
     payload = encode_symbols(sym, mids, models, lanes=2)
-    lanes, words = 2, (len(payload) - 8 - len(varint_bytes([2, 0]))) // 2
-    head = varint_bytes([lanes, words // 2])
-    hdr_len = len(varint_bytes([lanes, words]))
-    short = head + payload[hdr_len:hdr_len + 8] + payload[hdr_len + 8:hdr_len + 8 + 2 * (words // 2)]
+    buf = np.frombuffer(payload, np.uint8)
+    lanes, p = read_varint(buf, 0, "lanes")
+    words, p = read_varint(buf, p, "words")
+    assert lanes == 2 and len(payload) == p + 8 + 2 * words
+    short = varint_bytes([lanes, words // 2]) + payload[p:p + 8 + 2 * (words // 2)]
     with pytest.raises(GszFormatError, match="truncated"):
         RansDecoder(short, sym.size, models).decode(mids)
 
@@ -241,7 +242,8 @@ def test_hostile_headers_bounded():
     with pytest.raises(GszFormatError):
         RansDecoder(varint_bytes([1, 0]) + b"\x05\x00\x00\x00", 0, models)  # state < 2**16
     # model set claiming 2**40 bytes / 10**6 models / huge spans
-    for body in (varint_bytes([1 << 41]), varint_bytes([2 * 3]) + varint_bytes([10**6]) + b"\x00\x00",
+    for body in (varint_bytes([1 << 41]),
+                 varint_bytes([2 * 3]) + varint_bytes([10**6]) + b"\x00\x00",
                  varint_bytes([2 * 5]) + bytes([1, 2, 0]) + varint_bytes([1 << 20, 4])):
         with pytest.raises(GszFormatError):
             read_model_set(body)

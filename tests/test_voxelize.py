@@ -207,3 +207,15 @@ def test_default_depth_keeps_merges_rare_on_shared_scene():
     d = choose_depth(c.positions)
     assert d == 11                           # the geometry anchor's operating depth
     assert merge_fraction(c.positions, d) < 0.01
+
+
+def test_moment_merge_of_flat_gaussians_keeps_a_sane_thin_axis():
+    # Two flat discs (thin axis e^-15) in one voxel: rounding in the eigendecomposition must not
+    # turn the thin axis into log(1e-300) -- an outlier that would wreck the scale quantiser.
+    ls = np.array([[-1.0, -1.0, -15.0], [-1.2, -1.0, -15.0], [0.0, 0.0, 0.0]])
+    rot = np.array([[1.0, 0, 0, 0], [0.999, 0.02, -0.01, 0.03], [1.0, 0, 0, 0]])
+    c = _cloud([[0, 0, 0], [0.01, 0, 0], [1, 1, 1]], rot=rot, ls=ls)
+    v = voxelize(c, np.ones(3), 2)
+    merged = v.cloud.scales[v.index_of_point[0]]
+    assert merged.min() >= -15.0 - 1e-4 and merged.max() <= -0.9
+    assert np.all(np.isfinite(v.cloud.rotations))
