@@ -25,7 +25,6 @@ from gsz.decoder.bytesio import Writer
 from gsz.decoder.cloud import GaussianCloud
 from gsz.decoder.container import CHUNK_REQUIRED, FRAME_RDF, FileHeader, Chunk, write_container
 from gsz.decoder.errors import GszError
-from gsz.decoder.groups import blocks_for
 from gsz.decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHVQ, RAHT_CHANNELS,
                                 ROTATION_EULER_ZYX)
 from gsz.decoder.morton import morton_encode
@@ -48,7 +47,7 @@ class EncodeOptions:
 
     reserve          tau: fraction of Gaussians kept after importance pruning, (0, 1]
     bits             uniform bit-width of every quantisation group, 1..16
-    codebook         SH VQ codebook size K (1..65536); capped at the number of Gaussians
+    codebook         SH VQ codebook size K (1..65536); capped at one codeword per 8 Gaussians
     keep             number of most important Gaussians whose exact SH vectors are kept
                      (None: 1 % of the voxels)
     blocks           blocks per quantised channel (groups = channels x blocks)
@@ -120,65 +119,165 @@ def _top_k_mask(importance: np.ndarray, k: int) -> np.ndarray:
     return mask
 
 
-def encode_sh(sh_rest: np.ndarray, importance: np.ndarray, opts: EncodeOptions, progress: Progress):
-    """SHVQ chunk payload and the SH the decoder will reconstruct ([M, K, 3] float32)."""
-    from .vq import assign, compact, train_codebook
+@dataclass
+class Stage:
+    """Everything that depends on the reserve ratio and depth but not on bit-widths.
 
-    m, k, _ = sh_rest.shape
-    d = 3 * k
-    x = sh_rest.reshape(m, d).astype(np.float32)
-    keep = int(round(0.01 * m)) if opts.keep is None else min(int(opts.keep), m)
-    kept = _top_k_mask(importance, keep)
+    vox        the voxelised, merged cloud (M Gaussians, Morton order)
+    geometry   GEOM chunk payload (exact bytes)
+    tree       RAHT tree of the voxels
+    raht_dc    [7] float64 RAHT root coefficients (stored exactly)
+    raht_ac    [7, M-1] float32 AC coefficients in stream (level) order
+    scales     [3, M] float32 log-scales in Morton order
+    sh         [M, D] float32 higher-degree SH vectors (D = 0 for SH degree 0)
+    importance [M] float64 merged importance
+    """
+
+    reserve: float
+    depth: int
+    vox: object
+    geometry: bytes
+    tree: object
+    raht_dc: np.ndarray
+    raht_ac: np.ndarray
+    scales: np.ndarray
+    sh: np.ndarray
+    importance: np.ndarray
+    sh_degree: int
+    input_gaussians: int
+
+    @property
+    def num_points(self) -> int:
+        return len(self.vox.ijk)
+
+
+def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, *, depth=None,
+                  rel_error=None, progress: Progress | None = None) -> Stage:
+    """Prune to ``reserve``, voxelise, code the geometry and transform the attributes."""
+    from .importance import prune
+    from .raht import raht_forward
+    from .voxelize import DEFAULT_REL_ERROR, choose_depth, voxelize
+
+    progress = progress or Progress(quiet=True)
+    with progress.stage("prune", f"reserve {reserve}"):
+        kept = prune(importance, reserve)
+        pruned = cloud.subset(kept)
+        imp = importance[kept]
+    with progress.stage("voxelize"):
+        rel = DEFAULT_REL_ERROR if rel_error is None else float(rel_error)
+        d = int(depth) if depth is not None else choose_depth(pruned.positions, rel_error=rel)
+        vox = voxelize(pruned, imp, d)
+        progress.log(f"depth {d}: {len(pruned)} Gaussians -> {len(vox.ijk)} voxels "
+                     f"({100 * vox.merged_fraction:.2f} % merged)")
+    with progress.stage("geometry"):
+        geom = write_geometry(vox.ijk, vox.origin, vox.side, d)
+    with progress.stage("transform", "Euler + RAHT"):
+        c = vox.cloud
+        tree = build_raht_tree(morton_encode(vox.ijk), d)
+        euler = quaternion_to_euler(c.rotations.astype(np.float64))
+        attrs = np.concatenate([c.opacities.astype(np.float64)[:, None], euler,
+                                c.sh_dc.astype(np.float64)], axis=1)
+        dc, ac = raht_forward(attrs, tree)
+    m = len(vox.ijk)
+    return Stage(reserve=float(reserve), depth=d, vox=vox, geometry=geom, tree=tree, raht_dc=dc,
+                 raht_ac=np.ascontiguousarray(ac.T, dtype=np.float32),
+                 scales=np.ascontiguousarray(c.scales.T, dtype=np.float32),
+                 sh=c.sh_rest.reshape(m, -1).astype(np.float32), importance=vox.importance,
+                 sh_degree=cloud.sh_degree, input_gaussians=len(cloud))
+
+
+def attribute_chunk(stage: Stage, raht_bits, scale_bits, blocks: int):
+    """ATTR chunk payload for the given bit-widths (int, or [7, B] / [3, B] arrays), the
+    attributes the decoder will reconstruct, and per-part byte counts."""
+    from gsz.decoder.raht import raht_inverse
+
+    w = Writer()
+    w.u8(ROTATION_EULER_ZYX).u8(len(RAHT_CHANNELS)).array(stage.raht_dc, np.float64)
+    ac_bytes, ac_rec = write_channel_set(stage.raht_ac, raht_bits, blocks)
+    sc_bytes, sc_rec = write_channel_set(stage.scales, scale_bits, blocks)
+    w.bytes(ac_bytes).bytes(sc_bytes)
+    decoded = attributes_from_channels(raht_inverse(stage.raht_dc, ac_rec.T, stage.tree), sc_rec)
+    return w.getvalue(), decoded, {"raht_bytes": len(ac_bytes), "scale_bytes": len(sc_bytes)}
+
+
+def default_codebook_size(m: int, requested: int | None = None) -> int:
+    """K: the requested size, capped so that the codebook stays small next to its users
+    (at most one codeword per 8 Gaussians, at least 16)."""
+    k = 4096 if requested is None else int(requested)
+    return max(1, min(k, max(16, m // 8), m))
+
+
+def train_sh_codebook(stage: Stage, size: int, *, seed: int = 0, iters=None,
+                      progress: Progress | None = None) -> np.ndarray:
+    """Importance-weighted VQ codebook [K, D] of the stage's SH vectors."""
+    from .vq import train_codebook
+
+    w = stage.importance
+    w = w / w.max() if w.max() > 0 else np.ones_like(w)
+    kw = {} if iters is None else {"iters": int(iters)}
+    bar = progress.bar(1, "vq") if progress is not None else None
+    return train_codebook(stage.sh, w, min(int(size), stage.num_points), seed=seed, progress=bar, **kw)
+
+
+def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks: int):
+    """SHVQ chunk payload, the SH the decoder will reconstruct ([M, K, 3] float32), and stats.
+
+    The ``keep`` most important Gaussians keep their exact vectors (quantised at sh_bits like
+    the codebook); every other Gaussian takes its nearest codeword."""
+    from .rans import encode_stream
+    from .vq import assign, compact
+
+    m, d = stage.sh.shape
+    keep = min(int(keep), m)
+    kept = _top_k_mask(stage.importance, keep)
     rest = ~kept
-    sh_bits = int(opts.sh_bits or opts.bits)
-    stats = {"kept": keep}
     if rest.any():
-        w = importance[rest]
-        w = w / w.max() if w.max() > 0 else np.ones_like(w)
-        kcb = min(int(opts.codebook), int(rest.sum()))
-        kw = {} if opts.vq_iters is None else {"iters": int(opts.vq_iters)}
-        cb = train_codebook(x[rest], w, kcb, seed=opts.seed,
-                            progress=progress.bar(1, "vq") if False else None, **kw)
-        idx = assign(x[rest], cb)
-        cb, idx = compact(cb, idx)
+        cb, idx = compact(codebook, assign(stage.sh[rest], codebook))
     else:
         cb, idx = np.zeros((1, d), np.float32), np.zeros(0, np.int32)
-    from .rans import encode_stream
     w = Writer()
     w.u32(cb.shape[0]).u32(keep).u16(d)
-    cb_bytes, cb_rec = write_channel_set(cb.T, sh_bits, opts.blocks)
+    cb_bytes, cb_rec = write_channel_set(cb.T, sh_bits, blocks)
     w.bytes(cb_bytes)
     out = np.empty((m, d), np.float32)
+    stats = {"kept": keep, "codebook_size": int(cb.shape[0]), "codebook_bytes": len(cb_bytes)}
     if keep:
-        kept_bytes, kept_rec = write_channel_set(x[kept].T, sh_bits, opts.blocks)
+        kept_bytes, kept_rec = write_channel_set(stage.sh[kept].T, sh_bits, blocks)
         w.bytes(kept_bytes)
-        w.blob(encode_stream(kept.astype(np.int64), np.zeros(m, np.int64), 1))
+        flags = encode_stream(kept.astype(np.int64), np.zeros(m, np.int64), 1)
+        w.blob(flags)
         out[kept] = kept_rec.T
-        stats["kept_bytes"] = len(kept_bytes)
+        stats["kept_bytes"] = len(kept_bytes) + len(flags) + 8
     idx_blob = encode_stream(idx.astype(np.int64), np.zeros(idx.size, np.int64), 1)
     w.blob(idx_blob)
     out[rest] = cb_rec.T[idx]
-    stats.update(codebook_size=int(cb.shape[0]), codebook_bytes=len(cb_bytes),
-                 index_bytes=len(idx_blob) + 8)
+    stats["index_bytes"] = len(idx_blob) + 8
+    k = m and d // 3
     return w.getvalue(), out.reshape(m, k, 3), stats
 
 
-def encode_attributes(cloud: GaussianCloud, tree, opts: EncodeOptions):
-    """ATTR chunk payload, the decoded attributes the decoder will reconstruct, and stats."""
-    from .raht import raht_forward
+def assemble(stage: Stage, attr: bytes, decoded, sh: bytes | None, sh_rest, meta: dict):
+    """The .gsz bytes and the cloud the decoder will reconstruct."""
+    import zstandard
+    from gsz.decoder.geometry import voxel_centres
 
-    euler = quaternion_to_euler(cloud.rotations.astype(np.float64))
-    attrs = np.concatenate([cloud.opacities.astype(np.float64)[:, None], euler,
-                            cloud.sh_dc.astype(np.float64)], axis=1)
-    dc, ac = raht_forward(attrs, tree)
-    w = Writer()
-    w.u8(ROTATION_EULER_ZYX).u8(len(RAHT_CHANNELS)).array(dc, np.float64)
-    ac_bytes, ac_rec = write_channel_set(ac.T, opts.bits, opts.blocks)
-    sc_bytes, sc_rec = write_channel_set(cloud.scales.T, opts.bits, opts.blocks)
-    w.bytes(ac_bytes).bytes(sc_bytes)
-    from gsz.decoder.raht import raht_inverse
-    decoded = attributes_from_channels(raht_inverse(dc, ac_rec.T, tree), sc_rec)
-    return w.getvalue(), decoded, {"raht_bytes": len(ac_bytes), "scale_bytes": len(sc_bytes)}
+    vox = stage.vox
+    m = stage.num_points
+    out_cloud = GaussianCloud(
+        positions=voxel_centres(vox.ijk, vox.origin, vox.side, stage.depth).astype(np.float32),
+        scales=decoded.scales, rotations=decoded.rotations, opacities=decoded.opacities,
+        sh_dc=decoded.sh_dc, sh_rest=sh_rest if sh is not None else np.zeros((m, 0, 3), np.float32),
+        sh_degree=stage.sh_degree)
+    chunks = [Chunk(CHUNK_GEOM, stage.geometry, CHUNK_REQUIRED), Chunk(CHUNK_ATTR, attr, CHUNK_REQUIRED)]
+    if sh is not None:
+        chunks.append(Chunk(CHUNK_SHVQ, sh, CHUNK_REQUIRED))
+    meta_bytes = zstandard.ZstdCompressor(level=19).compress(
+        json.dumps(meta, sort_keys=True, separators=(",", ":"), default=float).encode())
+    chunks.append(Chunk(CHUNK_META, meta_bytes, 0))
+    header = FileHeader(num_gaussians=m, sh_degree=stage.sh_degree, frame=FRAME_RDF,
+                        bbox_min=tuple(out_cloud.positions.min(0)),
+                        bbox_max=tuple(out_cloud.positions.max(0)))
+    return write_container(header, chunks), out_cloud, len(meta_bytes)
 
 
 def compute_train_importance(cloud: GaussianCloud, opts: EncodeOptions, *, cameras=None,
@@ -206,73 +305,46 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
     pass when the caller already has it (e.g. several encodes of one scene).  Returns the .gsz
     bytes, the cloud the decoder will reconstruct, and a report (sizes per component, seconds
     per stage)."""
-    from .importance import prune
-    from .voxelize import DEFAULT_REL_ERROR, choose_depth, voxelize
-
     opts = (options or EncodeOptions()).validate()
     progress = progress or Progress(quiet=True)
     cloud.validate()
     n_in = len(cloud)
     t_start = time.perf_counter()
-
     if importance is None:
         importance = compute_train_importance(cloud, opts, cameras=cameras, progress=progress)
     else:
         importance = np.asarray(importance, np.float64)
         if importance.shape != (n_in,) or not np.all(np.isfinite(importance)):
             raise EncodeOptionsError(f"importance must be {n_in} finite values")
-    with progress.stage("prune", f"reserve {opts.reserve}"):
-        kept = prune(importance, opts.reserve)
-        pruned = cloud.subset(kept)
-        imp = importance[kept]
-    with progress.stage("voxelize"):
-        rel = DEFAULT_REL_ERROR if opts.rel_error is None else float(opts.rel_error)
-        depth = int(opts.depth) if opts.depth is not None else choose_depth(pruned.positions, rel_error=rel)
-        vox = voxelize(pruned, imp, depth)
-        m = len(vox.ijk)
-        progress.log(f"depth {depth}: {len(pruned)} Gaussians -> {m} voxels "
-                     f"({100 * vox.merged_fraction:.2f} % merged)")
-    with progress.stage("geometry"):
-        geom = write_geometry(vox.ijk, vox.origin, vox.side, depth)
+    stage = prepare_stage(cloud, importance, opts.reserve, depth=opts.depth,
+                          rel_error=opts.rel_error, progress=progress)
+    m = stage.num_points
     with progress.stage("attributes", f"{opts.bits} bits, {opts.blocks} blocks"):
-        tree = build_raht_tree(morton_encode(vox.ijk), depth)
-        attr, decoded, attr_stats = encode_attributes(vox.cloud, tree, opts)
+        attr, decoded, attr_stats = attribute_chunk(stage, opts.bits, opts.bits, opts.blocks)
+    sh = sh_rest = None
     sh_stats = {}
-    chunks = [Chunk(CHUNK_GEOM, geom, CHUNK_REQUIRED), Chunk(CHUNK_ATTR, attr, CHUNK_REQUIRED)]
     if cloud.sh_degree > 0:
-        with progress.stage("sh", f"codebook {opts.codebook}"):
-            shc, sh_rest, sh_stats = encode_sh(vox.cloud.sh_rest, vox.importance, opts, progress)
-        chunks.append(Chunk(CHUNK_SHVQ, shc, CHUNK_REQUIRED))
-    else:
-        sh_rest = np.zeros((m, 0, 3), np.float32)
-
-    from gsz.decoder.geometry import voxel_centres
-    out_cloud = GaussianCloud(
-        positions=voxel_centres(vox.ijk, vox.origin, vox.side, depth).astype(np.float32),
-        scales=decoded.scales, rotations=decoded.rotations, opacities=decoded.opacities,
-        sh_dc=decoded.sh_dc, sh_rest=sh_rest, sh_degree=cloud.sh_degree)
+        k = default_codebook_size(m, opts.codebook)
+        with progress.stage("sh", f"codebook {k}"):
+            cb = train_sh_codebook(stage, k, seed=opts.seed, iters=opts.vq_iters, progress=progress)
+            keep = int(round(0.01 * m)) if opts.keep is None else int(opts.keep)
+            sh, sh_rest, sh_stats = sh_chunk(stage, cb, keep, int(opts.sh_bits or opts.bits), opts.blocks)
+    options_json = dict(asdict(opts), depth=stage.depth)
     with progress.stage("container"):
-        options_json = {k: v for k, v in asdict(opts).items()}
-        options_json["depth"] = depth
         meta = {"encoder": "gsz 0.1.0", "codec": "mesongs++", "options": options_json,
                 "input_gaussians": n_in, "voxels": m}
-        import zstandard
-        meta_bytes = zstandard.ZstdCompressor(level=19).compress(
-            json.dumps(meta, sort_keys=True, separators=(",", ":")).encode())
-        chunks.append(Chunk(CHUNK_META, meta_bytes, 0))
-        header = FileHeader(num_gaussians=m, sh_degree=cloud.sh_degree, frame=FRAME_RDF,
-                            bbox_min=tuple(out_cloud.positions.min(0)),
-                            bbox_max=tuple(out_cloud.positions.max(0)))
-        data = write_container(header, chunks)
-    sizes = {"geometry": len(geom), "attributes": len(attr), **{k: v for k, v in attr_stats.items()},
-             "metadata": len(meta_bytes), "container_overhead": len(data) - sum(len(c.data) for c in chunks)}
-    if cloud.sh_degree > 0:
-        sizes["sh"] = len(chunks[2].data)
+        data, out_cloud, meta_len = assemble(stage, attr, decoded, sh, sh_rest, meta)
+    sizes = {"geometry": len(stage.geometry), "attributes": len(attr), **attr_stats,
+             "metadata": meta_len}
+    if sh is not None:
+        sizes["sh"] = len(sh)
         sizes.update({f"sh_{k}": v for k, v in sh_stats.items() if k.endswith("bytes")})
+    sizes["container_overhead"] = len(data) - sum(sizes[k] for k in ("geometry", "attributes", "metadata")) \
+        - sizes.get("sh", 0)
     report = {
-        "bytes": len(data), "input_gaussians": n_in, "kept_after_prune": len(pruned), "voxels": m,
-        "bytes_per_gaussian": len(data) / m, "depth": depth, "merged_fraction": vox.merged_fraction,
-        "sh_degree": cloud.sh_degree, "components": sizes,
+        "bytes": len(data), "input_gaussians": n_in, "kept_after_prune": len(stage.vox.index_of_point),
+        "voxels": m, "bytes_per_gaussian": len(data) / m, "depth": stage.depth,
+        "merged_fraction": stage.vox.merged_fraction, "sh_degree": cloud.sh_degree, "components": sizes,
         "sh": {k: v for k, v in sh_stats.items() if not k.endswith("bytes")},
         "seconds": dict(progress.seconds), "total_seconds": time.perf_counter() - t_start,
         "options": options_json,
