@@ -8,11 +8,13 @@ Syntax (little-endian)::
     u8   C            number of channels (1..255)
     u32  L            channel length (0..num_gaussians)
     u16  B            blocks per channel (1..65535)
+    u8   model_mode   0: one rANS model per group (model id c*B + b);
+                      1: one model per (channel, bit-width) (model id c*16 + bits - 1)
     u8   bits[C*B]    group bit-widths 1..16, channel-major
     f32  mins[C*B]    group minima
     f32  maxs[C*B]    group maxima
-    u64  n, byte[n]   rANS stream (ENTROPY.md §5) of C*L symbols, channel-major then element;
-                      the symbol of channel c, element e uses model c*B + block(e)
+    u64  n, byte[n]   rANS stream (ENTROPY.md §5) of C*L symbols, channel-major then element,
+                      each with the model its group's model_mode gives
 """
 from __future__ import annotations
 
@@ -24,10 +26,25 @@ from .rans import decode_stream
 from .errors import GszFormatError
 
 
-def group_model_ids(num_channels: int, length: int, num_blocks: int) -> np.ndarray:
-    """Model id (c*B + block) of every symbol of a [C, L] channel set, channel-major (int64 [C*L])."""
-    per_channel = np.repeat(np.arange(num_blocks, dtype=np.int64), split_lengths(length, num_blocks))
-    return (np.arange(num_channels, dtype=np.int64)[:, None] * num_blocks + per_channel[None, :]).ravel()
+MODEL_PER_GROUP = 0
+MODEL_PER_CHANNEL_BITS = 1
+MODEL_MODES = (MODEL_PER_GROUP, MODEL_PER_CHANNEL_BITS)
+
+
+def group_model_ids(num_channels: int, length: int, num_blocks: int, bits=None,
+                    mode: int = MODEL_PER_GROUP) -> tuple[np.ndarray, int]:
+    """Model id of every symbol of a [C, L] channel set, channel-major (int64 [C*L]), and the
+    number of models.  Mode 0: c*B + block; mode 1: c*16 + bits[c, block] - 1 (groups of one
+    channel with equal bit-widths share a model, which saves the model tables of small groups)."""
+    block_of = np.repeat(np.arange(num_blocks, dtype=np.int64), split_lengths(length, num_blocks))
+    if mode == MODEL_PER_GROUP:
+        table = np.arange(num_channels * num_blocks, dtype=np.int64).reshape(num_channels, num_blocks)
+        count = num_channels * num_blocks
+    else:
+        table = (np.arange(num_channels, dtype=np.int64)[:, None] * 16
+                 + np.asarray(bits, dtype=np.int64).reshape(num_channels, num_blocks) - 1)
+        count = num_channels * 16
+    return table[:, block_of].ravel(), count
 
 
 def read_channel_set(r: Reader, *, max_length: int) -> np.ndarray:
@@ -37,13 +54,16 @@ def read_channel_set(r: Reader, *, max_length: int) -> np.ndarray:
     b = r.u16()
     r.check(c >= 1, "channel set with zero channels")
     r.check(b >= 1, "channel set with zero blocks")
+    mode = r.u8()
+    r.check(mode in MODEL_MODES, f"unknown model mode {mode}")
     r.check(length <= max_length, f"channel length {length} exceeds the point count {max_length}")
     bits = r.array(np.uint8, c * b).reshape(c, b)
     mins = r.array(np.float32, c * b).reshape(c, b)
     maxs = r.array(np.float32, c * b).reshape(c, b)
     validate_group_params(mins, maxs, bits)
     blob = r.blob()
-    symbols = decode_stream(blob, group_model_ids(c, length, b)).reshape(c, length)
+    mids, _ = group_model_ids(c, length, b, bits, mode)
+    symbols = decode_stream(blob, mids).reshape(c, length)
     return dequantize_groups(symbols, mins, maxs, bits, split_lengths(length, b))
 
 

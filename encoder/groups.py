@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from gsz.decoder.bytesio import Writer
-from gsz.decoder.groups import blocks_for, group_model_ids
+from gsz.decoder.groups import MODEL_MODES, blocks_for, group_model_ids
 from gsz.decoder.quant import dequantize_groups, split_lengths
 from gsz.encoder.rans import encode_stream
 from gsz.kernels.quantize import quantize_groups
@@ -26,9 +26,17 @@ def write_channel_set(x: np.ndarray, bits, num_blocks: int) -> tuple[bytes, np.n
         symbols = np.zeros((c, 0), np.int32)
         mins = np.zeros((c, b), np.float32)
         maxs = np.zeros((c, b), np.float32)
+    # Both model layouts are coded and the smaller kept: per-group tables win for large groups
+    # and low bit-widths, shared per-(channel, bits) tables for small groups at high bit-widths.
+    best = None
+    for mode in MODEL_MODES:
+        mids, count = group_model_ids(c, length, b, bits_arr, mode)
+        stream = encode_stream(symbols.ravel(), mids, count)
+        if best is None or len(stream) < len(best[1]):
+            best = (mode, stream)
     w = Writer()
-    w.u8(c).u32(length).u16(b)
+    w.u8(c).u32(length).u16(b).u8(best[0])
     w.array(bits_arr, np.uint8).array(mins, np.float32).array(maxs, np.float32)
-    w.blob(encode_stream(symbols.ravel(), group_model_ids(c, length, b), c * b))
+    w.blob(best[1])
     recon = dequantize_groups(symbols, mins, maxs, bits_arr, split_lengths(length, b))
     return w.getvalue(), recon
