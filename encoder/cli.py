@@ -17,8 +17,14 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("input", help="input PLY (graphdeco 3DGS layout, SH degree 0-3)")
     p.add_argument("-o", "--output", required=True, help="output .gsz file (written atomically)")
-    p.add_argument("--reserve", type=float, default=d.reserve, help="fraction of Gaussians kept by importance pruning (tau)")
-    p.add_argument("--bits", type=int, default=d.bits, help="uniform bit-width of every quantisation group (1-16)")
+    budget = p.add_argument_group("size target (the encoder searches the configuration; give one)")
+    budget.add_argument("--size", default=None, help="byte budget, e.g. 5MB, 4.5MiB, 800kB, 1200000")
+    budget.add_argument("--ratio", default=None, help="compression ratio vs the input PLY, e.g. 30 or 30x")
+    budget.add_argument("--profile", default=None, help="large (8x), medium (12x), small (18x), very-small (27x), tiny (40x)")
+    budget.add_argument("--report", default=None, metavar="DIR", help="write a bit-width heatmap PNG and report.json here")
+    budget.add_argument("--solver", default="fast", choices=["fast", "cbc"], help="bit-allocation solver")
+    p.add_argument("--reserve", type=float, default=None, help=f"fixed configuration: fraction of Gaussians kept by importance pruning (tau; default {d.reserve})")
+    p.add_argument("--bits", type=int, default=None, help=f"fixed configuration: uniform bit-width of every quantisation group (1-16; default {d.bits})")
     p.add_argument("--codebook", type=int, default=d.codebook, help="SH vector-quantisation codebook size K")
     p.add_argument("--keep", type=int, default=None, help="number of most important Gaussians whose exact SH is kept (default: 1%% of voxels)")
     p.add_argument("--blocks", type=int, default=d.blocks, help="blocks per quantised channel")
@@ -43,8 +49,12 @@ def main(argv=None) -> int:
     from .progress import Progress
 
     prog = Progress(quiet=a.quiet)
+    if any(v is not None for v in (a.size, a.ratio, a.profile)):
+        return _search_main(a, prog)
     try:
-        opts = EncodeOptions(reserve=a.reserve, bits=a.bits, codebook=a.codebook, keep=a.keep,
+        opts = EncodeOptions(reserve=EncodeOptions.reserve if a.reserve is None else a.reserve,
+                             bits=EncodeOptions.bits if a.bits is None else a.bits,
+                             codebook=a.codebook, keep=a.keep,
                              blocks=a.blocks, depth=a.depth, rel_error=a.rel_error, beta=a.beta,
                              sh_bits=a.sh_bits, train_views=a.train_views,
                              importance_width=a.importance_width, seed=a.seed).validate()
@@ -72,6 +82,53 @@ def main(argv=None) -> int:
                  f"{r['bytes_per_gaussian']:.2f} B/Gaussian, {r['voxels']:,} Gaussians)")
         comps = r["components"]
         prog.log("  " + ", ".join(f"{k} {v:,}" for k, v in comps.items()))
+    return 0
+
+
+def _search_main(a, prog) -> int:
+    from gsz.decoder.io_util import atomic_write
+    from gsz.decoder.ply import read_ply
+    from .search import SearchOptions, encode_to_budget
+    from .sizes import budget_from_args, format_size, size_style
+
+    if a.reserve is not None or a.bits is not None or a.keep is not None or a.depth is not None:
+        print("gsz-encode: error: --size/--ratio/--profile choose reserve, bits and keep themselves; "
+              "drop --reserve/--bits/--keep/--depth", file=sys.stderr)
+        return 2
+    try:
+        in_bytes = os.path.getsize(a.input) if os.path.exists(a.input) else None
+        target = budget_from_args(size=a.size, ratio=a.ratio, profile=a.profile, ply_bytes=in_bytes)
+        style = size_style(a.size) if a.size is not None else "auto"
+        prog.log(f"target size {format_size(target, style)} ({target:,} bytes)")
+        with prog.stage("read", a.input):
+            cloud = read_ply(a.input)
+        cameras = None
+        if a.cameras:
+            from .cameras import load_cameras
+            cameras = load_cameras(a.cameras, cloud).train
+        sopts = SearchOptions(solver=a.solver, blocks=a.blocks, train_views=a.train_views,
+                              importance_width=a.importance_width, seed=a.seed,
+                              codebook=a.codebook if a.codebook != 4096 else None)
+        result = encode_to_budget(cloud, target, options=sopts, cameras=cameras, progress=prog)
+        atomic_write(a.output, result.data)
+        r = result.report
+        r.update(input=a.input, output=a.output, input_bytes=in_bytes, ratio=in_bytes / r["bytes"],
+                 target=format_size(target, style))
+        if a.report:
+            from .report import write_search_report
+            r["report_files"] = write_search_report(r, a.report)
+    except GszError as e:
+        print(f"gsz-encode: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("gsz-encode: interrupted; no output written", file=sys.stderr)
+        return 130
+    if a.json:
+        print(json.dumps(r, indent=1, default=float))
+    else:
+        prog.log(f"wrote {a.output}: {r['bytes']:,} bytes = {100 * r['bytes'] / target:.2f} % of the "
+                 f"{format_size(target, style)} target ({r['ratio']:.1f}x smaller than the PLY); "
+                 f"reserve {r['reserve']}, keep {r['sh_keep']}, train PSNR {r['train_psnr']:.2f} dB")
     return 0
 
 

@@ -1,0 +1,415 @@
+"""Size-aware search: hit a byte budget (never above it, within a tolerance below it) with the
+best fidelity the codec can reach.
+
+    result = encode_to_budget(cloud, 5_000_000)       # .data <= 5 MB, >= 99.5 % of it
+
+Method (MesonGS++'s, with the measured improvements noted):
+
+* Outer loop over the reserve ratio tau (a grid).  A tau whose size range cannot contain the
+  budget (even all-16-bit stays below it, or all-1-bit stays above it) is skipped, as in the
+  paper; of the rest, up to ``max_candidates`` spread over the feasible range are encoded for
+  real and the one with the best PSNR on **train** views wins (test views are never used).
+* Inner loop per tau: the SH keep-count P is chosen jointly with the bit allocation: for each P
+  on a geometric grid, the bits left after geometry and SH go to the attribute groups by the
+  multiple-choice-knapsack solver, and the P with the smallest total loss (attribute SSE Omega +
+  SH SSE) wins.  Rates are entropy-coded-size estimates per (group, bit-width)
+  (``gsz.encoder.rate``), not q*n, so calibration needs few rounds.
+* Calibration: encode the attributes for real, measure, shift the solver budget by the
+  observed error (secant steps), until the file is within ``tolerance`` below the target; the
+  best file at or below the target is kept, so the result is never over budget.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gsz.decoder.errors import GszError
+from gsz.decoder.groups import blocks_for
+
+from .pipeline import (EncodeOptions, EncodeResult, Stage, _top_k_mask, assemble, attribute_chunk,
+                       compute_train_importance, default_codebook_size, prepare_stage, sh_chunk,
+                       train_sh_codebook)
+from .progress import Progress
+
+SH_BITS = 8          # codebook and kept SH vectors (the paper's setting)
+KEEP_FRACTIONS = (0.0, 0.0025, 0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.32)
+
+
+class BudgetError(GszError, ValueError):
+    """The requested budget cannot be met (names the smallest reachable size)."""
+
+    def __init__(self, target: int, minimum: int, path=None):
+        self.target = int(target)
+        self.minimum = int(minimum)
+        super().__init__(f"size budget {self.target:,} bytes is below the smallest reachable file "
+                         f"for this scene, {self.minimum:,} bytes", path)
+
+
+@dataclass
+class SearchOptions:
+    """Knobs of the search (defaults are what the benchmarks use).
+
+    reserves        tau grid, descending
+    max_candidates  taus encoded for real and compared by train-view PSNR
+    tolerance       accepted shortfall below the target (fraction)
+    max_rounds      calibration rounds per tau
+    solver          "fast" (convex hull + repair) or "cbc" (PuLP, the paper's ILP)
+    eval_views      train views rendered to compare candidates; eval_width their width
+    """
+
+    reserves: tuple = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)
+    max_candidates: int = 3
+    tolerance: float = 0.005
+    max_rounds: int = 8
+    solver: str = "fast"
+    blocks: int = 80
+    codebook: int | None = None
+    eval_views: int = 6
+    eval_width: int = 320
+    train_views: int = 24
+    importance_width: int = 400
+    vq_iters: int | None = None
+    seed: int = 0
+
+
+@dataclass
+class _TauPlan:
+    stage: Stage
+    loss: np.ndarray          # [G, 16] attribute SSE (RAHT groups then scale groups)
+    rate: np.ndarray          # [G, 16] estimated coded bits
+    shapes: tuple             # ((7, B_raht), (3, B_scale))
+    fixed_bytes: int          # everything but the two attribute channel sets' coded streams
+    min_bytes: float
+    max_bytes: float
+
+
+def _attribute_tables(stage: Stage, blocks: int):
+    from gsz.kernels.quantize import quantize_all_bits
+
+    from .rate import rate_matrix
+    losses, rates, shapes = [], [], []
+    for x in (stage.raht_ac, stage.scales):
+        b = blocks_for(x.shape[1], blocks)
+        if x.shape[1]:
+            _, _, _, loss = quantize_all_bits(x, b)
+            rate = rate_matrix(x, b)
+        else:
+            loss = np.zeros((x.shape[0], b, 16))
+            rate = np.zeros((x.shape[0], b, 16))
+        losses.append(loss.reshape(-1, 16))
+        rates.append(rate.reshape(-1, 16))
+        shapes.append((x.shape[0], b))
+    return np.concatenate(losses), np.concatenate(rates), tuple(shapes)
+
+
+def _group_meta_bytes(shapes) -> int:
+    # per channel set: C u8, L u32, B u16, model_mode u8, blob length u64; per group: u8 + 2 f32
+    return sum(16 + 9 * c * b for c, b in shapes)
+
+
+def _split_bits(pick: np.ndarray, shapes):
+    (c1, b1), (c2, b2) = shapes
+    bits = pick.astype(np.int64) + 1
+    return bits[:c1 * b1].reshape(c1, b1), bits[c1 * b1:].reshape(c2, b2)
+
+
+@dataclass
+class _ShPlan:
+    keep: int
+    chunk: bytes
+    sh_rest: np.ndarray
+    stats: dict
+    est_bytes: float
+    est_loss: float
+
+
+class _ShModel:
+    """Estimated SH bytes and SSE as functions of the keep-count P (one VQ assignment, cumulative
+    sums over importance order), and exact encoding of the chosen P."""
+
+    def __init__(self, stage: Stage, codebook: np.ndarray, blocks: int):
+        from gsz.decoder.quant import dequantize_groups, split_lengths
+        from gsz.kernels.quantize import quantize_groups
+
+        from .rate import rate_matrix
+        from .vq import assign, compact
+        self.stage, self.blocks = stage, blocks
+        x = stage.sh
+        m, d = x.shape
+        cb, idx = compact(codebook, assign(x, codebook))
+        self.codebook = cb
+        b = blocks_for(cb.shape[0], blocks)
+        sym, mn, mx = quantize_groups(cb.T, b, np.full((d, b), SH_BITS))
+        cb_q = dequantize_groups(sym, mn, mx, np.full((d, b), SH_BITS), split_lengths(cb.shape[0], b)).T
+        err_vq = ((x.astype(np.float64) - cb_q[idx]) ** 2).sum(1)
+        order = np.lexsort((np.arange(m), -stage.importance))        # importance rank
+        self.order = order
+        p_max = max(1, int(round(KEEP_FRACTIONS[-1] * m)))
+        top = x[order[:p_max]]
+        bk = blocks_for(p_max, blocks)
+        sym, mn, mx = quantize_groups(top.T, bk, np.full((d, bk), SH_BITS))
+        top_q = dequantize_groups(sym, mn, mx, np.full((d, bk), SH_BITS), split_lengths(p_max, bk)).T
+        err_keep = ((top.astype(np.float64) - top_q) ** 2).sum(1)
+        self.cum_vq = np.concatenate([[0.0], np.cumsum(err_vq[order])])
+        self.cum_keep = np.concatenate([[0.0], np.cumsum(err_keep)])
+        self.bits_per_kept = float(rate_matrix(top.T, bk)[:, :, SH_BITS - 1].sum()) / p_max
+        counts = np.bincount(idx, minlength=cb.shape[0]).astype(np.float64)
+        p = counts[counts > 0] / m
+        self.index_bits = float(-(p * np.log2(p)).sum())
+        self.codebook_bytes = float(rate_matrix(cb.T, b)[:, :, SH_BITS - 1].sum()) / 8 + 9 * d * b + 32
+        self.m, self.d = m, d
+
+    def keeps(self):
+        return sorted({min(self.m, int(round(f * self.m))) for f in KEEP_FRACTIONS})
+
+    def estimate(self, keep: int) -> tuple[float, float]:
+        m = self.m
+        q = keep / m
+        h2 = 0.0 if q in (0.0, 1.0) else -(q * math.log2(q) + (1 - q) * math.log2(1 - q))
+        nbytes = (self.codebook_bytes + (keep * self.bits_per_kept + (m - keep) * self.index_bits
+                  + (m * h2 if keep else 0)) / 8 + (9 * self.d * blocks_for(keep, self.blocks) if keep else 0) + 64)
+        loss = (self.cum_vq[-1] - self.cum_vq[keep]) + self.cum_keep[min(keep, len(self.cum_keep) - 1)]
+        return nbytes, loss
+
+    def encode(self, keep: int) -> _ShPlan:
+        chunk, sh_rest, stats = sh_chunk(self.stage, self.codebook, keep, SH_BITS, self.blocks)
+        nb, loss = self.estimate(keep)
+        return _ShPlan(keep, chunk, sh_rest, stats, nb, loss)
+
+
+def _container_overhead(num_chunks: int) -> int:
+    return 64 + 24 * num_chunks + 4
+
+
+def _meta(stage: Stage, sopts: SearchOptions, target: int, extra: dict) -> dict:
+    return {"encoder": "gsz 0.1.0", "codec": "mesongs++", "mode": "size-search",
+            "target_bytes": int(target), "reserve": stage.reserve, "depth": stage.depth,
+            "input_gaussians": stage.input_gaussians, "voxels": stage.num_points, **extra}
+
+
+def _solve(loss, rate, budget_bits, solver):
+    from .bit_allocation import allocate
+    return allocate(loss, rate, budget_bits, method=solver)
+
+
+def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_model: _ShModel | None,
+                progress: Progress, log: list):
+    """Allocate + calibrate one tau.  Returns the best (data, cloud, info) at or below target, or
+    None when the budget is unreachable at this tau."""
+    from .bit_allocation import InfeasibleBudgetError
+
+    with progress.stage("tables", f"tau {stage.reserve}: loss + rate matrices"):
+        loss, rate, shapes = _attribute_tables(stage, sopts.blocks)
+    n_chunks = 4 if sh_model is not None else 3
+    meta_guess = 400
+    base_fixed = (_container_overhead(n_chunks) + len(stage.geometry) + meta_guess
+                  + 2 + 8 * 7 + _group_meta_bytes(shapes))
+
+    # --- joint choice of the SH keep-count and the attribute allocation ---------------------
+    sh_plan = None
+    if sh_model is not None:
+        with progress.stage("sh-plan", "keep-count vs bit allocation"):
+            best = None
+            for keep in sh_model.keeps():
+                sh_bytes, sh_loss = sh_model.estimate(keep)
+                budget_bits = 8.0 * (target - base_fixed - sh_bytes)
+                try:
+                    pick = _solve(loss, rate, budget_bits, "fast")
+                except InfeasibleBudgetError:
+                    continue
+                total = float(loss[np.arange(len(pick)), pick].sum()) + sh_loss
+                if best is None or total < best[0]:
+                    best = (total, keep)
+            if best is None:
+                return None
+            sh_plan = sh_model.encode(best[1])
+            progress.log(f"tau {stage.reserve}: keep {best[1]} exact SH vectors "
+                         f"(SH chunk {len(sh_plan.chunk):,} B)")
+    fixed = base_fixed - _group_meta_bytes(shapes) + (len(sh_plan.chunk) if sh_plan else 0)
+
+    # --- calibration: shift the solver budget until the real file fits the tolerance --------
+    lo_ok = target * (1.0 - sopts.tolerance)
+    offset = 0.0                               # bytes: actual - predicted, learned per round
+    best = None
+    tried = {}
+    history = []
+    for rnd in range(sopts.max_rounds):
+        budget_bytes = target - fixed - _group_meta_bytes(shapes) - offset
+        try:
+            pick = _solve(loss, rate, 8.0 * budget_bytes, sopts.solver)
+        except InfeasibleBudgetError:
+            if best is None and rnd == 0:
+                return None
+            break
+        key = pick.tobytes()
+        if key in tried:
+            data, cloud, info = tried[key]
+        else:
+            raht_bits, scale_bits = _split_bits(pick, shapes)
+            with progress.stage("calibrate", f"tau {stage.reserve} round {rnd + 1}"):
+                attr, decoded, attr_stats = attribute_chunk(stage, raht_bits, scale_bits, sopts.blocks)
+                extra = {"sh_keep": sh_plan.keep if sh_plan else 0}
+                data, cloud, meta_len = assemble(stage, attr, decoded, sh_plan.chunk if sh_plan else None,
+                                                 sh_plan.sh_rest if sh_plan else None,
+                                                 _meta(stage, sopts, target, extra))
+            info = {"pick": pick, "raht_bits": raht_bits, "scale_bits": scale_bits,
+                    "attr_stats": attr_stats, "attr_bytes": len(attr), "meta_bytes": meta_len,
+                    "predicted_bytes": fixed + _group_meta_bytes(shapes) + float(rate[np.arange(len(pick)), pick].sum()) / 8,
+                    "loss": float(loss[np.arange(len(pick)), pick].sum())}
+            tried[key] = (data, cloud, info)
+        actual = len(data)
+        history.append({"round": rnd + 1, "solver_budget_bytes": round(budget_bytes),
+                        "predicted_bytes": round(info["predicted_bytes"]), "actual_bytes": actual})
+        if actual <= target and (best is None or actual > len(best[0])):
+            best = (data, cloud, info)
+        if lo_ok <= actual <= target:
+            break
+        # the offset between the estimate and the real size moves slowly: learn it
+        offset += actual - target + (0.25 * sopts.tolerance * target if actual > target else
+                                     0.5 * sopts.tolerance * target)
+    if best is None:
+        return None
+    data, cloud, info = best
+    info = dict(info, rounds=history, sh_plan=sh_plan, shapes=shapes, fixed_bytes=fixed)
+    log.append({"reserve": stage.reserve, "bytes": len(data), "rounds": history})
+    return data, cloud, info
+
+
+def _size_bounds(stage: Stage, blocks: int) -> tuple[float, float]:
+    """Rough (min, max) file bytes at this tau: all groups at 1 bit / at 16 bits."""
+    from .rate import rate_matrix
+    lo = hi = len(stage.geometry) + 400.0
+    for x in (stage.raht_ac, stage.scales):
+        if x.shape[1]:
+            b = blocks_for(x.shape[1], blocks)
+            r = rate_matrix(x, b)
+            lo += r[:, :, 0].sum() / 8 + 9 * r.shape[0] * b
+            hi += r[:, :, 15].sum() / 8 + 9 * r.shape[0] * b
+    if stage.sh.shape[1]:
+        m, d = stage.sh.shape
+        lo += m * 12 / 8 + 64
+        hi += m * d * 16 / 8
+    return lo, hi
+
+
+def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None = None,
+                     importance: np.ndarray | None = None, cameras=None,
+                     progress: Progress | None = None) -> EncodeResult:
+    """Encode ``cloud`` into at most ``target_bytes`` bytes with the best train-view fidelity.
+
+    Returns EncodeResult(data, cloud, report); report has target, actual bytes, the chosen
+    reserve/codebook/keep, the bit-width of every group, predicted vs actual size per calibration
+    round, candidates with their train PSNR, and seconds per stage.  Raises BudgetError with the
+    smallest reachable size when the budget cannot be met.
+    """
+    from .cameras import load_cameras
+    from .evaluate import evaluate, render_views
+
+    sopts = options or SearchOptions()
+    progress = progress or Progress(quiet=True)
+    target = int(target_bytes)
+    if target <= 0:
+        raise BudgetError(target, 1)
+    cloud.validate()
+    t0 = time.perf_counter()
+    eopts = EncodeOptions(train_views=sopts.train_views, importance_width=sopts.importance_width,
+                          seed=sopts.seed)
+    if importance is None:
+        importance = compute_train_importance(cloud, eopts, cameras=cameras, progress=progress)
+    from .voxelize import DEFAULT_REL_ERROR, choose_depth
+    depth = choose_depth(cloud.positions, rel_error=DEFAULT_REL_ERROR)
+
+    # --- tau grid: bounds from cheap estimates, then candidates spread over the feasible range --
+    stages: dict[float, Stage] = {}
+
+    def stage_for(tau):
+        if tau not in stages:
+            stages[tau] = prepare_stage(cloud, importance, tau, depth=depth, progress=progress)
+        return stages[tau]
+
+    taus = sorted(set(float(t) for t in sopts.reserves), reverse=True)
+    top = stage_for(taus[0])
+    lo1, hi1 = _size_bounds(top, sopts.blocks)
+    m1 = top.num_points
+    feasible = []
+    for tau in taus:
+        f = (math.ceil(tau * len(cloud)) / len(cloud)) / (math.ceil(taus[0] * len(cloud)) / len(cloud))
+        lo, hi = lo1 * f, hi1 * f
+        if lo <= target and (hi >= target or not feasible):
+            feasible.append(tau)
+    if not feasible:
+        # even the smallest tau at 1 bit is estimated above the target: check exactly
+        feasible = [taus[-1]]
+    if len(feasible) > sopts.max_candidates:
+        pos = np.linspace(0, len(feasible) - 1, sopts.max_candidates).round().astype(int)
+        feasible = [feasible[i] for i in sorted(set(pos))]
+    progress.log(f"target {target:,} bytes; candidate reserve ratios {feasible}")
+
+    codebook = None
+    if cloud.sh_degree > 0:
+        k = default_codebook_size(m1, sopts.codebook)
+        with progress.stage("vq", f"codebook {k} on {m1} vectors"):
+            codebook = train_sh_codebook(top, k, seed=sopts.seed, iters=sopts.vq_iters, progress=progress)
+
+    eval_cams = load_cameras(None, cloud, n_train=max(sopts.eval_views, 1), n_test=1,
+                             width=sopts.eval_width).train[:sopts.eval_views]
+    with progress.stage("eval-reference", f"{len(eval_cams)} train views"):
+        refs = render_views(cloud, eval_cams)
+
+    candidates, log = [], []
+    for tau in feasible:
+        stage = stage_for(tau)
+        sh_model = None
+        if cloud.sh_degree > 0:
+            with progress.stage("sh-model", f"tau {tau}"):
+                sh_model = _ShModel(stage, codebook, sopts.blocks)
+        res = _encode_tau(stage, target, sopts, sh_model, progress, log)
+        if res is None:
+            progress.log(f"tau {tau}: budget not reachable")
+            continue
+        data, out, info = res
+        with progress.stage("eval", f"tau {tau}"):
+            ev = evaluate(refs, out, eval_cams)
+        progress.log(f"tau {tau}: {len(data):,} bytes, train PSNR {ev['psnr']:.2f} dB")
+        candidates.append((ev["psnr"], tau, data, out, info, ev["ssim"]))
+    if not candidates:
+        smallest = _smallest_file(stage_for(taus[-1]), sopts, codebook)
+        raise BudgetError(target, smallest)
+    candidates.sort(key=lambda c: (-c[0], -c[1]))
+    psnr, tau, data, out, info, ssim = candidates[0]
+    stage = stage_for(tau)
+    sh_plan = info["sh_plan"]
+    report = {
+        "mode": "size-search", "target_bytes": target, "bytes": len(data),
+        "deviation": (len(data) - target) / target, "reserve": tau, "depth": stage.depth,
+        "input_gaussians": len(cloud), "voxels": stage.num_points,
+        "bytes_per_gaussian": len(data) / stage.num_points, "sh_degree": cloud.sh_degree,
+        "codebook_size": int(sh_plan.stats["codebook_size"]) if sh_plan else 0,
+        "sh_keep": int(sh_plan.keep) if sh_plan else 0,
+        "bits": {"raht": info["raht_bits"].tolist(), "scales": info["scale_bits"].tolist(),
+                 "raht_channels": ["opacity", "roll", "pitch", "yaw", "f_dc_0", "f_dc_1", "f_dc_2"],
+                 "scale_channels": ["scale_0", "scale_1", "scale_2"], "sh": SH_BITS if sh_plan else None},
+        "calibration": info["rounds"],
+        "candidates": [{"reserve": c[1], "bytes": len(c[2]), "train_psnr": c[0], "train_ssim": c[5]}
+                       for c in sorted(candidates, key=lambda c: -c[1])],
+        "train_psnr": psnr,
+        "components": {"geometry": len(stage.geometry), "attributes": info["attr_bytes"],
+                       **info["attr_stats"], "sh": len(sh_plan.chunk) if sh_plan else 0,
+                       "metadata": info["meta_bytes"]},
+        "seconds": dict(progress.seconds), "total_seconds": time.perf_counter() - t0,
+    }
+    return EncodeResult(data=data, cloud=out, report=report)
+
+
+def _smallest_file(stage: Stage, sopts: SearchOptions, codebook) -> int:
+    """Exact size of the smallest file the search can make at this tau (1 bit everywhere,
+    no kept SH)."""
+    sh = sh_rest = None
+    if codebook is not None:
+        sh, sh_rest, _ = sh_chunk(stage, codebook, 0, SH_BITS, sopts.blocks)
+    attr, decoded, _ = attribute_chunk(stage, 1, 1, sopts.blocks)
+    data, _, _ = assemble(stage, attr, decoded, sh, sh_rest, _meta(stage, sopts, 0, {"sh_keep": 0}))
+    return len(data)
