@@ -195,7 +195,7 @@ def _solve(loss, rate, budget_bits, solver):
     return allocate(loss, rate, budget_bits, method=solver)
 
 
-def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_model: _ShModel | None,
+def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
                 progress: Progress, log: list):
     """Allocate + calibrate one tau.  Returns the best (data, cloud, info) at or below target, or
     None when the budget is unreachable at this tau."""
@@ -203,47 +203,51 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_model: _ShMo
 
     with progress.stage("tables", f"tau {stage.reserve}: loss + rate matrices"):
         loss, rate, shapes = _attribute_tables(stage, sopts.blocks)
-    n_chunks = 4 if sh_model is not None else 3
+    n_chunks = 4 if sh_models else 3
     meta_guess = 400
     base_fixed = (_container_overhead(n_chunks) + len(stage.geometry) + meta_guess
                   + 2 + 8 * 7 + _group_meta_bytes(shapes))
 
     # --- joint choice of the SH keep-count and the attribute allocation ---------------------
     sh_plan = None
-    if sh_model is not None:
-        with progress.stage("sh-plan", "keep-count vs bit allocation"):
+    if sh_models:
+        with progress.stage("sh-plan", "codebook size and keep-count vs bit allocation"):
             best = None
-            for keep in sh_model.keeps():
-                sh_bytes, sh_loss = sh_model.estimate(keep)
-                budget_bits = 8.0 * (target - base_fixed - sh_bytes)
-                try:
-                    pick = _solve(loss, rate, budget_bits, "fast")
-                except InfeasibleBudgetError:
-                    continue
-                total = float(loss[np.arange(len(pick)), pick].sum()) + sh_loss
-                if best is None or total < best[0]:
-                    best = (total, keep)
-            if best is None:
-                return None
-            sh_plan = sh_model.encode(best[1])
-            progress.log(f"tau {stage.reserve}: keep {best[1]} exact SH vectors "
+            for model in sh_models:
+                for keep in model.keeps():
+                    sh_bytes, sh_loss = model.estimate(keep)
+                    budget_bits = 8.0 * (target - base_fixed - sh_bytes)
+                    try:
+                        pick = _solve(loss, rate, budget_bits, "fast")
+                    except InfeasibleBudgetError:
+                        continue
+                    total = float(loss[np.arange(len(pick)), pick].sum()) + sh_loss
+                    if best is None or total < best[0]:
+                        best = (total, model, keep)
+            # estimates say nothing fits: try the cheapest SH anyway, calibration decides
+            sh_plan = (sh_models[-1].encode(0) if best is None else best[1].encode(best[2]))
+            progress.log(f"tau {stage.reserve}: keep {sh_plan.keep} exact SH vectors "
                          f"(SH chunk {len(sh_plan.chunk):,} B)")
     fixed = base_fixed - _group_meta_bytes(shapes) + (len(sh_plan.chunk) if sh_plan else 0)
 
-    # --- calibration: shift the solver budget until the real file fits the tolerance --------
+    # --- calibration: find the largest solver budget whose real file fits ------------------
+    # The estimate's error (actual - predicted) drifts slowly, so the first step corrects by the
+    # observed offset (secant); afterwards the solver budget is bracketed between the largest
+    # budget known to fit and the smallest known to overflow, and bisected.
     lo_ok = target * (1.0 - sopts.tolerance)
-    offset = 0.0                               # bytes: actual - predicted, learned per round
+    group_meta = _group_meta_bytes(shapes)
+    budget_bytes = float(target - fixed - group_meta)
+    fit_b, over_b = None, None                  # solver budgets: largest that fit, smallest that overflowed
     best = None
     tried = {}
     history = []
+    cheapest = np.argmin(np.where(np.isfinite(rate), rate, np.inf), axis=1)
+    prev_key = None
     for rnd in range(sopts.max_rounds):
-        budget_bytes = target - fixed - _group_meta_bytes(shapes) - offset
         try:
             pick = _solve(loss, rate, 8.0 * budget_bytes, sopts.solver)
         except InfeasibleBudgetError:
-            if best is None and rnd == 0:
-                return None
-            break
+            pick = cheapest                      # measure the cheapest allocation for real
         key = pick.tobytes()
         if key in tried:
             data, cloud, info = tried[key]
@@ -257,7 +261,7 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_model: _ShMo
                                                  _meta(stage, sopts, target, extra))
             info = {"pick": pick, "raht_bits": raht_bits, "scale_bits": scale_bits,
                     "attr_stats": attr_stats, "attr_bytes": len(attr), "meta_bytes": meta_len,
-                    "predicted_bytes": fixed + _group_meta_bytes(shapes) + float(rate[np.arange(len(pick)), pick].sum()) / 8,
+                    "predicted_bytes": fixed + group_meta + float(rate[np.arange(len(pick)), pick].sum()) / 8,
                     "loss": float(loss[np.arange(len(pick)), pick].sum())}
             tried[key] = (data, cloud, info)
         actual = len(data)
@@ -267,15 +271,37 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_model: _ShMo
             best = (data, cloud, info)
         if lo_ok <= actual <= target:
             break
-        # the offset between the estimate and the real size moves slowly: learn it
-        offset += actual - target + (0.25 * sopts.tolerance * target if actual > target else
-                                     0.5 * sopts.tolerance * target)
+        if actual > target:
+            if key == cheapest.tobytes():
+                break                            # even the cheapest allocation overflows
+            over_b = budget_bytes if over_b is None else min(over_b, budget_bytes)
+        else:
+            if key == _solve_max(loss, rate).tobytes() or (history[:-1] and key == prev_key):
+                break                            # more budget buys nothing more: saturated
+            fit_b = budget_bytes if fit_b is None else max(fit_b, budget_bytes)
+        prev_key = key
+        if fit_b is not None and over_b is not None:
+            budget_bytes = 0.5 * (fit_b + over_b)
+            if over_b - fit_b < 1.0:
+                break
+        else:
+            # correct by the observed error, starting from what this allocation was predicted
+            # to need (a saturated allocation may sit far below the budget it was given)
+            pred_attr = float(rate[np.arange(len(pick)), pick].sum()) / 8
+            budget_bytes = min(budget_bytes, pred_attr) + (target * (1 - 0.5 * sopts.tolerance) - actual)
     if best is None:
+        progress.log(f"tau {stage.reserve}: no allocation fits; calibration {history}")
         return None
     data, cloud, info = best
     info = dict(info, rounds=history, sh_plan=sh_plan, shapes=shapes, fixed_bytes=fixed)
     log.append({"reserve": stage.reserve, "bytes": len(data), "rounds": history})
     return data, cloud, info
+
+
+def _solve_max(loss, rate) -> np.ndarray:
+    """The allocation with the smallest loss per group (what any large budget converges to)."""
+    l2 = np.where(np.isfinite(rate), loss, np.inf)
+    return np.argmin(l2, axis=1)
 
 
 def _size_bounds(stage: Stage, blocks: int) -> tuple[float, float]:
@@ -348,11 +374,15 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
         feasible = [feasible[i] for i in sorted(set(pos))]
     progress.log(f"target {target:,} bytes; candidate reserve ratios {feasible}")
 
-    codebook = None
+    codebooks = []
     if cloud.sh_degree > 0:
-        k = default_codebook_size(m1, sopts.codebook)
-        with progress.stage("vq", f"codebook {k} on {m1} vectors"):
-            codebook = train_sh_codebook(top, k, seed=sopts.seed, iters=sopts.vq_iters, progress=progress)
+        k_max = default_codebook_size(m1, sopts.codebook)
+        ks = [k_max] if sopts.codebook is not None else sorted({k_max, max(16, k_max // 4), max(16, k_max // 16)},
+                                                               reverse=True)
+        for k in ks:
+            with progress.stage("vq", f"codebook {k} on {m1} vectors"):
+                codebooks.append(train_sh_codebook(top, k, seed=sopts.seed, iters=sopts.vq_iters,
+                                                   progress=progress))
 
     eval_cams = load_cameras(None, cloud, n_train=max(sopts.eval_views, 1), n_test=1,
                              width=sopts.eval_width).train[:sopts.eval_views]
@@ -362,11 +392,11 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     candidates, log = [], []
     for tau in feasible:
         stage = stage_for(tau)
-        sh_model = None
-        if cloud.sh_degree > 0:
-            with progress.stage("sh-model", f"tau {tau}"):
-                sh_model = _ShModel(stage, codebook, sopts.blocks)
-        res = _encode_tau(stage, target, sopts, sh_model, progress, log)
+        sh_models = []
+        for cb in codebooks:
+            with progress.stage("sh-model", f"tau {tau}, codebook {len(cb)}"):
+                sh_models.append(_ShModel(stage, cb, sopts.blocks))
+        res = _encode_tau(stage, target, sopts, sh_models, progress, log)
         if res is None:
             progress.log(f"tau {tau}: budget not reachable")
             continue
@@ -376,7 +406,7 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
         progress.log(f"tau {tau}: {len(data):,} bytes, train PSNR {ev['psnr']:.2f} dB")
         candidates.append((ev["psnr"], tau, data, out, info, ev["ssim"]))
     if not candidates:
-        smallest = _smallest_file(stage_for(taus[-1]), sopts, codebook)
+        smallest = _smallest_file(stage_for(taus[-1]), sopts, codebooks[-1] if codebooks else None)
         raise BudgetError(target, smallest)
     candidates.sort(key=lambda c: (-c[0], -c[1]))
     psnr, tau, data, out, info, ssim = candidates[0]

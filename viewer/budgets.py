@@ -45,9 +45,9 @@ def parse_budgets(text: str, parse_size=None) -> list:
 class BudgetResult:
     label: str            # as the user typed it, e.g. "2MB"
     target_bytes: int
-    data: bytes           # the .gsz file
-    cloud: object         # decoded GaussianCloud
-    report: dict = field(default_factory=dict)
+    data: bytes = field(repr=False)     # the .gsz file
+    cloud: object = field(repr=False)   # decoded GaussianCloud
+    report: dict = field(default_factory=dict, repr=False)
     seconds: float = 0.0
 
 

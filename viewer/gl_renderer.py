@@ -49,7 +49,7 @@ NEAR = 0.2
 _WORKGROUP = 256
 #: chunk sizes are multiples of this (keeps SSBO range offsets aligned for any GL driver)
 _CHUNK_ALIGN = 1024
-_PROJECTED_BYTES = 48
+_PROJECTED_BYTES = 64
 
 
 class GLUnavailable(GszError):

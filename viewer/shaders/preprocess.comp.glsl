@@ -1,15 +1,18 @@
 #version 430
 // Per-splat preprocessing, one invocation per Gaussian: the EWA projection, SH colour and
 // screen rectangle of graphdeco's diff-gaussian-rasterization forward pass, step by step as
-// gsz.encoder.render (the CPU reference) does it.  Writes 3 vec4 per splat:
-//   out0 = (mean_x, mean_y, opacity, valid)      graphdeco pixel coordinates (centres at ints)
+// gsz.encoder.render (the CPU reference) does it.  Writes 4 vec4 per splat:
+//   out0 = (mean_x, mean_y, opacity, ratio)      graphdeco pixel coordinates (centres at ints)
 //   out1 = (conic_a, conic_b, conic_c, colour_r) conic = inverse of the dilated 2D covariance
-//   out2 = (colour_g, colour_b, x0y0, x1y1)       quad pixel box, packed as 2 x 16-bit ints
+//   out2 = (colour_g, colour_b, lo, hi)          pixel box (inclusive), 2 x 16-bit ints each
+//   out3 = (centre_x, centre_y, A_x, A_y)        quad = centre + x A + y ratio perp(A)
 // An invalid splat (behind the near plane, det == 0, empty tile rectangle, or opacity
-// < 1/255) has valid = 0 and is skipped by the vertex shader.
+// < 1/255) has ratio = 0 and is skipped by the vertex shader.
 layout(local_size_x = 256) in;
 
 struct Splat { vec4 pos_op; vec4 scale; vec4 rot; vec4 dc; };
+// Bindings 0 and 1 are RANGES starting at splat u_base (index them with the local index);
+// binding 2 is the whole projected buffer (global index).
 layout(std430, binding = 0) readonly buffer Splats { Splat splats[]; };
 layout(std430, binding = 1) readonly buffer ShRest { float sh_rest[]; };   // [n, K, 3] chunk
 layout(std430, binding = 2) writeonly buffer Projected { vec4 projected[]; };
@@ -66,16 +69,14 @@ vec3 eval_sh(uint local, vec3 dc, vec3 d) {
 }
 
 void invalid(uint i) {
-    projected[3u * i] = vec4(0.0);
-    projected[3u * i + 1u] = vec4(0.0);
-    projected[3u * i + 2u] = vec4(0.0);
+    projected[4u * i] = vec4(0.0);   // .w = 0 marks the splat as not drawn
 }
 
 void main() {
     uint local = gl_GlobalInvocationID.x;
     if (local >= u_count) return;
     uint i = u_base + local;
-    Splat s = splats[i];
+    Splat s = splats[local];
     vec3 p = s.pos_op.xyz;
     vec3 v = u_R * p + u_t;
     if (!(v.z > NEAR)) { invalid(i); return; }
@@ -137,11 +138,38 @@ void main() {
     }
     if (hi.x < lo.x || hi.y < lo.y) { invalid(i); return; }
 
+    // The quad to rasterise, as centre + x A + y B for x, y in [-1, 1]: the ORIENTED bounding
+    // rectangle of the alpha >= 1/255 ellipse (fewer pixels than an axis-aligned box for thin
+    // or rotated splats), or the pixel box itself when that is smaller (splats cut by their
+    // tile rectangle or the screen).  Computed here, once per splat and in parallel, because a
+    // software GL (llvmpipe) runs vertex shaders on a single thread.  B is perpendicular to A
+    // and stored as the ratio |B| / |A|.
+    vec2 qc = 0.5 * (lo + hi);
+    vec2 A = vec2(0.5 * (hi.x - lo.x) + 0.5, 0.0);
+    float ratio = (0.5 * (hi.y - lo.y) + 0.5) / A.x;
+    if (detq > 0.0 && conic.x > 0.0) {
+        // covariance (conic^-1) eigenvectors are the ellipse axes
+        float sxx = a, syy = c, sxy = b;   // the dilated 2D covariance from above
+        float hm = 0.5 * (sxx + syy);
+        float rr = sqrt(max(0.25 * (sxx - syy) * (sxx - syy) + sxy * sxy, 0.0));
+        float l1 = hm + rr, l2 = max(hm - rr, 0.0);
+        vec2 e1 = abs(sxy) > 1e-12 * (abs(sxx) + abs(syy)) ? normalize(vec2(sxy, l1 - sxx))
+                : (sxx >= syy ? vec2(1.0, 0.0) : vec2(0.0, 1.0));
+        // +0.25 px: slack for float rounding at the rim (the fragment test is exact)
+        vec2 h = vec2(sqrt(2.0 * L * l1), sqrt(2.0 * L * l2)) + 0.25;
+        if (4.0 * h.x * h.y < (hi.x - lo.x + 1.0) * (hi.y - lo.y + 1.0)) {
+            qc = mean;
+            A = h.x * e1;
+            ratio = h.y / h.x;
+        }
+    }
+
     vec3 dir = normalize(p - u_campos);
     vec3 col = max(eval_sh(local, s.dc.xyz, dir) + 0.5, 0.0);
-    projected[3u * i] = vec4(mean, opacity, 1.0);
-    projected[3u * i + 1u] = vec4(conic, col.r);
-    projected[3u * i + 2u] = vec4(col.g, col.b,
+    projected[4u * i] = vec4(mean, opacity, ratio);
+    projected[4u * i + 1u] = vec4(conic, col.r);
+    projected[4u * i + 2u] = vec4(col.g, col.b,
                                   uintBitsToFloat(uint(lo.x) | (uint(lo.y) << 16)),
                                   uintBitsToFloat(uint(hi.x) | (uint(hi.y) << 16)));
+    projected[4u * i + 3u] = vec4(qc, A);
 }

@@ -5,12 +5,15 @@
 flat in vec2 v_mean;
 flat in vec3 v_conic;
 flat in vec4 v_color;
+flat in vec4 v_box;
 uniform vec2 u_size;
 out vec4 frag;
 
 void main() {
     // graphdeco pixel coordinates of this fragment's centre (integers), y down.
     vec2 pix = vec2(gl_FragCoord.x - 0.5, u_size.y - gl_FragCoord.y - 0.5);
+    // only the pixels of the splat's tile rectangle see it (graphdeco's binning)
+    if (any(lessThan(pix, v_box.xy)) || any(greaterThan(pix, v_box.zw))) discard;
     vec2 d = v_mean - pix;
     float power = -0.5 * (v_conic.x * d.x * d.x + v_conic.z * d.y * d.y) - v_conic.y * d.x * d.y;
     if (power > 0.0) discard;

@@ -1,0 +1,261 @@
+"""Rate model: estimated coded size (bits) of every quantisation group at every bit-width.
+
+    rate_matrix(x [C, L] float32, num_blocks) -> float64 [C, B, 16]
+
+rate[c, b, q-1] predicts what the group (c, b) costs in the rANS stream of a channel set written
+with one model per group (``gsz.encoder.groups``, model_mode 0) when quantised at q bits by the
+normative quantiser (``gsz.decoder.quant``: float32 min/max, float64 step, rint) -- the payload
+and the group's share of the model table and lane states.  The sum over groups of a chosen
+allocation plus :func:`channel_set_overhead_bits` predicts the channel set's size; the writer
+also tries shared per-(channel, bits) models and keeps the smaller stream, so the prediction is
+an upper bound there (equal in practice wherever groups are large).
+
+How (one sort per channel, no per-q sorting): the quantiser is monotone in x, so sorting every
+block's values once makes the symbols of every bit-width sorted too; distinct values and their
+counts are then run lengths (a compare + flatnonzero per bit-width).  Per (group, q):
+
+* payload of an exact COARSE table (h = 0): sum over distinct values v of
+  c_v * (n - log2(1 + (2^n - K) c_v / N)), the coder's own frequency normalisation
+  (``gsz.decoder.rans.normalise_weights``: +1 per present value, the rest proportional), with its
+  precision rule n = min(16, max(ceil log2 K, ceil log2 N));
+* table bits = a linear predictor in the table's serialised content (present values, their gaps
+  and level steps), fitted to ``write_model_set`` (zstd-19) sizes on real scenes (see
+  TABLE_COEFFS);
+* binned COARSE tables (bin width 2^h, h = 1..5; what the fitter picks at mid bit-widths):
+  approximated by the (q - h)-bit grid's table and payload plus h bits per symbol (the uniform
+  spread inside a bin), the cheapest h kept;
+* SINGLE models (one distinct value): no payload, a few table bits;
+* lane final states: 32 bits per min(N / 1024, payload / 8192) symbols (``choose_lanes``).
+
+Speed: ~1-2 s for C=10, B=80, L=430k on 2 cores (bench/RESULTS.md); the work is chunked per
+channel and block part, all arrays are reused <= L elements.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from gsz.decoder.errors import GszError
+from gsz.decoder.quant import MAX_BITS, MIN_BITS
+from gsz.decoder.rans import MAX_PRECISION
+
+__all__ = ["rate_matrix", "rate_from_stats", "group_stats", "channel_set_overhead_bits",
+           "TABLE_COEFFS"]
+
+MAX_BINSHIFT = 5             # gsz.encoder.rans.COARSE_BINSHIFTS
+# Table bits of one group's model = PER_MODEL + PER_VALUE * K + PER_GAP_BIT * sum log2(1 + dv)
+# + PER_LEVEL_BIT * sum log2(1 + |dlevel|) for COARSE; SINGLE_BITS for a one-value model.
+# Least-squares fit of write_model_set sizes (zstd-19 over all models) on the RAHT-AC and scale
+# channel sets of jug (101k) and houseplant (20k) at uniform and random allocations.
+TABLE_COEFFS = {"per_model": 2.4, "per_value": 3.94, "per_gap_bit": 0.48, "per_level_bit": 0.0,
+                "single": 8.0, "laplace": 19.6}
+PAYLOAD_FACTOR = 1.002       # COARSE level quantisation of the counts (measured ~0.1-0.3 %)
+# the (q - h)-bit grid's histogram is smoother than the q-bit one binned by 2^h (different
+# rounding), so its payload is optimistic; measured on jug/houseplant AC and scales at 3-6 bits
+BINNED_FACTOR = 1.03
+LANE_STATE_BITS = 32.0
+
+
+class RateModelError(GszError, ValueError):
+    """Bad input to the rate model."""
+
+
+def _check(x, num_blocks, bit_range):
+    x = np.asarray(x)
+    if x.ndim != 2:
+        raise RateModelError(f"rate_matrix needs x [C, L], got shape {x.shape}")
+    if not np.issubdtype(x.dtype, np.floating):
+        raise RateModelError(f"rate_matrix needs floating-point x, got {x.dtype}")
+    x = np.ascontiguousarray(x, dtype=np.float32)
+    if not np.all(np.isfinite(x)):
+        raise RateModelError("rate_matrix input contains NaN or infinity")
+    if not isinstance(num_blocks, (int, np.integer)) or int(num_blocks) < 1:
+        raise RateModelError(f"num_blocks must be a positive integer, got {num_blocks!r}")
+    lo, hi = int(bit_range[0]), int(bit_range[1])
+    if not (MIN_BITS <= lo <= hi <= MAX_BITS):
+        raise RateModelError(f"bit_range must satisfy {MIN_BITS} <= lo <= hi <= {MAX_BITS}, got {bit_range}")
+    return x, int(num_blocks), lo, hi
+
+
+def _parts(length: int, num_blocks: int):
+    """(first block, number of blocks, block length, element offset) of the <= 2 regular parts
+    of split_lengths(length, num_blocks) (gsz.decoder.quant): extra blocks of base+1, then base."""
+    base, extra = divmod(length, num_blocks)
+    out = []
+    if extra:
+        out.append((0, extra, base + 1, 0))
+    if base and num_blocks - extra:
+        out.append((extra, num_blocks - extra, base, extra * (base + 1)))
+    return out
+
+
+def _precision(k: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """The fitter's precision rule n = min(16, max(ceil log2 K, ceil log2 N, 1))."""
+    ck = np.ceil(np.log2(np.maximum(k, 1)))
+    cn = np.ceil(np.log2(np.maximum(n, 1)))
+    return np.clip(np.maximum(ck, cn), 1, MAX_PRECISION)
+
+
+def group_stats(x, num_blocks: int, bit_range: tuple[int, int] = (MIN_BITS, MAX_BITS)) -> dict:
+    """Per (channel, block, bit-width) statistics of the quantised symbols (float64 [C, B, 16]
+    each, zeros outside bit_range and for empty groups):
+
+    n        symbols in the group
+    k        distinct symbols
+    payload  ideal coded bits under an exact per-value table (coder's normalisation)
+    gap      sum over consecutive distinct values of log2(1 + value step)
+    level    sum over consecutive distinct values of log2(1 + |round(2 log2(c_i / c_{i-1}))|)
+             (COARSE level codes step twice per octave of count at the default level group)
+    """
+    x, nb_total, lo, hi = _check(x, num_blocks, bit_range)
+    c_count, length = x.shape
+    shape = (c_count, nb_total, MAX_BITS)
+    out = {key: np.zeros(shape) for key in ("n", "k", "payload", "gap", "level", "laplace")}
+    out["binned"] = np.full(shape + (MAX_BINSHIFT,), np.inf)
+    if length == 0:
+        return out
+    for b0, nb, blen, off in _parts(length, nb_total):
+        # c*log2(c) lookup for run lengths 0..blen
+        cnt_tab = np.arange(blen + 1, dtype=np.float64)
+        log_tab = np.log2(np.maximum(cnt_tab, 1.0))
+        starts = np.empty((nb, blen), dtype=bool)
+        starts[:, 0] = True
+        k = np.empty((nb, blen), dtype=np.float64)
+        for ci in range(c_count):
+            blocks = x[ci, off:off + nb * blen].reshape(nb, blen)
+            srt = np.sort(blocks, axis=1)
+            m = srt[:, :1].astype(np.float64)             # the group minimum (float32 exact)
+            span = srt[:, -1:].astype(np.float64) - m      # max - min of the stored float32s
+            d = srt.astype(np.float64)
+            d -= m
+            out["n"][ci, b0:b0 + nb, lo - 1:hi] = blen
+            runs = {}
+            for q in range(lo, hi + 1):
+                levels = float((1 << q) - 1)
+                s = np.where(span > 0, span / levels, 1.0)
+                np.divide(d, s, out=k)
+                np.rint(k, out=k)
+                np.minimum(k, levels, out=k)
+                np.not_equal(k[:, 1:], k[:, :-1], out=starts[:, 1:])
+                idx = np.flatnonzero(starts)
+                cnt = np.diff(np.append(idx, nb * blen))
+                row = idx // blen
+                kk = np.bincount(row, minlength=nb).astype(np.float64)
+                prec = _precision(kk, np.full(nb, float(blen)))
+                tot = np.exp2(prec)
+                # coder normalisation: f = 1 + (T - K) * c / N  (proportional share after the +1)
+                f = 1.0 + (tot[row] - kk[row]) * (cnt / blen)
+                pay = cnt * (prec[row] - np.log2(f))
+                same = row[1:] == row[:-1]
+                vals = k.ravel()[idx]
+                gapv = np.where(same, np.log2(1.0 + np.maximum(vals[1:] - vals[:-1], 0.0)), 0.0)
+                lc = log_tab[cnt]
+                lvl = np.where(same, np.log2(1.0 + np.abs(np.rint(2.0 * (lc[1:] - lc[:-1])))), 0.0)
+                sl = (ci, slice(b0, b0 + nb), q - 1)
+                out["k"][sl] = kk
+                out["payload"][sl] = np.where(kk > 1, np.bincount(row, weights=pay, minlength=nb), 0.0)
+                out["gap"][sl] = np.bincount(row[1:], weights=gapv, minlength=nb)
+                out["level"][sl] = np.bincount(row[1:], weights=lvl, minlength=nb)
+                out["laplace"][sl] = _laplace_payload(vals, cnt, row, nb, blen, kk, prec, tot)
+                # binned COARSE at this precision: bins of 2^h values ~ the (q - h)-bit grid's
+                # distinct values; every value of a present bin gets the +1 (Kv = bins * 2^h)
+                runs[q] = (row, cnt, kk)
+                runs.pop(q - MAX_BINSHIFT - 1, None)
+                for h in range(1, MAX_BINSHIFT + 1):
+                    if q - h not in runs:
+                        continue
+                    row_h, cnt_h, kk_h = runs[q - h]
+                    kv = kk_h * float(1 << h)
+                    fh = 1.0 + (tot[row_h] - kv[row_h]) * (cnt_h / (blen * float(1 << h)))
+                    bh = np.bincount(row_h, weights=cnt_h * (prec[row_h] - np.log2(np.maximum(fh, 1.0))),
+                                     minlength=nb)
+                    out["binned"][ci, b0:b0 + nb, q - 1, h - 1] = np.where((kv <= tot) & (kk > 1), bh, np.inf)
+    return out
+
+
+# LAPLACE ratios the format can express: rho = r / 2^16, r = ratio_from_code(0..255)
+_RHO_MIN = (65536 - ((31 << 16) >> 5)) / 65536.0
+_RHO_MAX = 65535 / 65536.0
+
+
+def _laplace_payload(vals, cnt, row, nb, blen, kk, prec, tot):
+    """Bits of each group under the fitter's two-sided geometric (LAPLACE) model: centre at the
+    most frequent value, each side's ratio from its mean distance (rho = 1 - 1 / mean, what
+    gsz.encoder.rans._fit_one starts its small search from), the coder's +1-per-value
+    normalisation over the whole span.  +inf where LAPLACE is not allowed (span + 1 > 2^n) or
+    the group has fewer than two distinct values."""
+    if vals.size == 0:
+        return np.full(nb, np.inf)
+    first = np.searchsorted(row, np.arange(nb))
+    maxc = np.maximum.reduceat(cnt, first)
+    # centre: the FIRST value with the maximum count (np.argmax in the fitter)
+    pos = np.where(cnt == maxc[row], np.arange(cnt.size), cnt.size)
+    centre = vals[np.minimum.reduceat(pos, first)]
+    last = np.append(first[1:], vals.size) - 1
+    span = vals[last]                                 # lo is 0: the minimum maps to symbol 0
+    d = vals - centre[row]
+    left, right = d < 0, d > 0
+    n_l = np.bincount(row, weights=cnt * left, minlength=nb)
+    n_r = np.bincount(row, weights=cnt * right, minlength=nb)
+    s_l = np.bincount(row, weights=cnt * np.where(left, -d, 0.0), minlength=nb)
+    s_r = np.bincount(row, weights=cnt * np.where(right, d, 0.0), minlength=nb)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho_l = np.clip(1.0 - n_l / np.maximum(s_l, 1e-300), _RHO_MIN, _RHO_MAX)
+        rho_r = np.clip(1.0 - n_r / np.maximum(s_r, 1e-300), _RHO_MIN, _RHO_MAX)
+    dl, dr = centre, span - centre
+    w_sum = 1.0 + rho_l * (1 - rho_l ** dl) / (1 - rho_l) + rho_r * (1 - rho_r ** dr) / (1 - rho_r)
+    rho = np.where(d < 0, rho_l[row], rho_r[row])
+    p = rho ** np.abs(d) / w_sum[row]
+    f = 1.0 + (tot[row] - (span[row] + 1.0)) * p
+    bits = np.bincount(row, weights=cnt * (prec[row] - np.log2(np.maximum(f, 1.0))), minlength=nb)
+    ok = (span + 1.0 <= tot) & (kk > 1)
+    return np.where(ok, bits, np.inf)
+
+
+def _table_bits(k, gap, level, coeffs=TABLE_COEFFS):
+    coarse = coeffs["per_model"] + coeffs["per_value"] * k + coeffs["per_gap_bit"] * gap \
+        + coeffs["per_level_bit"] * level
+    return np.where(k > 1, coarse, np.where(k == 1, coeffs["single"], 0.0))
+
+
+def rate_from_stats(stats: dict, bit_range: tuple[int, int] = (MIN_BITS, MAX_BITS),
+                    coeffs=TABLE_COEFFS) -> np.ndarray:
+    """Combine :func:`group_stats` into rate bits [C, B, 16] (+inf outside bit_range)."""
+    lo, hi = int(bit_range[0]), int(bit_range[1])
+    n, k = stats["n"], stats["k"]
+    exact = PAYLOAD_FACTOR * stats["payload"] + _table_bits(k, stats["gap"], stats["level"], coeffs)
+    lap = PAYLOAD_FACTOR * stats["laplace"] + coeffs["laplace"]
+    best = exact.copy()
+    # binned tables: payload at this q with bins of 2^h values, the (q - h)-bit grid's table
+    tab = _table_bits(k, stats["gap"], stats["level"], coeffs)
+    for h in range(1, MAX_BINSHIFT + 1):
+        cand = np.full_like(exact, np.inf)
+        cand[:, :, h:] = BINNED_FACTOR * stats["binned"][:, :, h:, h - 1] + tab[:, :, :-h]
+        np.minimum(best, cand, out=best)
+    np.minimum(best, np.where(k > 1, lap, np.inf), out=best)
+    pay_est = best.copy()
+    lanes = LANE_STATE_BITS * np.minimum(n / 1024.0, pay_est / 8192.0)
+    rate = best + np.maximum(lanes, 0.0)
+    rate[:, :, :lo - 1] = np.inf
+    rate[:, :, hi:] = np.inf
+    return rate
+
+
+def rate_matrix(x, num_blocks: int, bit_range: tuple[int, int] = (MIN_BITS, MAX_BITS)) -> np.ndarray:
+    """Estimated coded size in BITS of every (channel, block) group at every bit-width.
+
+    x: float [C, L] (finite); blocks: split_lengths(L, num_blocks) as the codec cuts them.
+    Returns float64 [C, B, 16]: rate[c, b, q-1] for q in bit_range, +inf outside it, 0 for empty
+    groups.  Non-decreasing in q up to small table-cost wiggles.  See the module docstring.
+    """
+    x, nb, lo, hi = _check(x, num_blocks, bit_range)
+    return rate_from_stats(group_stats(x, nb, (lo, hi)), (lo, hi))
+
+
+def channel_set_overhead_bits(num_channels: int, num_blocks: int, length: int) -> float:
+    """Bits of a channel set that no group's choice changes: header (C, L, B, mode), bits /
+    mins / maxs arrays, stream length, model-set varints and lane/word counts."""
+    c, b = int(num_channels), int(num_blocks)
+    models = c * b
+    return 8.0 * (1 + 4 + 2 + 1 + 9 * models + 8 + 6 + math.ceil(models / 64) + 4)

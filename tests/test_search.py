@@ -1,0 +1,86 @@
+"""Size-aware search: the file never exceeds the budget, lands within 0.5 % below it, errors
+name the smallest reachable size, and more bytes never buy less fidelity."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from gsz.decoder import decode
+from gsz.encoder.search import BudgetError, SearchOptions, encode_to_budget
+from codec_util import sample
+
+FAST = SearchOptions(max_candidates=2, eval_views=3, eval_width=96, train_views=4,
+                     importance_width=96, vq_iters=10)
+
+
+@pytest.fixture(scope="module")
+def imp_cache():
+    return {}
+
+
+def _search(name, n, target, imp_cache):
+    from gsz.encoder.pipeline import EncodeOptions, compute_train_importance
+    c = sample(name, n)
+    key = (name, n)
+    if key not in imp_cache:
+        imp_cache[key] = compute_train_importance(c, EncodeOptions(train_views=4, importance_width=96))
+    return c, encode_to_budget(c, target, options=FAST, importance=imp_cache[key])
+
+
+@pytest.mark.parametrize("name,n,target", [("sh0", 6000, 40_000), ("sh0", 6000, 90_000),
+                                           ("sh3", 4000, 60_000), ("sh3", 4000, 150_000)])
+def test_budget_is_hit_from_below(name, n, target, imp_cache):
+    c, res = _search(name, n, target, imp_cache)
+    assert len(res.data) <= target
+    assert len(res.data) >= 0.995 * target, res.report["calibration"]
+    out = decode(res.data)
+    assert out.equals(res.cloud)
+    r = res.report
+    assert r["bytes"] == len(res.data) and r["target_bytes"] == target
+    assert len(r["bits"]["raht"]) == 7 and len(r["bits"]["scales"]) == 3
+    assert all(1 <= b <= 16 for row in r["bits"]["raht"] + r["bits"]["scales"] for b in row)
+    assert r["calibration"] and all("predicted_bytes" in x and "actual_bytes" in x for x in r["calibration"])
+
+
+def test_unreachable_budget_names_the_minimum(imp_cache):
+    with pytest.raises(BudgetError) as e:
+        _search("sh3", 4000, 3000, imp_cache)
+    assert e.value.minimum > 3000
+    assert f"{e.value.minimum:,}" in str(e.value)
+
+
+def test_more_bytes_never_lower_fidelity(imp_cache):
+    """Monotone RD on held-out (test) views of a small sample."""
+    from gsz.encoder.cameras import load_cameras
+    from gsz.encoder.evaluate import evaluate, render_views
+    c = sample("sh0", 6000)
+    cams = load_cameras(None, c, n_test=3, width=128).test
+    refs = render_views(c, cams)
+    psnrs = []
+    for target in (30_000, 50_000, 80_000, 120_000):
+        _, res = _search("sh0", 6000, target, imp_cache)
+        psnrs.append(evaluate(refs, res.cloud, cams)["psnr"])
+    assert all(b >= a - 1e-9 for a, b in zip(psnrs, psnrs[1:])), psnrs
+
+
+def test_cli_size_units_json_and_report(tmp_path):
+    from conftest import SAMPLE_SH0
+    out = tmp_path / "p.gsz"
+    code = "import sys; from gsz.encoder.cli import main; sys.exit(main(sys.argv[1:]))"
+    p = subprocess.run([sys.executable, "-c", code, str(SAMPLE_SH0), "-o", str(out), "--size", "150kB",
+                        "--train-views", "4", "--importance-width", "96", "--json", "--report", str(tmp_path / "rep")],
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    r = json.loads(p.stdout)
+    assert r["target"] == "150 kB" and 0.995 * 150_000 <= r["bytes"] <= 150_000
+    assert out.stat().st_size == r["bytes"]
+    assert (tmp_path / "rep" / "bits.png").stat().st_size > 500
+    p = subprocess.run([sys.executable, "-c", code, str(SAMPLE_SH0), "-o", str(tmp_path / "q.gsz"),
+                        "--size", "5 parsecs"], capture_output=True, text=True)
+    assert p.returncode == 2 and "parsecs" in p.stderr and not (tmp_path / "q.gsz").exists()
+    p = subprocess.run([sys.executable, "-c", code, str(SAMPLE_SH0), "-o", str(tmp_path / "q.gsz"),
+                        "--size", "2kB", "--train-views", "4", "--importance-width", "96"],
+                       capture_output=True, text=True)
+    assert p.returncode == 2 and "smallest reachable" in p.stderr and not (tmp_path / "q.gsz").exists()

@@ -1,0 +1,627 @@
+"""The viewer application: scenes, view state, input handling and frame composition.
+
+:class:`ViewerApp` owns no window.  Whoever drives it (``gsz.viewer.window`` with glfw +
+imgui, the headless ``--screenshot`` path, or a test) calls, per frame::
+
+    app.handle_event(ev)      # for each input event (MouseDown / MouseMove / Key... below)
+    app.step(dt)              # fly movement, background jobs, sort requests, metrics
+    app.render()              # scene(s) -> float targets -> composite into app.output
+    app.draw_ui()             # optional: the imgui panel and labels (needs an imgui frame)
+    app.present(fbo)          # copy app.output to the window (or read it: app.read_output())
+
+Coordinates of events are window pixels with the origin at the top left (glfw / imgui).
+Scenes: A = the original (left half), B = the decoded file (right half).  A lone file is A.
+"""
+from __future__ import annotations
+
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gsz.decoder.cloud import GaussianCloud
+from gsz.decoder.errors import GszError
+
+from .camera_control import CameraController
+from .gl_renderer import FloatTarget, SplatRenderer, load_shader
+from .sorter import DepthSorter, camera_key
+
+__all__ = ["Scene", "scene_from_file", "scene_from_bytes", "ViewerApp", "Settings",
+           "MouseDown", "MouseUp", "MouseMove", "Scroll", "KeyDown", "KeyUp",
+           "MODES", "format_bytes"]
+
+MODES = ("single", "split", "side")
+#: grab distance (pixels) of the split line
+SPLIT_GRAB_PX = 8
+#: full scale of the heat map (same as gsz-eval's error PNG)
+HEAT_FULL_SCALE = 0.1
+
+
+# ------------------------------------------------------------------------------------------------
+# events
+# ------------------------------------------------------------------------------------------------
+
+@dataclass
+class MouseDown:
+    x: float
+    y: float
+    button: int = 0          # 0 left, 1 right, 2 middle
+
+
+@dataclass
+class MouseUp:
+    x: float
+    y: float
+    button: int = 0
+
+
+@dataclass
+class MouseMove:
+    x: float
+    y: float
+
+
+@dataclass
+class Scroll:
+    dy: float                # + = towards the scene
+
+
+@dataclass
+class KeyDown:
+    key: str                 # lower-case name: "w", "1", "space", "shift", "escape", "[" ...
+
+
+@dataclass
+class KeyUp:
+    key: str
+
+
+# ------------------------------------------------------------------------------------------------
+# scenes
+# ------------------------------------------------------------------------------------------------
+
+def format_bytes(n) -> str:
+    if n is None:
+        return "?"
+    try:
+        from gsz.encoder.sizes import format_size
+        return format_size(int(n))
+    except Exception:
+        return f"{n / 1e6:.2f} MB" if n >= 1e5 else f"{n / 1e3:.1f} kB"
+
+
+@dataclass
+class Scene:
+    """One cloud on screen.
+
+    name        label shown in the UI ("original", "decoded", "2MB" ...)
+    cloud       GaussianCloud
+    file_bytes  size of the file it came from (None if unknown)
+    components  per-component bytes of a .gsz (chunk name -> bytes, from ``inspect()``)
+    """
+
+    name: str
+    cloud: GaussianCloud
+    path: str | None = None
+    file_bytes: int | None = None
+    components: dict = field(default_factory=dict)
+    renderer: SplatRenderer | None = None
+    sorter: DepthSorter | None = None
+
+    @property
+    def label(self) -> str:
+        return f"{self.name}  {format_bytes(self.file_bytes)}"
+
+
+def _components_of(src) -> dict:
+    from gsz.decoder import inspect
+    info = inspect(src)
+    comps = {}
+    for ch in info["chunks"]:
+        comps[ch["name"]] = comps.get(ch["name"], 0) + int(ch["bytes"])
+    comps["header+table"] = int(info["bytes"]) - sum(int(c["bytes"]) for c in info["chunks"])
+    return comps
+
+
+def scene_from_file(path, name: str | None = None) -> Scene:
+    """Load a .ply or .gsz (GszError naming the file on failure) with its size and, for a
+    .gsz, its per-component bytes."""
+    from gsz.encoder.evaluate import load_cloud
+    path = os.fspath(path)
+    cloud = load_cloud(path)
+    comps = _components_of(path) if path.lower().endswith(".gsz") else {}
+    return Scene(name or os.path.basename(path), cloud, path, os.path.getsize(path), comps)
+
+
+def scene_from_bytes(name: str, data: bytes, cloud: GaussianCloud | None = None) -> Scene:
+    """A scene for an in-memory .gsz (a budget encode); decodes ``data`` when no cloud given."""
+    if cloud is None:
+        from gsz.decoder import decode
+        cloud = decode(data)
+    try:
+        comps = _components_of(data)
+    except Exception:
+        comps = {}
+    return Scene(name, cloud, None, len(data), comps)
+
+
+# ------------------------------------------------------------------------------------------------
+# settings
+# ------------------------------------------------------------------------------------------------
+
+@dataclass
+class Settings:
+    mode: str = "single"               # one of MODES
+    show: int = 0                      # single mode: 0 = A, 1 = B (flip toggles)
+    heatmap: bool = False              # error heat map instead of B
+    split: float = 0.5                 # split position, fraction of the width
+    background: tuple = (0.0, 0.0, 0.0)
+    sh_degree: int = 3                 # capped per scene at its own degree
+    scale_modifier: float = 1.0
+    render_scale: float = 1.0          # render at this fraction of the window size
+    fly_speed: float = 1.0             # scene radii per second
+    auto_metrics: bool = True          # PSNR/SSIM of the resting view, computed automatically
+    labels: bool = True
+    show_panel: bool = True            # Tab hides / shows the control panel
+
+
+def _gl_renderer_name(ctx) -> str:
+    try:
+        return str(ctx.info.get("GL_RENDERER", ""))
+    except Exception:
+        return ""
+
+
+class ViewerApp:
+    """Everything but the window.  ``ctx`` = a moderngl context current on this thread.
+
+    a, b        Scene (b None for a lone file); b may also arrive later (budget encodes)
+    cameras     CameraSet of the scene (snap targets: test views, then train views)
+    camera_index  initial view (and the one "reset" returns to), index into test views first
+    up          world up vector of the scene, for orbit and fly
+    threaded_sort  sort on a worker thread (True in the window; the screenshot path and
+                tests may use False for fully deterministic frames)
+    """
+
+    def __init__(self, ctx, a: Scene, b: Scene | None = None, *, cameras, up,
+                 width: int = 1280, height: int = 720, settings: Settings | None = None,
+                 threaded_sort: bool = True, budget_jobs=None, screenshot_dir: str = ".",
+                 camera_index: int = 0):
+        import moderngl
+        self.ctx = ctx
+        self._mgl = moderngl
+        self.settings = settings or Settings()
+        self.threaded_sort = threaded_sort
+        self.width, self.height = int(width), int(height)
+        self.cameras = cameras
+        self.camera_list = [("test", i, c) for i, c in enumerate(cameras.test)] + \
+                           [("train", i, c) for i, c in enumerate(cameras.train)]
+        self.camera_index = int(camera_index) % len(self.camera_list)
+        first = self.camera_list[self.camera_index][2]
+        centre = self._pivot_distance(a.cloud, first)
+        self.control = CameraController(first, centre, up)
+        self.scene_radius = max(self._scene_radius(a.cloud), 1e-6)
+        self.scenes = [a] + ([b] if b is not None else [])
+        self.variants = []                  # extra B candidates (budget encodes), Scene list
+        self.b_index = 0 if b is not None else -1
+        if b is not None:
+            self.variants.append(b)
+        for s in self.scenes:
+            self._upload(s)
+        self.budget_jobs = budget_jobs
+        self._seen_budget_results = 0
+        self.held = set()
+        self.drag = None                    # "split" | "orbit" | "pan" | "look" | None
+        self.mouse = (0.0, 0.0)
+        self.quit = False
+        self.frame_times = []
+        self.stats = {"frame_s": 0.0, "sort_s": 0.0, "preprocess_s": 0.0, "draw_s": 0.0,
+                      "sort_current": True}
+        self.status = ""
+        self.screenshot_dir = screenshot_dir
+        self.screenshots_taken = 0
+        self.is_llvmpipe = "llvmpipe" in _gl_renderer_name(ctx).lower()
+        self._targets = {}
+        self.output = None
+        self._out_size = None
+        self._last_move = time.monotonic()
+        self._last_version = self.control.version
+        self._metrics = None                # (key, {"psnr", "ssim"}) of the last finished
+        self._metrics_pending = None
+        self._metrics_lock = threading.Lock()
+        self._metrics_thread = None
+        self._last_images = None            # (key, imgA, imgB) from the last frame
+        self.comp = ctx.program(vertex_shader=load_shader("fullscreen.vert.glsl"),
+                                fragment_shader=load_shader("composite.frag.glsl"))
+        self.comp_vao = ctx.vertex_array(self.comp, [])
+        self._dummy = FloatTarget(ctx, 1, 1)
+
+    # -- helpers -------------------------------------------------------------------------------
+    @staticmethod
+    def _scene_radius(cloud) -> float:
+        from gsz.encoder.cameras import robust_bounds
+        if len(cloud) == 0:
+            return 1.0
+        lo, hi, _ = robust_bounds(cloud.positions)
+        return 0.5 * float(np.linalg.norm(hi - lo))
+
+    @staticmethod
+    def _pivot_distance(cloud, cam) -> float:
+        """Distance from ``cam`` to the scene centre (the orbit pivot)."""
+        from gsz.encoder.cameras import robust_bounds
+        if len(cloud) == 0:
+            return 1.0
+        lo, hi, _ = robust_bounds(cloud.positions)
+        d = float(np.linalg.norm((lo + hi) / 2 - cam.center))
+        return d if d > 0 else 1.0
+
+    def _upload(self, scene: Scene):
+        if scene.renderer is None:
+            scene.renderer = SplatRenderer(self.ctx, scene.cloud)
+        if scene.sorter is None:
+            scene.sorter = DepthSorter(scene.cloud.positions, threaded=self.threaded_sort)
+
+    @property
+    def a(self) -> Scene:
+        return self.scenes[0]
+
+    @property
+    def b(self) -> Scene | None:
+        return self.variants[self.b_index] if 0 <= self.b_index < len(self.variants) else None
+
+    @property
+    def comparing(self) -> bool:
+        return self.b is not None
+
+    def close(self):
+        for s in [self.scenes[0]] + self.variants:
+            if s.sorter is not None:
+                s.sorter.close()
+            if s.renderer is not None:
+                s.renderer.release()
+                s.renderer = None
+        for t in self._targets.values():
+            t.release()
+        self._targets.clear()
+        if self.output is not None:
+            self.output[0].release()
+            self.output[1].release()
+            self.output = None
+
+    # -- state changes ---------------------------------------------------------------------------
+    def set_mode(self, mode: str):
+        if mode not in MODES:
+            raise GszError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+        self.settings.mode = mode
+
+    def set_b(self, index: int):
+        if 0 <= index < len(self.variants):
+            self.b_index = index
+
+    def snap(self, index: int):
+        """Snap the view to camera ``index`` of :attr:`camera_list` (test views first)."""
+        n = len(self.camera_list)
+        self.camera_index = index % n
+        cam = self.camera_list[self.camera_index][2]
+        self.control.snap_to(cam, self._pivot_distance(self.a.cloud, cam))
+
+    def split_px(self) -> float:
+        return round(self.settings.split * self.width)
+
+    def resize(self, width: int, height: int):
+        self.width, self.height = max(1, int(width)), max(1, int(height))
+
+    # -- input -------------------------------------------------------------------------------------
+    def handle_event(self, ev) -> None:
+        s = self.settings
+        if isinstance(ev, MouseDown):
+            self.mouse = (ev.x, ev.y)
+            if (ev.button == 0 and self.comparing and s.mode == "split"
+                    and abs(ev.x - self.split_px()) <= SPLIT_GRAB_PX):
+                self.drag = "split"
+            elif ev.button == 2 or (ev.button == 0 and "shift" in self.held):
+                self.drag = "pan"
+            elif ev.button == 1:
+                self.drag = "look"
+            else:
+                self.drag = "orbit"
+        elif isinstance(ev, MouseUp):
+            self.drag = None
+        elif isinstance(ev, MouseMove):
+            dx, dy = ev.x - self.mouse[0], ev.y - self.mouse[1]
+            self.mouse = (ev.x, ev.y)
+            if self.drag == "split":
+                s.split = float(np.clip(ev.x / max(self.width, 1), 0.0, 1.0))
+            elif self.drag == "orbit":
+                self.control.orbit(dx, dy)
+            elif self.drag == "look":
+                self.control.look(dx, dy)
+            elif self.drag == "pan":
+                self.control.pan(dx, dy, self.height)
+        elif isinstance(ev, Scroll):
+            self.control.zoom(ev.dy)
+        elif isinstance(ev, KeyDown):
+            k = ev.key.lower()
+            self.held.add(k)
+            self._key_action(k)
+        elif isinstance(ev, KeyUp):
+            self.held.discard(ev.key.lower())
+
+    def _key_action(self, k: str):
+        s = self.settings
+        if k == "1":
+            self.set_mode("single")
+        elif k == "2" and self.comparing:
+            self.set_mode("split")
+        elif k == "3" and self.comparing:
+            self.set_mode("side")
+        elif k in ("f", "space") and self.comparing:
+            # Flip: full-frame A <-> B at the same camera (enters single mode).
+            if s.mode != "single":
+                s.mode, s.show = "single", 1
+            else:
+                s.show = 1 - s.show if s.show in (0, 1) else 0
+        elif k == "h" and self.comparing:
+            s.heatmap = not s.heatmap
+        elif k == "r":
+            self.control.reset()
+        elif k in ("]", "n"):
+            self.snap(self.camera_index + 1)
+        elif k in ("[", "b"):
+            self.snap(self.camera_index - 1)
+        elif k == "p":
+            self.request_screenshot()
+        elif k == "tab":
+            s.show_panel = not s.show_panel
+        elif k == "escape":
+            self.quit = True
+
+    # -- per-frame logic ---------------------------------------------------------------------------
+    def step(self, dt: float) -> None:
+        """Advance ``dt`` seconds: fly with held keys, pick up finished background work."""
+        h = self.held
+        right = ("d" in h) - ("a" in h)
+        fwd = ("w" in h) - ("s" in h)
+        up = ("e" in h) - ("q" in h)
+        if right or fwd or up:
+            speed = self.settings.fly_speed * self.scene_radius * (4.0 if "shift" in h else 1.0)
+            self.control.fly(right, up, fwd, speed * dt)
+        if self.control.version != self._last_version:
+            self._last_version = self.control.version
+            self._last_move = time.monotonic()
+        self._poll_budgets()
+
+    def _poll_budgets(self):
+        if self.budget_jobs is None:
+            return
+        snap = self.budget_jobs.snapshot()
+        self.status = snap["status"]
+        res = snap["results"]
+        while self._seen_budget_results < len(res):
+            r = res[self._seen_budget_results]
+            self._seen_budget_results += 1
+            scene = scene_from_bytes(r.label, r.data, r.cloud)
+            self._upload(scene)
+            self.variants.append(scene)
+            if self.b_index < 0:
+                self.b_index = len(self.variants) - 1
+                if self.settings.mode == "single":
+                    self.settings.mode = "split"
+
+    def _render_size(self):
+        sc = float(np.clip(self.settings.render_scale, 0.1, 1.0))
+        w = max(1, int(round(self.width * sc)))
+        h = max(1, int(round(self.height * sc)))
+        if self.settings.mode == "side" and self.comparing:
+            w = max(1, int(self.width // 2 * sc))
+        return w, h
+
+    def _target(self, slot: str, w: int, h: int) -> FloatTarget:
+        t = self._targets.get(slot)
+        if t is None or t.size != (w, h):
+            if t is not None:
+                t.release()
+            t = FloatTarget(self.ctx, w, h)
+            t.texture.repeat_x = t.texture.repeat_y = False
+            self._targets[slot] = t
+        return t
+
+    def _scenes_needed(self):
+        s = self.settings
+        if not self.comparing:
+            return [("a", self.a)]
+        if s.mode == "single" and not s.heatmap:
+            return [("a", self.a)] if s.show == 0 else [("b", self.b)]
+        return [("a", self.a), ("b", self.b)]
+
+    def view_camera(self):
+        w, h = self._render_size()
+        return self.control.camera(w, h)
+
+    def render(self, *, wait_for_sort: bool = False) -> None:
+        """Draw the current view into :attr:`output` (an RGBA8 framebuffer of window size).
+
+        wait_for_sort  block until every drawn scene's order is sorted for this exact camera
+                       (screenshots); otherwise the newest finished order is used and
+                       :attr:`needs_redraw` stays True until the sort catches up.
+        """
+        t0 = time.perf_counter()
+        mgl = self._mgl
+        cam = self.view_camera()
+        s = self.settings
+        drawn = {}
+        sort_s = 0.0
+        pre_s = draw_s = 0.0
+        current = True
+        for slot, scene in self._scenes_needed():
+            scene.sorter.request(cam)
+            if wait_for_sort or scene.sorter.order() is None:
+                scene.sorter.wait_current(timeout=600.0)
+            order = scene.sorter.order()
+            current &= scene.sorter.is_current
+            sort_s = max(sort_s, scene.sorter.last_sort_s)
+            target = self._target(slot, cam.width, cam.height)
+            deg = min(int(s.sh_degree), scene.cloud.sh_degree)
+            scene.renderer.render(cam, target, order=order, background=s.background,
+                                  sh_degree=deg, scale_modifier=s.scale_modifier)
+            pre_s += scene.renderer.last_times["preprocess_s"]
+            draw_s += scene.renderer.last_times["draw_s"]
+            drawn[slot] = target
+        # Composite into the output framebuffer.
+        if self._out_size != (self.width, self.height):
+            if self.output is not None:
+                self.output[0].release()
+                self.output[1].release()
+            tex = self.ctx.texture((self.width, self.height), 4)
+            self.output = (tex, self.ctx.framebuffer(color_attachments=[tex]))
+            self._out_size = (self.width, self.height)
+        fbo = self.output[1]
+        fbo.use()
+        self.ctx.viewport = (0, 0, self.width, self.height)
+        self.ctx.disable(mgl.BLEND)
+        ta = drawn.get("a", self._dummy)
+        tb = drawn.get("b", self._dummy)
+        smooth = float(s.render_scale) < 1.0
+        for t in (ta, tb):
+            t.texture.filter = (mgl.LINEAR, mgl.LINEAR) if smooth else (mgl.NEAREST, mgl.NEAREST)
+        ta.texture.use(0)
+        tb.texture.use(1)
+        p = self.comp
+        p["u_a"].value = 0
+        p["u_b"].value = 1
+        p["u_size"].value = (float(self.width), float(self.height))
+        p["u_full_scale"].value = HEAT_FULL_SCALE
+        p["u_line_color"].value = (1.0, 0.85, 0.1)
+        p["u_split"].value = float(self.split_px())
+        if not self.comparing:
+            mode, show, heat = 0, 0, False
+        elif s.mode == "single":
+            mode, show, heat = 0, (2 if s.heatmap else s.show), False
+        else:
+            mode, show, heat = MODES.index(s.mode), 0, bool(s.heatmap)
+        p["u_mode"].value = mode
+        p["u_show"].value = show
+        p["u_heat"].value = heat
+        self.comp_vao.render(mode=mgl.TRIANGLES, vertices=3)
+        # Keep the two renders of this view for PSNR/SSIM (read back lazily).
+        self._drawn = drawn
+        self._drawn_key = (camera_key(cam), cam.width, cam.height, id(self.b), s.background,
+                           s.sh_degree, s.scale_modifier)
+        self.stats.update(frame_s=time.perf_counter() - t0, sort_s=sort_s, preprocess_s=pre_s,
+                          draw_s=draw_s, sort_current=current)
+        self.frame_times = (self.frame_times + [time.perf_counter()])[-30:]
+        if current and s.auto_metrics and self.comparing and len(drawn) == 2 \
+                and time.monotonic() - self._last_move > 0.3:
+            self.request_metrics()
+
+    @property
+    def fps(self) -> float:
+        f = self.frame_times
+        return (len(f) - 1) / (f[-1] - f[0]) if len(f) > 1 and f[-1] > f[0] else 0.0
+
+    @property
+    def needs_redraw(self) -> bool:
+        """True while a frame would differ from the last one without new input: a sort,
+        a budget encode or a metrics computation is still running, or keys are held."""
+        busy_jobs = self.budget_jobs is not None and not self.budget_jobs.snapshot()["done"]
+        return (not self.stats.get("sort_current", True) or busy_jobs
+                or self._metrics_pending is not None or bool(self.held & set("wasdqe")))
+
+    # -- metrics -----------------------------------------------------------------------------------
+    def request_metrics(self, wait: bool = False):
+        """PSNR/SSIM of B against A for the current view, from the two GL renders (clamped,
+        8-bit rounded as gsz-eval does), computed on a worker thread (torch SSIM)."""
+        drawn = getattr(self, "_drawn", {})
+        if "a" not in drawn or "b" not in drawn:
+            return
+        key = self._drawn_key
+        with self._metrics_lock:
+            if (self._metrics is not None and self._metrics[0] == key) or \
+                    (self._metrics_pending == key):
+                if wait and self._metrics_thread is not None:
+                    self._metrics_thread.join()
+                return
+            self._metrics_pending = key
+        img_a = drawn["a"].read()[..., :3]
+        img_b = drawn["b"].read()[..., :3]
+
+        def work():
+            from gsz.encoder.metrics import psnr, quantize_8bit, ssim
+            qa, qb = quantize_8bit(img_a), quantize_8bit(img_b)
+            result = {"psnr": float(psnr(qa, qb)), "ssim": float(ssim(qa, qb))}
+            with self._metrics_lock:
+                self._metrics = (key, result)
+                if self._metrics_pending == key:
+                    self._metrics_pending = None
+
+        self._metrics_thread = threading.Thread(target=work, name="gsz-view-metrics", daemon=True)
+        self._metrics_thread.start()
+        if wait:
+            self._metrics_thread.join()
+
+    def current_metrics(self):
+        """{"psnr", "ssim"} for the view last drawn, or None (not computed / view changed)."""
+        with self._metrics_lock:
+            m = self._metrics
+        if m is not None and m[0] == getattr(self, "_drawn_key", None):
+            return m[1]
+        return None
+
+    # -- output ------------------------------------------------------------------------------------
+    def read_output(self) -> np.ndarray:
+        """[H, W, 3] uint8 of the last composed frame (row 0 = top)."""
+        raw = self.output[1].read(components=3, alignment=1)
+        return np.frombuffer(raw, np.uint8).reshape(self.height, self.width, 3)[::-1].copy()
+
+    def present(self, fbo) -> None:
+        """Copy the composed frame into ``fbo`` (e.g. ``ctx.screen``)."""
+        self.ctx.copy_framebuffer(fbo, self.output[1])
+
+    def request_screenshot(self, path: str | None = None) -> str:
+        """Write the current view (exactly sorted, without the panel) to a PNG; returns the
+        path.  Default name: gsz-view-NNN.png in :attr:`screenshot_dir`."""
+        for _, scene in self._scenes_needed():
+            scene.sorter.request(self.view_camera())
+        self.render(wait_for_sort=True)
+        if path is None:
+            while True:
+                self.screenshots_taken += 1
+                path = os.path.join(self.screenshot_dir, f"gsz-view-{self.screenshots_taken:03d}.png")
+                if not os.path.exists(path):
+                    break
+        write_png(path, self.read_output())
+        self.status = f"saved {path}"
+        return path
+
+    # -- UI ------------------------------------------------------------------------------------------
+    def labels(self):
+        """[(x, y, text)] overlay labels for the current layout (window pixels, top left)."""
+        if not self.comparing:
+            return [(8, 8, self.a.label)]
+        s = self.settings
+        m = self.current_metrics()
+        mtxt = f"\nPSNR {m['psnr']:.2f} dB  SSIM {m['ssim']:.4f}" if m else ""
+        b_txt = self.b.label + mtxt
+        if s.heatmap:
+            b_txt = f"|{self.a.name} - {self.b.name}|  white = {HEAT_FULL_SCALE:g}" + mtxt
+        if s.mode == "single":
+            return [(8, 8, self.a.label if (s.show == 0 and not s.heatmap) else b_txt)]
+        x_b = (self.width // 2 if s.mode == "side" else self.split_px()) + 8
+        return [(8, 8, self.a.label), (x_b, 8, b_txt)]
+
+    def draw_ui(self) -> None:
+        """The imgui panel + labels; call between ``imgui.new_frame()`` and ``imgui.render()``."""
+        from .ui import draw_panel
+        draw_panel(self)
+
+
+def write_png(path: str, rgb: np.ndarray) -> None:
+    """Write an [H, W, 3] uint8 image atomically (temp file + rename)."""
+    import io
+    from PIL import Image
+    from gsz.decoder.io_util import atomic_write
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgb, np.uint8), "RGB").save(buf, format="PNG", optimize=True)
+    atomic_write(path, buf.getvalue())

@@ -1,0 +1,279 @@
+"""``gsz-view``: look at a .gsz / .ply, or compare a decoded scene with its original.
+
+    gsz-view FILE                                   # one scene (.gsz or .ply)
+    gsz-view DECODED.gsz --compare ORIGINAL.ply     # A/B compare: split, side by side, flip
+    gsz-view ORIGINAL.ply --budgets 2MB,5MB,10MB    # encode at each budget in the background,
+                                                    # then compare the one picked in the panel
+    gsz-view FILE [--compare ORIG] --screenshot OUT.png [--camera I] [--width W --height H]
+                                                    # headless: render TEST camera I, exit
+
+Cameras: ``--cameras`` (cameras.json or a COLMAP model) or, by default, the ORIGINAL's default
+camera set -- the same views gsz-eval scores (``load_cameras(None, cloud).test``).  The
+screenshot path needs no display and no GPU (EGL; Mesa llvmpipe renders on the CPU).
+Exit status: 0 ok, 2 bad input (one-line message), 1 no usable OpenGL.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+
+from gsz.decoder.errors import GszError
+
+__all__ = ["main", "build_parser"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="gsz-view",
+        description="Interactive viewer for .gsz/.ply Gaussian-splat scenes with A/B compare "
+                    "against the original (split, side by side, flip, error heat map).",
+        epilog="Window keys: drag orbit, right-drag look, middle/shift-drag pan, wheel zoom, "
+               "WASD/QE fly (shift x4), 1/2/3 single/split/side, F or space flip, H heat map, "
+               "[ ] previous/next camera, R reset, P screenshot, Tab panel, Esc quit.")
+    p.add_argument("file", help="scene to show (.gsz or .ply); with --budgets, the original")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--compare", metavar="ORIGINAL", help="original scene (.ply/.gsz) to compare FILE with")
+    g.add_argument("--budgets", metavar="LIST",
+                   help="comma-separated sizes (e.g. 2MB,5MB,10MB): encode FILE at each in the "
+                        "background and compare")
+    p.add_argument("--cameras", metavar="PATH", help="cameras.json or COLMAP model (default: the "
+                   "original's default camera set, as gsz-eval)")
+    p.add_argument("--up", default="auto", help="scene up axis for default cameras and orbit "
+                   "(auto, -y, +y, +z, ...; default auto)")
+    p.add_argument("--screenshot", metavar="OUT.png", help="render one frame headless and exit")
+    p.add_argument("--camera", type=int, default=0, metavar="I", help="TEST camera index for "
+                   "--screenshot and the initial view (default 0)")
+    p.add_argument("--width", type=int, default=None, help="image width (screenshot default 800, "
+                   "window default 1280)")
+    p.add_argument("--height", type=int, default=None, help="image height (default: the camera's "
+                   "aspect, 3:4 of the width for default cameras)")
+    p.add_argument("--mode", choices=("single", "split", "side"), default=None,
+                   help="compare layout (default split when comparing)")
+    p.add_argument("--split", type=float, default=0.5, help="split position, 0..1 of the width")
+    p.add_argument("--flip", action="store_true", help="single mode: show the decoded scene (B)")
+    p.add_argument("--heatmap", action="store_true", help="show the error heat map instead of B")
+    p.add_argument("--background", default="0,0,0", metavar="R,G,B",
+                   help="background colour, 3 numbers in 0..1 (default 0,0,0)")
+    p.add_argument("--sh-degree", type=int, default=None, help="SH degree to render (default: all)")
+    p.add_argument("--render-scale", type=float, default=None,
+                   help="window: render at this fraction of the window size (default 1; 0.5 on "
+                        "software GL)")
+    lab = p.add_mutually_exclusive_group()
+    lab.add_argument("--labels", dest="labels", action="store_true", default=None,
+                     help="screenshot: draw the size / PSNR labels (default when comparing)")
+    lab.add_argument("--no-labels", dest="labels", action="store_false")
+    return p
+
+
+class _UsageError(GszError):
+    pass
+
+
+def _parse_background(text: str):
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) != 3 or not all(np.isfinite(vals)) or not all(0.0 <= v <= 1.0 for v in vals):
+        raise _UsageError(f"--background must be three numbers in 0..1 like 1,1,1, got {text!r}")
+    return tuple(vals)
+
+
+def _up_vector(up_arg, cloud, cameras_path, cams):
+    from gsz.encoder.cameras import _up_vector, detect_up
+    if up_arg != "auto":
+        return _up_vector(up_arg)
+    if cameras_path is not None:
+        # Dataset cameras: their mean "image up" (-y row of R) is the scene's up.
+        allc = list(cams.train) + list(cams.test)
+        v = -np.mean([c.R[1] for c in allc], axis=0)
+        if np.linalg.norm(v) > 1e-6:
+            return v / np.linalg.norm(v)
+    return _up_vector(detect_up(cloud.positions))
+
+
+def _load_cameras(args, ref_cloud, width):
+    from gsz.encoder.cameras import load_cameras
+    try:
+        cams = load_cameras(args.cameras, ref_cloud, width=width, up=args.up)
+    except ValueError as e:
+        raise _UsageError(f"--up: {e}") from None
+    if not cams.test:
+        raise _UsageError("the camera set has no test cameras")
+    return cams
+
+
+def _with_height(cam, height):
+    from gsz.encoder.cameras import Camera
+    if height is None or height == cam.height:
+        return cam
+    # Keep the focal length and the optical centre's place: the frame grows or shrinks evenly.
+    return Camera(cam.R, cam.t, cam.fx, cam.fy, cam.cx, cam.cy + (height - cam.height) / 2.0,
+                  cam.width, height, cam.name)
+
+
+def _settings(args, comparing: bool, a, b):
+    from .app import Settings
+    s = Settings(background=_parse_background(args.background))
+    if comparing:
+        s.mode = args.mode or ("single" if args.flip else "split")
+    else:
+        s.mode = "single"
+    s.show = 1 if args.flip else 0
+    s.heatmap = bool(args.heatmap)
+    if not 0.0 <= args.split <= 1.0:
+        raise _UsageError(f"--split must be in 0..1, got {args.split}")
+    s.split = float(args.split)
+    max_deg = max(a.cloud.sh_degree, b.cloud.sh_degree if b is not None else 0)
+    if args.sh_degree is not None:
+        if not 0 <= args.sh_degree <= 3:
+            raise _UsageError(f"--sh-degree must be 0..3, got {args.sh_degree}")
+        s.sh_degree = args.sh_degree
+    else:
+        s.sh_degree = max_deg
+    if args.render_scale is not None:
+        if not 0.1 <= args.render_scale <= 1.0:
+            raise _UsageError(f"--render-scale must be in 0.1..1, got {args.render_scale}")
+        s.render_scale = args.render_scale
+    return s
+
+
+def _load_scenes(args):
+    """(A = original, B = decoded or None, budget jobs or None)."""
+    from .app import scene_from_file
+    if args.compare:
+        b = scene_from_file(args.file, "decoded")
+        a = scene_from_file(args.compare, "original")
+        return a, b, None
+    a = scene_from_file(args.file, "original" if args.budgets else None)
+    jobs = None
+    if args.budgets:
+        from .budgets import BudgetJobs, parse_budgets
+        jobs = BudgetJobs(a.cloud, parse_budgets(args.budgets), start=False)
+    return a, None, jobs
+
+
+def _screenshot(args, a, b, jobs) -> str:
+    from .app import ViewerApp
+    from .gl_renderer import create_headless_context
+    width = 800 if args.width is None else args.width
+    if width < 1 or (args.height is not None and args.height < 1) or width > 16384 \
+            or (args.height or 0) > 16384:
+        raise _UsageError("--width/--height must be 1..16384")
+    cams = _load_cameras(args, a.cloud, width)
+    if not 0 <= args.camera < len(cams.test):
+        raise _UsageError(f"--camera {args.camera}: the camera set has {len(cams.test)} test "
+                          f"cameras (0..{len(cams.test) - 1})")
+    cam = _with_height(cams.test[args.camera], args.height)
+    if jobs is not None:
+        jobs.start()
+        jobs.wait(count=1)
+        snap = jobs.snapshot()
+        if not snap["results"]:
+            label, msg = snap["errors"][0]
+            raise GszError(f"--budgets {label}: encoding failed: {msg}")
+    comparing = b is not None or jobs is not None
+    settings = _settings(args, comparing, a, b)
+    ctx = create_headless_context()
+    app = ViewerApp(ctx, a, b, cameras=cams, up=_up_vector(args.up, a.cloud, args.cameras, cams),
+                    width=cam.width, height=cam.height, settings=settings, threaded_sort=False,
+                    budget_jobs=jobs)
+    try:
+        app.step(0.0)   # picks up a finished budget encode
+        app.control.snap_to(cam)
+        app.render(wait_for_sort=True)
+        labels = args.labels if args.labels is not None else app.comparing
+        if labels and app.comparing:
+            app.request_metrics(wait=True)
+        if labels:
+            _draw_labels_offscreen(app)
+        from .app import write_png
+        write_png(args.screenshot, app.read_output())
+    finally:
+        app.close()
+        ctx.release()
+    return args.screenshot
+
+
+def _draw_labels_offscreen(app) -> None:
+    """Draw the imgui labels into app.output without a window (EGL + FBO)."""
+    try:
+        from imgui_bundle import imgui
+    except ImportError:
+        return
+    from .ui import draw_labels
+    imgui.create_context()
+    try:
+        io = imgui.get_io()
+        io.set_ini_filename("")
+        io.display_size = imgui.ImVec2(float(app.width), float(app.height))
+        imgui.backends.opengl3_init("#version 430")
+        for _ in range(2):   # the first frame builds the font atlas
+            imgui.backends.opengl3_new_frame()
+            imgui.new_frame()
+            draw_labels(app)
+            imgui.render()
+        app.output[1].use()
+        app.ctx.viewport = (0, 0, app.width, app.height)
+        imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
+        imgui.backends.opengl3_shutdown()
+    finally:
+        imgui.destroy_context()
+
+
+def _interactive(args, a, b, jobs) -> None:
+    from .app import ViewerApp
+    from .window import Window, run
+    width = 1280 if args.width is None else args.width
+    height = 720 if args.height is None else args.height
+    cams = _load_cameras(args, a.cloud, None)
+    if not 0 <= args.camera < len(cams.test):
+        raise _UsageError(f"--camera {args.camera}: the camera set has {len(cams.test)} test cameras")
+    comparing = b is not None or jobs is not None
+    settings = _settings(args, comparing, a, b)
+    win = Window(width, height, f"gsz-view - {os.path.basename(args.file)}")
+    try:
+        fw, fh = win.framebuffer_size()
+        app = ViewerApp(win.ctx, a, b, cameras=cams,
+                        up=_up_vector(args.up, a.cloud, args.cameras, cams),
+                        width=fw, height=fh, settings=settings, budget_jobs=jobs,
+                        camera_index=args.camera)
+        if args.render_scale is None and app.is_llvmpipe:
+            app.settings.render_scale = 0.5
+        if jobs is not None:
+            jobs.start()
+        try:
+            run(win, app)
+        finally:
+            app.close()
+    finally:
+        win.close()
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    from .gl_renderer import GLUnavailable
+    try:
+        a, b, jobs = _load_scenes(args)
+        if args.screenshot:
+            out = _screenshot(args, a, b, jobs)
+            print(f"gsz-view: wrote {out}")
+        else:
+            _interactive(args, a, b, jobs)
+        return 0
+    except GLUnavailable as e:
+        print(f"gsz-view: error: {e}", file=sys.stderr)
+        return 1
+    except (GszError, OSError) as e:
+        msg = str(e) if isinstance(e, GszError) else f"{e.strerror or e}: {e.filename or ''}".rstrip(": ")
+        print(f"gsz-view: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

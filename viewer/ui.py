@@ -1,0 +1,145 @@
+"""The imgui-bundle control panel and the per-half labels of :class:`gsz.viewer.app.ViewerApp`.
+
+Call :func:`draw_panel` between ``imgui.new_frame()`` and ``imgui.render()``.  Every widget
+writes straight into ``app.settings`` / calls an app method, so whatever the panel can do a
+test can do through the same methods.
+"""
+from __future__ import annotations
+
+from imgui_bundle import imgui
+
+from .app import MODES, format_bytes
+
+_MODE_LABELS = {"single": "single / flip (F)", "split": "split (2)", "side": "side by side (3)"}
+
+
+def _label(x, y, text):
+    dl = imgui.get_foreground_draw_list()
+    # app coordinates are framebuffer pixels; imgui draws in window coordinates (HiDPI)
+    k = imgui.get_io().display_framebuffer_scale.x or 1.0
+    pos = imgui.ImVec2(float(x) / k, float(y) / k)
+    # dark box behind the text so it reads on any background
+    size = imgui.calc_text_size(text)
+    dl.add_rect_filled(imgui.ImVec2(pos.x - 4, pos.y - 2),
+                       imgui.ImVec2(pos.x + size.x + 4, pos.y + size.y + 2),
+                       imgui.color_convert_float4_to_u32(imgui.ImVec4(0, 0, 0, 0.6)))
+    dl.add_text(pos, imgui.color_convert_float4_to_u32(imgui.ImVec4(1, 1, 1, 1)), text)
+
+
+def draw_labels(app) -> None:
+    if app.settings.labels:
+        for x, y, text in app.labels():
+            _label(x, y + 0.0, text)
+
+
+def _components(scene):
+    if not scene.components:
+        return
+    if imgui.begin_table(f"comp_{id(scene)}", 2, imgui.TableFlags_.borders_inner_v):
+        for name, n in sorted(scene.components.items(), key=lambda kv: -kv[1]):
+            imgui.table_next_row()
+            imgui.table_next_column()
+            imgui.text(name)
+            imgui.table_next_column()
+            imgui.text(f"{n:,} B")
+        imgui.end_table()
+
+
+def draw_panel(app) -> None:
+    s = app.settings
+    draw_labels(app)
+    if not s.show_panel:
+        return
+    # Docked to the right edge at first (the user may move it); narrower in small windows.
+    disp_w = imgui.get_io().display_size.x
+    panel_w = min(320.0, max(200.0, 0.45 * disp_w))
+    imgui.set_next_window_pos(imgui.ImVec2(disp_w - panel_w - 10.0, 30.0), imgui.Cond_.first_use_ever)
+    imgui.set_next_window_size(imgui.ImVec2(panel_w, 0.0), imgui.Cond_.first_use_ever)
+    imgui.begin("gsz-view")
+    st = app.stats
+    imgui.text(f"{app.fps:5.1f} FPS   frame {1e3 * st['frame_s']:.1f} ms")
+    imgui.text(f"sort {1e3 * st['sort_s']:.1f} ms{'' if st['sort_current'] else ' (sorting...)'}"
+               f"   gpu prep {1e3 * st['preprocess_s']:.1f} ms")
+    if app.is_llvmpipe:
+        imgui.text_colored(imgui.ImVec4(1, 0.7, 0.2, 1), "software GL (llvmpipe): lower render scale")
+
+    imgui.separator_text("scene")
+    for scene in [app.a] + ([app.b] if app.comparing else []):
+        if imgui.tree_node(f"{scene.name}##{id(scene)}"):
+            imgui.text(f"{len(scene.cloud):,} splats, SH degree {scene.cloud.sh_degree}")
+            imgui.text(f"file {format_bytes(scene.file_bytes)}"
+                       + (f" ({scene.file_bytes:,} B)" if scene.file_bytes else ""))
+            _components(scene)
+            imgui.tree_pop()
+
+    if len(app.variants) > 1 or app.budget_jobs is not None:
+        imgui.separator_text("compare against")
+        names = [v.label for v in app.variants]
+        if names:
+            changed, idx = imgui.combo("decoded", max(app.b_index, 0), names)
+            if changed:
+                app.set_b(idx)
+        if app.budget_jobs is not None:
+            snap = app.budget_jobs.snapshot()
+            total = len(app.budget_jobs.budgets)
+            done = len(snap["results"]) + len(snap["errors"])
+            imgui.progress_bar(done / max(total, 1), imgui.ImVec2(-1, 0), f"{done}/{total} budgets")
+            imgui.text_wrapped(snap["status"])
+            for label, msg in snap["errors"]:
+                imgui.text_colored(imgui.ImVec4(1, 0.4, 0.4, 1), f"{label}: {msg}")
+
+    if app.comparing:
+        imgui.separator_text("compare")
+        for m in MODES:
+            if imgui.radio_button(_MODE_LABELS[m], s.mode == m):
+                app.set_mode(m)
+        if s.mode == "single":
+            if imgui.button(f"flip (F): showing {'A ' + app.a.name if s.show == 0 else 'B ' + app.b.name}"):
+                s.show = 1 - s.show
+        if s.mode == "split":
+            _, s.split = imgui.slider_float("split", s.split, 0.0, 1.0)
+        _, s.heatmap = imgui.checkbox("error heat map (H)", s.heatmap)
+        m = app.current_metrics()
+        if m:
+            imgui.text(f"this view: PSNR {m['psnr']:.2f} dB   SSIM {m['ssim']:.4f}")
+        else:
+            imgui.text("this view: PSNR/SSIM pending")
+        _, s.auto_metrics = imgui.checkbox("auto PSNR/SSIM when the view rests", s.auto_metrics)
+        imgui.same_line()
+        if imgui.button("now"):
+            app.request_metrics()
+
+    imgui.separator_text("render")
+    max_deg = max(x.cloud.sh_degree for x in [app.a] + ([app.b] if app.comparing else []))
+    s.sh_degree = min(s.sh_degree, max_deg)
+    _, s.sh_degree = imgui.slider_int("SH degree", s.sh_degree, 0, max_deg)
+    _, s.scale_modifier = imgui.slider_float("splat scale", s.scale_modifier, 0.05, 2.0)
+    _, s.render_scale = imgui.slider_float("render scale", s.render_scale, 0.1, 1.0)
+    changed, col = imgui.color_edit3("background", list(s.background))
+    if changed:
+        s.background = tuple(float(c) for c in col)
+    _, s.labels = imgui.checkbox("labels", s.labels)
+
+    imgui.separator_text("camera")
+    kind, i, cam = app.camera_list[app.camera_index]
+    names = [f"{k} {j}  {c.name}" for k, j, c in app.camera_list]
+    changed, idx = imgui.combo("snap to", app.camera_index, names)
+    if changed:
+        app.snap(idx)
+    if imgui.button("< prev ([)"):
+        app.snap(app.camera_index - 1)
+    imgui.same_line()
+    if imgui.button("next (]) >"):
+        app.snap(app.camera_index + 1)
+    imgui.same_line()
+    if imgui.button("reset (R)"):
+        app.control.reset()
+    _, s.fly_speed = imgui.slider_float("fly speed", s.fly_speed, 0.01, 10.0, "%.2f",
+                                        imgui.SliderFlags_.logarithmic)
+    imgui.text_wrapped("Tab: hide panel  drag: orbit  right-drag: look  middle/shift-drag: pan  wheel: zoom  "
+                       "WASD/QE: fly (shift x4)")
+    if imgui.button("screenshot (P)"):
+        app.request_screenshot()
+    if app.status:
+        imgui.text_wrapped(app.status)
+    imgui.end()
