@@ -48,8 +48,8 @@ MAX_BINSHIFT = 5             # gsz.encoder.rans.COARSE_BINSHIFTS
 # + PER_LEVEL_BIT * sum log2(1 + |dlevel|) for COARSE; SINGLE_BITS for a one-value model.
 # Least-squares fit of write_model_set sizes (zstd-19 over all models) on the RAHT-AC and scale
 # channel sets of jug (101k) and houseplant (20k) at uniform and random allocations.
-TABLE_COEFFS = {"per_model": 2.4, "per_value": 3.94, "per_gap_bit": 0.48, "per_level_bit": 0.0,
-                "single": 8.0, "laplace": 19.6}
+TABLE_COEFFS = {"coarse": 2.4, "values": 3.94, "gap_bits": 0.48, "level_bits": 0.0,
+                "long_gaps": 0.0, "single": 8.0, "laplace": 19.6}
 PAYLOAD_FACTOR = 1.002       # COARSE level quantisation of the counts (measured ~0.1-0.3 %)
 # the (q - h)-bit grid's histogram is smoother than the q-bit one binned by 2^h (different
 # rounding), so its payload is optimistic; measured on jug/houseplant AC and scales at 3-6 bits
@@ -105,13 +105,14 @@ def group_stats(x, num_blocks: int, bit_range: tuple[int, int] = (MIN_BITS, MAX_
     k        distinct symbols
     payload  ideal coded bits under an exact per-value table (coder's normalisation)
     gap      sum over consecutive distinct values of log2(1 + value step)
+    gap2     number of value steps > 128 (two-byte varints in the serialised table)
     level    sum over consecutive distinct values of log2(1 + |round(2 log2(c_i / c_{i-1}))|)
              (COARSE level codes step twice per octave of count at the default level group)
     """
     x, nb_total, lo, hi = _check(x, num_blocks, bit_range)
     c_count, length = x.shape
     shape = (c_count, nb_total, MAX_BITS)
-    out = {key: np.zeros(shape) for key in ("n", "k", "payload", "gap", "level", "laplace")}
+    out = {key: np.zeros(shape) for key in ("n", "k", "payload", "gap", "gap2", "level", "laplace")}
     out["binned"] = np.full(shape + (MAX_BINSHIFT,), np.inf)
     if length == 0:
         return out
@@ -156,6 +157,9 @@ def group_stats(x, num_blocks: int, bit_range: tuple[int, int] = (MIN_BITS, MAX_
                 out["k"][sl] = kk
                 out["payload"][sl] = np.where(kk > 1, np.bincount(row, weights=pay, minlength=nb), 0.0)
                 out["gap"][sl] = np.bincount(row[1:], weights=gapv, minlength=nb)
+                # steps >= 128 need a second varint byte in the serialised bin gaps
+                out["gap2"][sl] = np.bincount(row[1:], weights=same & (vals[1:] - vals[:-1] > 128),
+                                              minlength=nb)
                 out["level"][sl] = np.bincount(row[1:], weights=lvl, minlength=nb)
                 out["laplace"][sl] = _laplace_payload(vals, cnt, row, nb, blen, kk, prec, tot)
                 # binned COARSE at this precision: bins of 2^h values ~ the (q - h)-bit grid's
@@ -213,30 +217,61 @@ def _laplace_payload(vals, cnt, row, nb, blen, kk, prec, tot):
     return np.where(ok, bits, np.inf)
 
 
-def _table_bits(k, gap, level, coeffs=TABLE_COEFFS):
-    coarse = coeffs["per_model"] + coeffs["per_value"] * k + coeffs["per_gap_bit"] * gap \
-        + coeffs["per_level_bit"] * level
-    return np.where(k > 1, coarse, np.where(k == 1, coeffs["single"], 0.0))
+FEATURES = ("coarse", "values", "gap_bits", "level_bits", "long_gaps", "single", "laplace")
+
+
+def _candidates(stats: dict):
+    """Model candidates the fitter chooses between, per (group, q): a list of (payload bits,
+    table features [C, B, 16, F]) -- exact COARSE, COARSE binned by 2^h (h = 1..5), LAPLACE,
+    SINGLE.  Unavailable candidates have payload +inf."""
+    n, k = stats["n"], stats["k"]
+    f = len(FEATURES)
+    multi = k > 1
+    coarse_feat = np.zeros(k.shape + (f,))
+    coarse_feat[..., 0] = multi
+    coarse_feat[..., 1] = np.where(multi, k, 0.0)
+    coarse_feat[..., 2] = np.where(multi, stats["gap"], 0.0)
+    coarse_feat[..., 3] = np.where(multi, stats["level"], 0.0)
+    coarse_feat[..., 4] = np.where(multi, stats["gap2"], 0.0)
+    coarse_feat[..., 5] = k == 1                     # SINGLE: no payload, a tiny table
+    out = [(np.where(multi, PAYLOAD_FACTOR * stats["payload"], np.where(k == 1, 0.0, np.inf)), coarse_feat)]
+    for h in range(1, MAX_BINSHIFT + 1):
+        pay = np.full(k.shape, np.inf)
+        pay[:, :, h:] = BINNED_FACTOR * stats["binned"][:, :, h:, h - 1]
+        feat = np.zeros_like(coarse_feat)
+        feat[:, :, h:] = coarse_feat[:, :, :-h]      # the bins ~ the (q - h)-bit grid's values
+        feat[..., 5] = 0.0
+        out.append((np.where(multi & (feat[..., 0] > 0), pay, np.inf), feat))
+    lap_feat = np.zeros_like(coarse_feat)
+    lap_feat[..., 6] = 1.0
+    out.append((np.where(multi, PAYLOAD_FACTOR * stats["laplace"], np.inf), lap_feat))
+    return out
+
+
+def _choose(stats: dict, coeffs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(cost, payload, features) of the cheapest candidate per (group, q)."""
+    w = np.array([coeffs[name] for name in FEATURES])
+    best = pay_best = feat_best = None
+    for pay, feat in _candidates(stats):
+        cost = pay + feat @ w
+        if best is None:
+            best, pay_best, feat_best = cost, pay.copy(), feat.copy()
+            continue
+        better = cost < best
+        best = np.where(better, cost, best)
+        pay_best = np.where(better, pay, pay_best)
+        feat_best = np.where(better[..., None], feat, feat_best)
+    return best, pay_best, feat_best
 
 
 def rate_from_stats(stats: dict, bit_range: tuple[int, int] = (MIN_BITS, MAX_BITS),
                     coeffs=TABLE_COEFFS) -> np.ndarray:
     """Combine :func:`group_stats` into rate bits [C, B, 16] (+inf outside bit_range)."""
     lo, hi = int(bit_range[0]), int(bit_range[1])
-    n, k = stats["n"], stats["k"]
-    exact = PAYLOAD_FACTOR * stats["payload"] + _table_bits(k, stats["gap"], stats["level"], coeffs)
-    lap = PAYLOAD_FACTOR * stats["laplace"] + coeffs["laplace"]
-    best = exact.copy()
-    # binned tables: payload at this q with bins of 2^h values, the (q - h)-bit grid's table
-    tab = _table_bits(k, stats["gap"], stats["level"], coeffs)
-    for h in range(1, MAX_BINSHIFT + 1):
-        cand = np.full_like(exact, np.inf)
-        cand[:, :, h:] = BINNED_FACTOR * stats["binned"][:, :, h:, h - 1] + tab[:, :, :-h]
-        np.minimum(best, cand, out=best)
-    np.minimum(best, np.where(k > 1, lap, np.inf), out=best)
-    pay_est = best.copy()
-    lanes = LANE_STATE_BITS * np.minimum(n / 1024.0, pay_est / 8192.0)
-    rate = best + np.maximum(lanes, 0.0)
+    best, pay, _ = _choose(stats, coeffs)
+    n = stats["n"]
+    lanes = LANE_STATE_BITS * np.minimum(n / 1024.0, np.where(np.isfinite(pay), pay, 0.0) / 8192.0)
+    rate = np.where(n > 0, best + lanes, 0.0)
     rate[:, :, :lo - 1] = np.inf
     rate[:, :, hi:] = np.inf
     return rate

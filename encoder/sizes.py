@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import re
+from fractions import Fraction
 
 from gsz.decoder.errors import GszError
 
@@ -81,11 +82,14 @@ def parse_size(text) -> int:
     if key not in _UNITS:
         raise SizeSpecError(f"unknown size unit {unit!r} in {text!r}: use B, kB, MB, GB (powers of "
                             f"1000) or KiB, MiB, GiB (powers of 1024)")
-    value = float(num) * (10.0 ** int(exp) if exp else 1.0)
-    n_bytes = value * _UNITS[key][0]
-    if not math.isfinite(n_bytes) or n_bytes > MAX_BUDGET:
+    if exp and abs(int(exp)) > 30:
+        raise SizeSpecError(f"size {text!r} is implausibly large (max 1 PiB)" if int(exp) > 0
+                            else f"size must be at least 1 byte, got {text!r}")
+    # exact decimal arithmetic: "4.1MB" is 4100000 bytes, not 4099999.999...
+    n_bytes = Fraction(num) * Fraction(10) ** int(exp or 0) * _UNITS[key][0]
+    if n_bytes > MAX_BUDGET:
         raise SizeSpecError(f"size {text!r} is implausibly large (max 1 PiB)")
-    n = int(math.floor(n_bytes + 1e-9 * max(1.0, n_bytes)))   # "4.1MB" must not become 4099999
+    n = math.floor(n_bytes)
     if n <= 0:
         raise SizeSpecError(f"size must be at least 1 byte, got {text!r}")
     return n
