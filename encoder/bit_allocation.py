@@ -23,6 +23,8 @@ an infeasible budget raises :class:`InfeasibleBudgetError` naming the minimum.
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from gsz.decoder.errors import GszError
@@ -308,7 +310,11 @@ def _solve_ilp(loss, rate, budget, *, time_limit, warm=None, gap_rel=1e-7):
     ref = upper if upper else float(np.max(np.abs(loss[valid]))) if gi.size else 1.0
     scale = 1e6 / ref if ref > 0 else 1.0
     prob = pulp.LpProblem("bit_allocation", pulp.LpMinimize)
-    xs = [pulp.LpVariable(f"x_{a}_{b}", cat=pulp.LpBinary) for a, b in zip(gi.tolist(), qi.tolist())]
+    names = [f"x_{a}_{b}" for a, b in zip(gi.tolist(), qi.tolist())]
+    if hasattr(prob, "add_variable"):        # PuLP >= 3.3 (direct LpVariable is deprecated)
+        xs = [prob.add_variable(nm, 0, 1, cat=pulp.LpBinary) for nm in names]
+    else:
+        xs = [pulp.LpVariable(nm, 0, 1, cat=pulp.LpBinary) for nm in names]
     lv = (loss[gi, qi] * scale).tolist()
     rv = rate[gi, qi].tolist()
     prob += pulp.LpAffineExpression(list(zip(xs, lv)))
@@ -320,9 +326,12 @@ def _solve_ilp(loss, rate, budget, *, time_limit, warm=None, gap_rel=1e-7):
     if warm is not None:
         for x, a, b in zip(xs, gi, qi):
             x.setInitialValue(1.0 if warm[a] == b else 0.0)
-    solver = pulp.PULP_CBC_CMD(msg=False, timeLimit=float(time_limit), gapRel=gap_rel,
-                               warmStart=warm is not None)
-    prob.solve(solver)
+    with warnings.catch_warnings():
+        # PULP_CBC_CMD (the bundled binary) is deprecated for PuLP 4.0; it is what ships here
+        warnings.simplefilter("ignore", DeprecationWarning)
+        solver = pulp.PULP_CBC_CMD(msg=False, timeLimit=float(time_limit), gapRel=gap_rel,
+                                   warmStart=warm is not None)
+        prob.solve(solver)
     # sol_status tells a proven optimum (1) from an incumbent at the time limit (2)
     status = pulp.LpSolution.get(prob.sol_status, str(prob.sol_status))
     vals = np.array([x.varValue if x.varValue is not None else 0.0 for x in xs])
