@@ -41,94 +41,86 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _read_inputs(a, prog):
+    """The input cloud and, when --cameras is given, its train cameras."""
+    from gsz.decoder.ply import read_ply
+    with prog.stage("read", a.input):
+        cloud = read_ply(a.input)
+    cameras = None
+    if a.cameras:
+        from .cameras import load_cameras
+        cameras = load_cameras(a.cameras, cloud).train
+    return cloud, cameras
+
+
+def _run_fixed(a, prog) -> dict:
+    from .pipeline import EncodeOptions, encode
+    opts = EncodeOptions(reserve=EncodeOptions.reserve if a.reserve is None else a.reserve,
+                         bits=EncodeOptions.bits if a.bits is None else a.bits,
+                         codebook=a.codebook, keep=a.keep, blocks=a.blocks, depth=a.depth,
+                         rel_error=a.rel_error, beta=a.beta, sh_bits=a.sh_bits,
+                         train_views=a.train_views, importance_width=a.importance_width,
+                         seed=a.seed).validate()
+    cloud, cameras = _read_inputs(a, prog)
+    result = encode(cloud, opts, cameras=cameras, progress=prog)
+    return _finish(a, result, {})
+
+
+def _run_search(a, prog) -> dict:
+    from .search import SearchOptions, encode_to_budget
+    from .sizes import budget_from_args, format_size, size_style
+
+    if a.reserve is not None or a.bits is not None or a.keep is not None or a.depth is not None:
+        raise GszError("--size/--ratio/--profile choose reserve, bits and keep themselves; "
+                       "drop --reserve/--bits/--keep/--depth")
+    in_bytes = os.path.getsize(a.input) if os.path.isfile(a.input) else None
+    target = budget_from_args(size=a.size, ratio=a.ratio, profile=a.profile, ply_bytes=in_bytes)
+    style = size_style(a.size) if a.size is not None else "auto"
+    prog.log(f"target size {format_size(target, style)} ({target:,} bytes)")
+    cloud, cameras = _read_inputs(a, prog)
+    sopts = SearchOptions(solver=a.solver, blocks=a.blocks, train_views=a.train_views,
+                          importance_width=a.importance_width, seed=a.seed,
+                          codebook=a.codebook if a.codebook != 4096 else None)
+    result = encode_to_budget(cloud, target, options=sopts, cameras=cameras, progress=prog)
+    r = _finish(a, result, {"target": format_size(target, style)})
+    if a.report:
+        from .report import write_search_report
+        r["report_files"] = write_search_report(r, a.report)
+    prog.log(f"{100 * r['bytes'] / target:.2f} % of the {r['target']} target; reserve {r['reserve']}, "
+             f"codebook {r['codebook_size']}, keep {r['sh_keep']}, train PSNR {r['train_psnr']:.2f} dB")
+    return r
+
+
+def _finish(a, result, extra: dict) -> dict:
+    """Write the file atomically and complete the report."""
+    from gsz.decoder.io_util import atomic_write
+    atomic_write(a.output, result.data)
+    r = result.report
+    in_bytes = os.path.getsize(a.input)
+    r.update(input=a.input, output=a.output, input_bytes=in_bytes, ratio=in_bytes / r["bytes"], **extra)
+    return r
+
+
 def main(argv=None) -> int:
     a = build_parser().parse_args(argv)
-    from gsz.decoder.io_util import atomic_write
-    from gsz.decoder.ply import read_ply
-    from .pipeline import EncodeOptions, encode
     from .progress import Progress
 
     prog = Progress(quiet=a.quiet)
-    if any(v is not None for v in (a.size, a.ratio, a.profile)):
-        return _search_main(a, prog)
+    searching = any(v is not None for v in (a.size, a.ratio, a.profile))
     try:
-        opts = EncodeOptions(reserve=EncodeOptions.reserve if a.reserve is None else a.reserve,
-                             bits=EncodeOptions.bits if a.bits is None else a.bits,
-                             codebook=a.codebook, keep=a.keep,
-                             blocks=a.blocks, depth=a.depth, rel_error=a.rel_error, beta=a.beta,
-                             sh_bits=a.sh_bits, train_views=a.train_views,
-                             importance_width=a.importance_width, seed=a.seed).validate()
-        with prog.stage("read", a.input):
-            cloud = read_ply(a.input)
-        cameras = None
-        if a.cameras:
-            from .cameras import load_cameras
-            cameras = load_cameras(a.cameras, cloud).train
-        result = encode(cloud, opts, cameras=cameras, progress=prog)
-        atomic_write(a.output, result.data)
+        r = _run_search(a, prog) if searching else _run_fixed(a, prog)
     except GszError as e:
         print(f"gsz-encode: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("gsz-encode: interrupted; no output written", file=sys.stderr)
         return 130
-    r = result.report
-    in_bytes = os.path.getsize(a.input)
-    r.update(input=a.input, output=a.output, input_bytes=in_bytes, ratio=in_bytes / r["bytes"])
     if a.json:
         print(json.dumps(r, indent=1, default=float))
     else:
         prog.log(f"wrote {a.output}: {r['bytes']:,} bytes ({r['ratio']:.1f}x smaller than the PLY, "
                  f"{r['bytes_per_gaussian']:.2f} B/Gaussian, {r['voxels']:,} Gaussians)")
-        comps = r["components"]
-        prog.log("  " + ", ".join(f"{k} {v:,}" for k, v in comps.items()))
-    return 0
-
-
-def _search_main(a, prog) -> int:
-    from gsz.decoder.io_util import atomic_write
-    from gsz.decoder.ply import read_ply
-    from .search import SearchOptions, encode_to_budget
-    from .sizes import budget_from_args, format_size, size_style
-
-    if a.reserve is not None or a.bits is not None or a.keep is not None or a.depth is not None:
-        print("gsz-encode: error: --size/--ratio/--profile choose reserve, bits and keep themselves; "
-              "drop --reserve/--bits/--keep/--depth", file=sys.stderr)
-        return 2
-    try:
-        in_bytes = os.path.getsize(a.input) if os.path.exists(a.input) else None
-        target = budget_from_args(size=a.size, ratio=a.ratio, profile=a.profile, ply_bytes=in_bytes)
-        style = size_style(a.size) if a.size is not None else "auto"
-        prog.log(f"target size {format_size(target, style)} ({target:,} bytes)")
-        with prog.stage("read", a.input):
-            cloud = read_ply(a.input)
-        cameras = None
-        if a.cameras:
-            from .cameras import load_cameras
-            cameras = load_cameras(a.cameras, cloud).train
-        sopts = SearchOptions(solver=a.solver, blocks=a.blocks, train_views=a.train_views,
-                              importance_width=a.importance_width, seed=a.seed,
-                              codebook=a.codebook if a.codebook != 4096 else None)
-        result = encode_to_budget(cloud, target, options=sopts, cameras=cameras, progress=prog)
-        atomic_write(a.output, result.data)
-        r = result.report
-        r.update(input=a.input, output=a.output, input_bytes=in_bytes, ratio=in_bytes / r["bytes"],
-                 target=format_size(target, style))
-        if a.report:
-            from .report import write_search_report
-            r["report_files"] = write_search_report(r, a.report)
-    except GszError as e:
-        print(f"gsz-encode: error: {e}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("gsz-encode: interrupted; no output written", file=sys.stderr)
-        return 130
-    if a.json:
-        print(json.dumps(r, indent=1, default=float))
-    else:
-        prog.log(f"wrote {a.output}: {r['bytes']:,} bytes = {100 * r['bytes'] / target:.2f} % of the "
-                 f"{format_size(target, style)} target ({r['ratio']:.1f}x smaller than the PLY); "
-                 f"reserve {r['reserve']}, keep {r['sh_keep']}, train PSNR {r['train_psnr']:.2f} dB")
+        prog.log("  " + ", ".join(f"{k} {v:,}" for k, v in r["components"].items()))
     return 0
 
 

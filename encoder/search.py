@@ -431,6 +431,13 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
                        "metadata": info["meta_bytes"]},
         "seconds": dict(progress.seconds), "total_seconds": time.perf_counter() - t0,
     }
+    if len(data) < target * (1.0 - sopts.tolerance):
+        bits_all = np.concatenate([info["raht_bits"].ravel(), info["scale_bits"].ravel()])
+        report["note"] = (f"file is {100 * (1 - len(data) / target):.2f} % below the target: "
+                          + ("the budget exceeds the maximum-quality size of this scene at the chosen reserve "
+                             "ratio (every group at its best bit-width)" if bits_all.min() >= 12 or tau == 1.0
+                             else "calibration did not reach the tolerance within the round limit"))
+        progress.log(report["note"])
     return EncodeResult(data=data, cloud=out, report=report)
 
 
