@@ -20,10 +20,14 @@ counts are then run lengths (a compare + flatnonzero per bit-width).  Per (group
   precision rule n = min(16, max(ceil log2 K, ceil log2 N));
 * table bits = a linear predictor in the table's serialised content (present values, their gaps),
   fitted to real ``encode_stream`` sizes (zstd-19 tables) on real scenes (see TABLE_COEFFS);
-* binned COARSE tables (bin width 2^h, h = 1..5; what the fitter picks at mid bit-widths):
-  approximated by the (q - h)-bit grid's table and payload plus h bits per symbol (the uniform
-  spread inside a bin), the cheapest h kept;
+* binned COARSE tables (bin width 2^h, h = 1..5; what the fitter picks at mid bit-widths): bins
+  approximated by the (q - h)-bit grid's distinct values (their counts and table features), the
+  payload with the coder's normalisation at this q's precision where every value of a present
+  bin gets the +1 (K_v = bins * 2^h), times BINNED_FACTOR;
+* LAPLACE (two-sided geometric around the mode, ratios from each side's mean distance, allowed
+  where span + 1 <= 2^n): exact per-run cross-entropy under the coder's normalisation;
 * SINGLE models (one distinct value): no payload, a few table bits;
+* the cheapest candidate per (group, q) is taken (the fitter's own choice, up to its proxies);
 * lane final states: 32 bits per min(N / 1024, payload / 8192) symbols (``choose_lanes``).
 
 Speed: ~1-2 s for C=10, B=80, L=430k on 2 cores (bench/RESULTS.md); the work is chunked per
@@ -40,7 +44,7 @@ from gsz.decoder.quant import MAX_BITS, MIN_BITS
 from gsz.decoder.rans import MAX_PRECISION
 
 __all__ = ["rate_matrix", "rate_from_stats", "group_stats", "channel_set_overhead_bits",
-           "TABLE_COEFFS"]
+           "RateModelError", "TABLE_COEFFS"]
 
 MAX_BINSHIFT = 5             # gsz.encoder.rans.COARSE_BINSHIFTS
 # Table bits of one group's model, linear in its serialised content: COARSE = coarse + values * K
@@ -119,9 +123,8 @@ def group_stats(x, num_blocks: int, bit_range: tuple[int, int] = (MIN_BITS, MAX_
     if length == 0:
         return out
     for b0, nb, blen, off in _parts(length, nb_total):
-        # c*log2(c) lookup for run lengths 0..blen
-        cnt_tab = np.arange(blen + 1, dtype=np.float64)
-        log_tab = np.log2(np.maximum(cnt_tab, 1.0))
+        # log2 of run lengths 0..blen (lookup instead of a log per run)
+        log_tab = np.log2(np.maximum(np.arange(blen + 1, dtype=np.float64), 1.0))
         starts = np.empty((nb, blen), dtype=bool)
         starts[:, 0] = True
         k = np.empty((nb, blen), dtype=np.float64)
