@@ -53,7 +53,8 @@ class SearchOptions:
     """Knobs of the search (defaults are what the benchmarks use).
 
     reserves        tau grid, descending
-    max_candidates  taus encoded for real and compared by train-view PSNR
+    max_candidates  taus spread over the feasible range, encoded and compared by train PSNR
+    refine_steps    rounds of also trying the grid neighbours of the best tau so far
     tolerance       accepted shortfall below the target (fraction)
     max_rounds      calibration rounds per tau
     solver          "fast" (convex hull + repair) or "cbc" (PuLP, the paper's ILP)
@@ -62,6 +63,7 @@ class SearchOptions:
 
     reserves: tuple = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)
     max_candidates: int = 3
+    refine_steps: int = 1
     tolerance: float = 0.005
     max_rounds: int = 8
     solver: str = "fast"
@@ -390,7 +392,10 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
         refs = render_views(cloud, eval_cams)
 
     candidates, log = [], []
-    for tau in feasible:
+    evaluated = set()
+
+    def try_tau(tau):
+        evaluated.add(tau)
         stage = stage_for(tau)
         sh_models = []
         for cb in codebooks:
@@ -399,12 +404,26 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
         res = _encode_tau(stage, target, sopts, sh_models, progress, log)
         if res is None:
             progress.log(f"tau {tau}: budget not reachable")
-            continue
+            return
         data, out, info = res
         with progress.stage("eval", f"tau {tau}"):
             ev = evaluate(refs, out, eval_cams)
         progress.log(f"tau {tau}: {len(data):,} bytes, train PSNR {ev['psnr']:.2f} dB")
         candidates.append((ev["psnr"], tau, data, out, info, ev["ssim"]))
+
+    for tau in feasible:
+        try_tau(tau)
+    # refine: the grid neighbours of the best candidate so far, while they improve on it
+    for _ in range(sopts.refine_steps):
+        if not candidates:
+            break
+        best_tau = max(candidates, key=lambda c: (c[0], c[1]))[1]
+        i = taus.index(best_tau)
+        nbrs = [taus[j] for j in (i - 1, i + 1) if 0 <= j < len(taus) and taus[j] not in evaluated]
+        if not nbrs:
+            break
+        for tau in nbrs:
+            try_tau(tau)
     if not candidates:
         smallest = _smallest_file(stage_for(taus[-1]), sopts, codebooks[-1] if codebooks else None)
         raise BudgetError(target, smallest)

@@ -11,7 +11,7 @@ from gsz.decoder import decode
 from gsz.encoder.search import BudgetError, SearchOptions, encode_to_budget
 from codec_util import sample
 
-FAST = SearchOptions(max_candidates=2, eval_views=3, eval_width=96, train_views=4,
+FAST = SearchOptions(max_candidates=2, refine_steps=0, eval_views=3, eval_width=96, train_views=4,
                      importance_width=96, vq_iters=10)
 
 

@@ -120,7 +120,13 @@ def test_heatmap_and_metrics(window, sample_sh3, decoded):
         # black -> red -> yellow -> white ramp: G never above R, B never above G
         assert (right[..., 1] <= right[..., 0] + 1).all() and (right[..., 2] <= right[..., 1] + 1).all()
         assert right[..., 0].max() > 100               # the codec's errors show up
-        app.request_metrics(wait=True)
+        # an automatic (background) request followed by a waiting one must not deadlock; the
+        # first call reads the GL renders (GL thread), the second only waits for the worker
+        app.request_metrics()
+        waiter = threading.Thread(target=lambda: app.request_metrics(wait=True))
+        waiter.start()
+        waiter.join(timeout=60)
+        assert not waiter.is_alive(), "request_metrics(wait=True) deadlocked"
         m = app.current_metrics()
         assert m is not None and 20.0 < m["psnr"] < 100.0 and 0.5 < m["ssim"] <= 1.0
         assert any("PSNR" in t for _, _, t in app.labels())

@@ -532,29 +532,41 @@ class ViewerApp:
     # -- metrics -----------------------------------------------------------------------------------
     def request_metrics(self, wait: bool = False):
         """PSNR/SSIM of B against A for the current view, from the two GL renders (clamped,
-        8-bit rounded as gsz-eval does), computed on a worker thread (torch SSIM)."""
+        8-bit rounded as gsz-eval does), computed on a worker thread (torch SSIM).  Call it
+        from the GL thread (it reads the renders back); ``wait`` blocks until the numbers
+        are in :meth:`current_metrics`."""
         drawn = getattr(self, "_drawn", {})
         if "a" not in drawn or "b" not in drawn:
             return
         key = self._drawn_key
         with self._metrics_lock:
-            if (self._metrics is not None and self._metrics[0] == key) or \
-                    (self._metrics_pending == key):
-                if wait and self._metrics_thread is not None:
-                    self._metrics_thread.join()
-                return
-            self._metrics_pending = key
+            done = self._metrics is not None and self._metrics[0] == key
+            running = self._metrics_pending == key
+            if not (done or running):
+                self._metrics_pending = key
+            if running and wait: self._metrics_thread.join()
+        if done or running:
+            # Join OUTSIDE the lock: the worker takes it to publish its result.
+            if running and wait and self._metrics_thread is not None:
+                self._metrics_thread.join()
+            return
         img_a = drawn["a"].read()[..., :3]
         img_b = drawn["b"].read()[..., :3]
 
         def work():
-            from gsz.encoder.metrics import psnr, quantize_8bit, ssim
-            qa, qb = quantize_8bit(img_a), quantize_8bit(img_b)
-            result = {"psnr": float(psnr(qa, qb)), "ssim": float(ssim(qa, qb))}
-            with self._metrics_lock:
-                self._metrics = (key, result)
-                if self._metrics_pending == key:
-                    self._metrics_pending = None
+            result = None
+            try:
+                from gsz.encoder.metrics import psnr, quantize_8bit, ssim
+                qa, qb = quantize_8bit(img_a), quantize_8bit(img_b)
+                result = {"psnr": float(psnr(qa, qb)), "ssim": float(ssim(qa, qb))}
+            except Exception as e:   # e.g. torch missing: say so in the panel, never hang
+                self.status = f"PSNR/SSIM failed: {type(e).__name__}: {e}"
+            finally:
+                with self._metrics_lock:
+                    if result is not None:
+                        self._metrics = (key, result)
+                    if self._metrics_pending == key:
+                        self._metrics_pending = None
 
         self._metrics_thread = threading.Thread(target=work, name="gsz-view-metrics", daemon=True)
         self._metrics_thread.start()
