@@ -135,3 +135,12 @@ def test_validate_reports_bad_shapes():
     c.scales = c.scales[:5]
     with pytest.raises(gsz.decoder.CloudValidationError, match="scales"):
         c.validate()
+
+
+def test_written_files_get_normal_permissions(tmp_path):
+    import os
+    p = tmp_path / "perm.ply"
+    gsz.write_ply(_random_cloud(4, 0), p)
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (p.stat().st_mode & 0o777) == (0o666 & ~umask)

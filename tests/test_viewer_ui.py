@@ -245,7 +245,7 @@ def test_budget_encodes_run_in_background(window, sample_sh3, decoded):
             app.settings.show_panel = True
             _frame(window, app)
         assert time.perf_counter() - t0 < 20
-        assert not app.comparing and app.needs_redraw
+        assert not app.comparing and not jobs.snapshot()["done"]
         assert "searching for 150000 B" in app.status
         release.set()
         assert jobs.wait(timeout=30)
@@ -309,3 +309,17 @@ def test_window_input_reaches_app(window, sample_sh3, decoded):
         assert _line_columns(img, H - 20).tolist() == [249, 250]
     finally:
         app.close()
+
+
+def test_orbit_never_flips_over_the_pole(sample_sh0):
+    from gsz.viewer.camera_control import CameraController
+    cam = load_cameras(None, sample_sh0).test[0]
+    up = np.array([0.0, -1.0, 0.0])
+    c = CameraController(cam, 1.0, up)
+    for dy in (5000.0, -5000.0, 5000.0):      # drags far past straight up / down
+        c.orbit(0.0, dy)
+        angle = np.degrees(np.arccos(np.clip(c.forward @ up, -1, 1)))
+        assert 2.9 <= angle <= 177.1
+        # the image's "up" (-y row of R) stays on the scene-up side: no upside-down views
+        assert -c.R[1] @ up > 0
+        np.testing.assert_allclose(c.R @ c.R.T, np.eye(3), atol=1e-9)

@@ -57,7 +57,9 @@ def draw_panel(app) -> None:
     imgui.set_next_window_size(imgui.ImVec2(panel_w, 0.0), imgui.Cond_.first_use_ever)
     imgui.begin("gsz-view")
     st = app.stats
-    imgui.text(f"{app.fps:5.1f} FPS   frame {1e3 * st['frame_s']:.1f} ms")
+    fps = app.fps
+    imgui.text((f"{fps:5.1f} FPS" if fps else "idle (view unchanged)")
+               + f"   last frame {1e3 * st['frame_s']:.1f} ms")
     imgui.text(f"sort {1e3 * st['sort_s']:.1f} ms{'' if st['sort_current'] else ' (sorting...)'}"
                f"   gpu prep {1e3 * st['preprocess_s']:.1f} ms")
     if app.is_llvmpipe:
