@@ -23,14 +23,9 @@ import numpy as np
 
 import gsz
 from gsz.decoder.groups import group_model_ids
-from gsz.decoder.morton import morton_encode
-from gsz.decoder.raht import build_raht_tree
-from gsz.decoder.rotation import quaternion_to_euler
 from gsz.encoder.bit_allocation import _solve_ilp, allocate_cbc, allocate_fast, objective, total_rate
-from gsz.encoder.raht import raht_forward
 from gsz.encoder.rans import encode_stream
 from gsz.encoder.rate import rate_matrix
-from gsz.encoder.voxelize import choose_depth, voxelize
 from gsz.kernels.quantize import quantize_all_bits
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -41,15 +36,9 @@ def channel_sets(path: Path, keep: float):
     if keep < 1:
         idx = np.sort(np.random.default_rng(0).choice(len(cloud), int(keep * len(cloud)), replace=False))
         cloud = cloud.subset(idx)
-    depth = choose_depth(cloud.positions)
-    vox = voxelize(cloud, np.ones(len(cloud)), depth)
-    tree = build_raht_tree(morton_encode(vox.ijk), depth)
-    vc = vox.cloud
-    attrs = np.concatenate([vc.opacities.astype(np.float64)[:, None],
-                            quaternion_to_euler(vc.rotations.astype(np.float64)),
-                            vc.sh_dc.astype(np.float64)], axis=1)
-    _, ac = raht_forward(attrs, tree)
-    return [ac.T.astype(np.float32), vc.scales.T.astype(np.float32)], len(cloud)
+    from gsz.encoder.pipeline import prepare_stage
+    stage = prepare_stage(cloud, np.ones(len(cloud)), 1.0)   # every Gaussian kept
+    return [stage.raht_ac, stage.scales], len(cloud)
 
 
 def main():

@@ -8,15 +8,10 @@ import pytest
 import gsz
 from conftest import SAMPLE_SH0, SAMPLE_SH3
 from gsz.decoder.errors import GszError
-from gsz.decoder.morton import morton_encode
-from gsz.decoder.raht import build_raht_tree
-from gsz.decoder.rotation import quaternion_to_euler
 from gsz.encoder.bit_allocation import (AllocationError, InfeasibleBudgetError, allocate,
                                         allocate_cbc, allocate_fast, minimum_rate, objective,
                                         total_rate, _solve_ilp)
-from gsz.encoder.raht import raht_forward
 from gsz.encoder.rate import rate_matrix
-from gsz.encoder.voxelize import choose_depth, voxelize
 from gsz.kernels.quantize import quantize_all_bits
 
 
@@ -25,15 +20,9 @@ def channel_sets(which: str):
     """The codec's two quantised channel sets of a sample: RAHT AC of opacity / Euler / DC
     (7 channels) and the log-scales (3 channels), float32 [C, L]."""
     cloud = gsz.read_ply({"sh0": SAMPLE_SH0, "sh3": SAMPLE_SH3}[which])
-    depth = choose_depth(cloud.positions)
-    vox = voxelize(cloud, np.ones(len(cloud)), depth)
-    tree = build_raht_tree(morton_encode(vox.ijk), depth)
-    vc = vox.cloud
-    attrs = np.concatenate([vc.opacities.astype(np.float64)[:, None],
-                            quaternion_to_euler(vc.rotations.astype(np.float64)),
-                            vc.sh_dc.astype(np.float64)], axis=1)
-    _, ac = raht_forward(attrs, tree)
-    return ac.T.astype(np.float32), vc.scales.T.astype(np.float32)
+    from gsz.encoder.pipeline import prepare_stage
+    stage = prepare_stage(cloud, np.ones(len(cloud)), 1.0)   # every Gaussian kept
+    return stage.raht_ac, stage.scales
 
 
 @functools.lru_cache(maxsize=None)

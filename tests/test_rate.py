@@ -7,14 +7,9 @@ import pytest
 import gsz
 from conftest import SAMPLE_SH0, SAMPLE_SH3, shared_scene
 from gsz.decoder.groups import group_model_ids
-from gsz.decoder.morton import morton_encode
-from gsz.decoder.raht import build_raht_tree
-from gsz.decoder.rotation import quaternion_to_euler
 from gsz.encoder.groups import write_channel_set
-from gsz.encoder.raht import raht_forward
 from gsz.encoder.rans import encode_stream
 from gsz.encoder.rate import RateModelError, channel_set_overhead_bits, group_stats, rate_matrix
-from gsz.encoder.voxelize import choose_depth, voxelize
 from gsz.kernels.quantize import quantize_all_bits
 
 
@@ -23,15 +18,9 @@ def channel_sets(path):
     """RAHT AC (7 channels) and log-scales (3 channels) of a scene, float32 [C, L] each, as the
     codec quantises them (every Gaussian kept)."""
     cloud = gsz.read_ply(path)
-    depth = choose_depth(cloud.positions)
-    vox = voxelize(cloud, np.ones(len(cloud)), depth)
-    tree = build_raht_tree(morton_encode(vox.ijk), depth)
-    vc = vox.cloud
-    attrs = np.concatenate([vc.opacities.astype(np.float64)[:, None],
-                            quaternion_to_euler(vc.rotations.astype(np.float64)),
-                            vc.sh_dc.astype(np.float64)], axis=1)
-    _, ac = raht_forward(attrs, tree)
-    return {"ac": ac.T.astype(np.float32), "scales": vc.scales.T.astype(np.float32)}
+    from gsz.encoder.pipeline import prepare_stage
+    stage = prepare_stage(cloud, np.ones(len(cloud)), 1.0)   # every Gaussian kept
+    return {"ac": stage.raht_ac, "scales": stage.scales}
 
 
 def real_vs_predicted(x, blocks, allocations):
