@@ -55,6 +55,7 @@ class SearchOptions:
     reserves        tau grid, descending
     max_candidates  taus spread over the feasible range, encoded and compared by train PSNR
     refine_steps    rounds of also trying the grid neighbours of the best tau so far
+    weight_channels weight Omega per channel by measured rendering sensitivity (channel_weights)
     tolerance       accepted shortfall below the target (fraction)
     max_rounds      calibration rounds per tau
     solver          "fast" (convex hull + repair) or "cbc" (PuLP, the paper's ILP)
@@ -64,6 +65,7 @@ class SearchOptions:
     reserves: tuple = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)
     max_candidates: int = 3
     refine_steps: int = 1
+    weight_channels: bool = True
     tolerance: float = 0.005
     max_rounds: int = 8
     solver: str = "fast"
@@ -88,15 +90,76 @@ class _TauPlan:
     max_bytes: float
 
 
-def _attribute_tables(stage: Stage, blocks: int):
+#: Perturbation (std) per channel used to measure rendering sensitivity; small enough for the
+#: image error to grow ~quadratically, large enough to rise above float noise.
+_SENS_SIGMA = {"opacity": 0.05, "euler": 0.02, "f_dc": 0.02, "scale": 0.02, "sh": 0.01}
+
+
+def channel_weights(cloud, cameras, *, seed: int = 0) -> dict:
+    """Rendering sensitivity of every quantised channel: image MSE added per unit of parameter
+    SSE, measured by perturbing one channel of every Gaussian with Gaussian noise and rendering
+    the given (train) views.  Returns {"raht": [7], "scales": [3], "sh": float}, normalised so the
+    mean RAHT/scale weight is 1.  The size search multiplies the loss matrix Omega by these, so
+    the allocation minimises (approximately) rendered error instead of raw parameter SSE."""
+    from gsz.decoder.cloud import GaussianCloud
+    from gsz.decoder.rotation import euler_to_quaternion, quaternion_to_euler
+
+    from .render import render
+    rng = np.random.default_rng(seed)
+    base = [render(cloud, c).image.astype(np.float64) for c in cameras]
+    euler = quaternion_to_euler(cloud.rotations.astype(np.float64))
+    n = len(cloud)
+
+    def sensitivity(mod, sigma, count):
+        img = [render(mod, c).image.astype(np.float64) for c in cameras]
+        mse = float(np.mean([((a - b) ** 2).mean() for a, b in zip(img, base)]))
+        return max(mse, 1e-30) / (sigma ** 2 * count)
+
+    def variant(**kw):
+        f = dict(positions=cloud.positions, scales=cloud.scales, rotations=cloud.rotations,
+                 opacities=cloud.opacities, sh_dc=cloud.sh_dc, sh_rest=cloud.sh_rest,
+                 sh_degree=cloud.sh_degree)
+        f.update(kw)
+        return GaussianCloud(**f)
+
+    def noisy(a, col, sigma):
+        a = a.astype(np.float64).copy()
+        a[:, col] += rng.normal(0, sigma, n)
+        return a
+
+    raht = []
+    sg = _SENS_SIGMA["opacity"]
+    raht.append(sensitivity(variant(opacities=cloud.opacities + rng.normal(0, sg, n)), sg, n))
+    sg = _SENS_SIGMA["euler"]
+    for k in range(3):
+        q = euler_to_quaternion(noisy(euler, k, sg))
+        raht.append(sensitivity(variant(rotations=q), sg, n))
+    sg = _SENS_SIGMA["f_dc"]
+    for k in range(3):
+        raht.append(sensitivity(variant(sh_dc=noisy(cloud.sh_dc, k, sg)), sg, n))
+    sg = _SENS_SIGMA["scale"]
+    scales = [sensitivity(variant(scales=noisy(cloud.scales, k, sg)), sg, n) for k in range(3)]
+    sh = 0.0
+    if cloud.sh_degree > 0:
+        sg = _SENS_SIGMA["sh"]
+        rest = cloud.sh_rest + rng.normal(0, sg, cloud.sh_rest.shape)
+        sh = sensitivity(variant(sh_rest=rest), sg, cloud.sh_rest[0].size * n)
+    norm = float(np.mean(raht + scales))
+    return {"raht": [w / norm for w in raht], "scales": [w / norm for w in scales], "sh": sh / norm}
+
+
+def _attribute_tables(stage: Stage, blocks: int, weights: dict | None = None):
     from gsz.kernels.quantize import quantize_all_bits
 
     from .rate import rate_matrix
     losses, rates, shapes = [], [], []
-    for x in (stage.raht_ac, stage.scales):
+    w_sets = (None, None) if weights is None else (weights["raht"], weights["scales"])
+    for x, w in zip((stage.raht_ac, stage.scales), w_sets):
         b = blocks_for(x.shape[1], blocks)
         if x.shape[1]:
             _, _, _, loss = quantize_all_bits(x, b)
+            if w is not None:
+                loss = loss * np.asarray(w, np.float64)[:, None, None]
             rate = rate_matrix(x, b)
         else:
             loss = np.zeros((x.shape[0], b, 16))
@@ -198,13 +261,13 @@ def _solve(loss, rate, budget_bits, solver):
 
 
 def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
-                progress: Progress, log: list):
+                progress: Progress, log: list, weights: dict | None = None):
     """Allocate + calibrate one tau.  Returns the best (data, cloud, info) at or below target, or
     None when the budget is unreachable at this tau."""
     from .bit_allocation import InfeasibleBudgetError
 
     with progress.stage("tables", f"tau {stage.reserve}: loss + rate matrices"):
-        loss, rate, shapes = _attribute_tables(stage, sopts.blocks)
+        loss, rate, shapes = _attribute_tables(stage, sopts.blocks, weights)
     n_chunks = 4 if sh_models else 3
     meta_guess = 400
     base_fixed = (_container_overhead(n_chunks) + len(stage.geometry) + meta_guess
@@ -223,7 +286,8 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list
                         pick = _solve(loss, rate, budget_bits, "fast")
                     except InfeasibleBudgetError:
                         continue
-                    total = float(loss[np.arange(len(pick)), pick].sum()) + sh_loss
+                    w_sh = 1.0 if weights is None else weights["sh"]
+                    total = float(loss[np.arange(len(pick)), pick].sum()) + w_sh * sh_loss
                     if best is None or total < best[0]:
                         best = (total, model, keep)
             # estimates say nothing fits: try the cheapest SH anyway, calibration decides
@@ -390,6 +454,10 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
                              width=sopts.eval_width).train[:sopts.eval_views]
     with progress.stage("eval-reference", f"{len(eval_cams)} train views"):
         refs = render_views(cloud, eval_cams)
+    weights = None
+    if sopts.weight_channels:
+        with progress.stage("sensitivity", "per-channel rendering weights of Omega"):
+            weights = channel_weights(cloud, eval_cams[:2], seed=sopts.seed)
 
     candidates, log = [], []
     evaluated = set()
@@ -401,7 +469,7 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
         for cb in codebooks:
             with progress.stage("sh-model", f"tau {tau}, codebook {len(cb)}"):
                 sh_models.append(_ShModel(stage, cb, sopts.blocks))
-        res = _encode_tau(stage, target, sopts, sh_models, progress, log)
+        res = _encode_tau(stage, target, sopts, sh_models, progress, log, weights)
         if res is None:
             progress.log(f"tau {tau}: budget not reachable")
             return
@@ -444,7 +512,7 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
         "calibration": info["rounds"],
         "candidates": [{"reserve": c[1], "bytes": len(c[2]), "train_psnr": c[0], "train_ssim": c[5]}
                        for c in sorted(candidates, key=lambda c: -c[1])],
-        "train_psnr": psnr,
+        "train_psnr": psnr, "channel_weights": weights,
         "components": {"geometry": len(stage.geometry), "attributes": info["attr_bytes"],
                        **info["attr_stats"], "sh": len(sh_plan.chunk) if sh_plan else 0,
                        "metadata": info["meta_bytes"]},
