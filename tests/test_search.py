@@ -84,3 +84,17 @@ def test_cli_size_units_json_and_report(tmp_path):
                         "--size", "2kB", "--train-views", "4", "--importance-width", "96"],
                        capture_output=True, text=True)
     assert p.returncode == 2 and "smallest reachable" in p.stderr and not (tmp_path / "q.gsz").exists()
+
+
+def test_channel_weights_are_measured_sensitivities():
+    from gsz.encoder.cameras import load_cameras
+    from gsz.encoder.search import channel_weights
+    c = sample("sh3", 3000)
+    cams = load_cameras(None, c, n_train=2, n_test=1, width=96).train
+    w = channel_weights(c, cams)
+    vals = np.array(w["raht"] + w["scales"])
+    assert vals.shape == (10,) and np.all(np.isfinite(vals)) and np.all(vals > 0)
+    assert abs(vals.mean() - 1.0) < 1e-9
+    assert w["sh"] > 0
+    # deterministic for a seed (the search's allocation depends on it)
+    assert channel_weights(c, cams) == w
