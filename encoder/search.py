@@ -64,7 +64,7 @@ class SearchOptions:
 
     reserves: tuple = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)
     max_candidates: int = 3
-    refine_steps: int = 1
+    refine_steps: int = 3
     weight_channels: bool = True
     tolerance: float = 0.005
     max_rounds: int = 8
@@ -72,7 +72,7 @@ class SearchOptions:
     blocks: int = 80
     codebook: int | None = None
     eval_views: int = 6
-    eval_width: int = 320
+    eval_width: int = 640
     train_views: int = 24
     importance_width: int = 400
     vq_iters: int | None = None
