@@ -231,7 +231,7 @@ def _candidates(stats: dict):
     """Model candidates the fitter chooses between, per (group, q): a list of (payload bits,
     table features [C, B, 16, F]) -- exact COARSE, COARSE binned by 2^h (h = 1..5), LAPLACE,
     SINGLE.  Unavailable candidates have payload +inf."""
-    n, k = stats["n"], stats["k"]
+    k = stats["k"]
     f = len(FEATURES)
     multi = k > 1
     coarse_feat = np.zeros(k.shape + (f,))

@@ -22,14 +22,14 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from gsz.decoder.errors import GszError
 from gsz.decoder.groups import blocks_for
 
-from .pipeline import (EncodeOptions, EncodeResult, Stage, _top_k_mask, assemble, attribute_chunk,
+from .pipeline import (EncodeOptions, EncodeResult, Stage, assemble, attribute_chunk,
                        compute_train_importance, default_codebook_size, prepare_stage, sh_chunk,
                        train_sh_codebook)
 from .progress import Progress

@@ -1,5 +1,4 @@
 """PLY reading/writing: exact round trips, every SH degree, clear errors naming file and property."""
-import struct
 import warnings
 
 import numpy as np

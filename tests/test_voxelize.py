@@ -1,5 +1,4 @@
 """Voxelisation on the cubic octree grid, depth choice and per-voxel merge."""
-import math
 
 import numpy as np
 import pytest
