@@ -3,6 +3,7 @@
     .venv/bin/python bench/rd.py [--scenes a,b] [--noise | --no-noise] [--ratios 8,12,18,27,40]
                                  [--width 800] [--views 8] [--out bench/out/rd.json]
                                  [--skip-peers] [--peer-timeout 2400] [--verbose]
+    .venv/bin/python bench/rd.py --report [--out bench/out/rd.json]   # markdown tables, no runs
 
 For every shared scene in ../shared/data (smallest first) and, unless --no-noise, its noised
 variant (``add_noise`` of bench/bench_codec.py: values moved off the delivery format's grid):
@@ -279,6 +280,52 @@ def save(state, out: Path):
     atomic_write(out.with_suffix(".csv"), buf.getvalue().encode())
 
 
+def _frac(t):
+    f = t["bytes_fraction"]
+    if f is None:
+        return "n/a"
+    return {"at_most": "<= ", "more_than": "> "}.get(t["bytes_kind"], "") + f"{f:.2f}"
+
+
+def report(state) -> str:
+    """Markdown: every row, then the target figures per scene variant (for bench/RESULTS.md)."""
+    rows = sorted(state["rows"], key=lambda r: (r["gaussians"], r["scene"], r["variant"] != "grid",
+                                                 r["codec"] != "gsz", r["bytes"]))
+    lines = ["| scene | variant | codec | budget | bytes | B/Gaussian | x vs PLY | PSNR dB | SSIM | encode s | decode s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['scene']} | {r['variant']} | {r['codec']} | {r.get('budget') or '-'} | {r['bytes']:,} | "
+                     f"{r['bytes_per_gaussian']:.2f} | {r['ratio']:.1f} | {r['psnr']:.2f} | {r['ssim']:.4f} | "
+                     f"{r['encode_s']:.1f} | {r['decode_s']:.2f} |")
+    lines += ["", "| scene | variant | SOG bytes | SOG PSNR | gsz PSNR at SOG bytes (measured) | gain (goal >= +3 dB) "
+              "| gsz bytes at SOG PSNR / SOG bytes (goal <= 0.5) | gain at SPZ bytes / bytes ratio at SPZ PSNR "
+              "| gain at compressed.ply bytes / bytes ratio at its PSNR |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    by = {}
+    for t in targets(state["rows"]):
+        by.setdefault((t["scene"], t["variant"]), {})[t["peer"]] = t
+    order = {r["scene"]: r["gaussians"] for r in rows}
+    for (scene, variant), ts in sorted(by.items(), key=lambda kv: (order[kv[0][0]], kv[0])):
+        def other(name):
+            t = ts.get(name)
+            if t is None:
+                return "-"
+            d = t.get("delta_db")
+            return f"{'n/a' if d is None else f'{d:+.2f} dB'} / {_frac(t)}"
+        t = ts.get("sog")
+        if t is None:
+            cells = ["-"] * 5
+        else:
+            g = t["gsz_psnr_at_peer_bytes"]
+            d = t.get("delta_db")
+            cells = [f"{t['peer_bytes']:,}", f"{t['peer_psnr']:.2f}",
+                     "n/a" if g is None else f"{g:.2f} ({t['psnr_kind']})",
+                     "n/a" if d is None else f"{d:+.2f} dB {'met' if t['target_db_met'] else 'NOT met'}",
+                     f"{_frac(t)} {'met' if t['target_fraction_met'] else 'NOT met'}"]
+        lines.append(f"| {scene} | {variant} | " + " | ".join(cells) + f" | {other('spz')} | {other('compressed.ply')} |")
+    return "\n".join(lines) + "\n"
+
+
 def machine() -> dict:
     cpu = ""
     try:
@@ -335,7 +382,11 @@ def main(argv=None):
     ap.add_argument("--skip-peers", action="store_true", help="gsz only (no SOG budget then)")
     ap.add_argument("--peer-timeout", type=float, default=2400, help="seconds per splat-transform call")
     ap.add_argument("--verbose", action="store_true", help="also print gsz's own stage lines")
+    ap.add_argument("--report", action="store_true", help="print markdown tables of --out and exit")
     a = ap.parse_args(argv)
+    if a.report:
+        print(report(json.loads(Path(a.out).read_text())), end="")
+        return 0
     if not SHARED.exists():
         print(f"SKIP: {SHARED} not present")
         return 0
