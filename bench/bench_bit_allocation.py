@@ -38,7 +38,7 @@ def channel_sets(path: Path, keep: float):
         cloud = cloud.subset(idx)
     from gsz.encoder.pipeline import prepare_stage
     stage = prepare_stage(cloud, np.ones(len(cloud)), 1.0)   # every Gaussian kept
-    return [stage.raht_ac, stage.scales], len(cloud)
+    return [stage.layers[0].raht_ac, stage.layers[0].scales], len(cloud)
 
 
 def main():

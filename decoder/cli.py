@@ -18,18 +18,40 @@ def decode_main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="gsz-decode", description="Decode a .gsz file to a 3DGS PLY.")
     p.add_argument("input", help="input .gsz file")
     p.add_argument("-o", "--output", required=True, help="output .ply file (written atomically)")
+    p.add_argument("--layers", type=int, default=None, metavar="K",
+                   help="decode only the first K importance layers (default: all)")
+    p.add_argument("--partial", action="store_true",
+                   help="decode the complete layers of a truncated file (with a warning) instead of failing")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     a = p.parse_args(argv)
+    import warnings
+
     from .decode import decode
+    from .errors import GszTruncatedError, GszTruncatedWarning
     from .ply import write_ply
+    if a.layers is not None and a.layers < 1:
+        return _fail("gsz-decode", GszError(f"--layers must be >= 1, got {a.layers}"))
+    truncated = None
     try:
         t0 = time.perf_counter()
-        cloud = decode(a.input)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", GszTruncatedWarning)
+            cloud = decode(a.input, layers=a.layers, partial=a.partial)
         dt = time.perf_counter() - t0
+        for w in caught:
+            if issubclass(w.category, GszTruncatedWarning):
+                truncated = str(w.message)
+                print(f"gsz-decode: warning: {truncated}", file=sys.stderr)
         write_ply(cloud, a.output)
-    except (GszError, OSError) as e:
+    except GszError as e:
+        if isinstance(e, GszTruncatedError) and not a.partial:
+            print(f"gsz-decode: error: {e} (--partial decodes the complete layers of a truncated file)",
+                  file=sys.stderr)
+            return 2
         return _fail("gsz-decode", e)
-    summary = {"input": a.input, "output": a.output, "num_gaussians": len(cloud),
+    except OSError as e:
+        return _fail("gsz-decode", e)
+    summary = {"input": a.input, "output": a.output, "num_gaussians": len(cloud), "truncated": truncated,
                "sh_degree": cloud.sh_degree, "decode_seconds": round(dt, 4),
                "gaussians_per_second": round(len(cloud) / dt) if dt > 0 else None}
     if a.json:
@@ -66,6 +88,11 @@ def info_main(argv=None) -> int:
     for c in info["chunks"]:
         print(f"{c['type']:6} {c['offset']:>10,} {c['bytes']:>12,} {100 * c['bytes'] / info['bytes']:6.2f}%"
               f"  {c['layer']:>5}  {c['name']}{'' if c['required'] else ' (optional)'}")
+    if len(info["layers"]) > 1:
+        print(f"{'layer':6} {'gaussians':>12} {'cumulative':>12} {'offset':>10} {'bytes':>12} {'decodable at':>14}")
+        for r in info["layers"]:
+            print(f"{r['layer']:<6} {r['gaussians']:>12,} {r['cumulative_gaussians']:>12,} {r['offset']:>10,} "
+                  f"{r['bytes']:>12,} {r['decodable_at']:>10,} B {100 * r['decodable_at'] / info['bytes']:5.1f}%")
     opts = info.get("meta", {}).get("options")
     if opts:
         print("encoder     " + " ".join(f"{k}={v}" for k, v in sorted(opts.items())))

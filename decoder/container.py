@@ -16,11 +16,11 @@ import struct
 import zlib
 from dataclasses import dataclass, field
 
-from .errors import GszFormatError
+from .errors import GszFormatError, GszTruncatedError
 
 MAGIC = b"\x89GSZ\r\n\x1a\n"
 VERSION_MAJOR = 1
-VERSION_MINOR = 0
+VERSION_MINOR = 1
 HEADER_SIZE = 64
 CHUNK_ENTRY_SIZE = 24
 
@@ -105,7 +105,7 @@ def parse_header(buf) -> FileHeader:
     if len(mv) < HEADER_SIZE:
         if len(mv) >= 4 and bytes(mv[:4]) != MAGIC[:4]:
             raise GszFormatError("not a .gsz file (bad magic)")
-        raise GszFormatError(f"truncated: {len(mv)} bytes, the fixed header alone is {HEADER_SIZE}")
+        raise GszTruncatedError(f"truncated: {len(mv)} bytes, the fixed header alone is {HEADER_SIZE}")
     (magic, major, minor, hsize, n, degree, frame, flags, nchunks, *rest) = _HEADER.unpack_from(mv, 0)
     bbox, _reserved, crc = rest[:6], rest[6], rest[7]
     if magic != MAGIC:
@@ -137,7 +137,7 @@ def parse_table(buf, num_chunks: int):
     mv = memoryview(buf)
     end = HEADER_SIZE + table_size(num_chunks)
     if len(mv) < end:
-        raise GszFormatError(f"truncated: chunk table needs {end} bytes, file has {len(mv)}")
+        raise GszTruncatedError(f"truncated: chunk table needs {end} bytes, file has {len(mv)}")
     tbl = mv[HEADER_SIZE:end - 4]
     if zlib.crc32(tbl) != struct.unpack_from("<I", mv, end - 4)[0]:
         raise GszFormatError("chunk table checksum mismatch (file corrupt)")
@@ -164,7 +164,7 @@ def read_container(buf, *, known_types=None, strict_length: bool = True) -> Cont
     chunks = []
     for i, (ctype, cflags, length, crc, offset) in enumerate(entries):
         if offset + length > len(mv):
-            raise GszFormatError(
+            raise GszTruncatedError(
                 f"truncated: chunk {i} ({ctype.decode()}) ends at byte {offset + length}, "
                 f"file has {len(mv)} bytes")
         data = mv[offset:offset + length]

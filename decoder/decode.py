@@ -8,13 +8,14 @@ from __future__ import annotations
 import json
 import os
 import struct
+from dataclasses import dataclass
 
 import numpy as np
 
 from .attributes import read_attributes
 from .cloud import GaussianCloud
-from .container import DEFAULT_MAX_GAUSSIANS, Container, read_container
-from .errors import GszError, GszFormatError
+from .container import DEFAULT_MAX_GAUSSIANS, LAYER_SHIFT, Chunk, Container, read_container
+from .errors import GszError, GszFormatError, GszTruncatedError
 from .geometry import read_geometry
 from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHVQ, KNOWN_CHUNKS
 from .morton import morton_encode
@@ -70,45 +71,149 @@ def read_meta(container: Container) -> dict:
         return {}
 
 
-def decode_container(container: Container, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS) -> GaussianCloud:
-    h = container.header
-    if h.num_gaussians > max_gaussians:
-        raise GszFormatError(f"declares {h.num_gaussians} Gaussians, above the decoder limit {max_gaussians}")
-    if h.num_gaussians == 0:
-        raise GszFormatError("declares zero Gaussians")
-    geom = read_geometry(container.get(CHUNK_GEOM).data, max_points=h.num_gaussians)
+#: Chunk types that carry one layer's data (GSZ.md §5).
+LAYER_DATA_CHUNKS = (CHUNK_GEOM, CHUNK_ATTR, CHUNK_SHVQ)
+
+
+def plan_layers(entries, sh_degree: int) -> list[dict]:
+    """Check the layer structure of a chunk table and return, per layer, {type: entry index}.
+
+    entries     [(type, flags, ...)] in file order (``Container.chunks`` or ``parse_table`` rows)
+    rules       every layer 0..L-1 has exactly one GEOM and one ATTR, and one SHVQ iff the SH
+                degree is > 0; data chunks appear in non-decreasing layer order, so a layer is
+                complete once its last data chunk has arrived (GSZ.md §5).
+    """
+    layers: list[dict] = []
+    last = 0
+    for i, e in enumerate(entries):
+        ctype, flags = (e.type, e.flags) if isinstance(e, Chunk) else (e[0], e[1])
+        if ctype not in LAYER_DATA_CHUNKS:
+            continue
+        name = ctype.decode("ascii")
+        layer = (flags >> LAYER_SHIFT) & 0xFF
+        if ctype == CHUNK_SHVQ and sh_degree == 0:
+            raise GszFormatError(f"SHVQ chunk in a file of SH degree 0 (chunk {i})")
+        if layer < last:
+            raise GszFormatError(f"chunk {i} ({name}) of layer {layer} follows a chunk of layer {last}")
+        if layer > len(layers):
+            raise GszFormatError(f"chunk {i} ({name}) belongs to layer {layer}, but layer {len(layers)} "
+                                 "has no chunks")
+        if layer == len(layers):
+            layers.append({})
+        if ctype in layers[layer]:
+            raise GszFormatError(f"layer {layer} has two {name} chunks")
+        layers[layer][ctype] = i
+        last = layer
+    if not layers:
+        raise GszFormatError(f"missing required chunk {CHUNK_GEOM.decode()}")
+    need = LAYER_DATA_CHUNKS if sh_degree > 0 else (CHUNK_GEOM, CHUNK_ATTR)
+    for li, got in enumerate(layers):
+        for ctype in need:
+            if ctype not in got:
+                raise GszFormatError(f"missing required chunk {ctype.decode()}"
+                                     + (f" for layer {li}" if li else ""))
+    return layers
+
+
+@dataclass
+class LayerState:
+    """What decoding layer l+1 needs from the layers before it."""
+    decoded_points: int = 0
+    codebook: np.ndarray | None = None      # layer 0's SH codebook [D, K_cb]
+
+
+def decode_layer(chunks: dict, header, state: LayerState) -> GaussianCloud:
+    """Decode one layer from its chunk payloads {type: bytes-like}; updates ``state``."""
+    room = header.num_gaussians - state.decoded_points
+    if room <= 0:
+        raise GszFormatError(f"layers hold more Gaussians than the header's {header.num_gaussians}")
+    geom = read_geometry(chunks[CHUNK_GEOM], max_points=room)
     m = len(geom.ijk)
-    if m != h.num_gaussians:
-        raise GszFormatError(f"geometry holds {m} points, header says {h.num_gaussians}")
     tree = build_raht_tree(morton_encode(geom.ijk), geom.depth)
-    attrs = read_attributes(container.get(CHUNK_ATTR).data, tree)
-    if h.sh_degree > 0:
-        sh_rest = read_sh(container.get(CHUNK_SHVQ).data, m, h.sh_degree)
+    attrs = read_attributes(chunks[CHUNK_ATTR], tree)
+    if header.sh_degree > 0:
+        sh_rest, state.codebook = read_sh(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook)
     else:
         sh_rest = np.zeros((m, 0, 3), np.float32)
     cloud = GaussianCloud(positions=geom.positions, scales=attrs.scales, rotations=attrs.rotations,
                           opacities=attrs.opacities, sh_dc=attrs.sh_dc, sh_rest=sh_rest,
-                          sh_degree=h.sh_degree)
+                          sh_degree=header.sh_degree)
     # Well-formed streams always decode to finite float32 values; hostile parameters (huge
     # min/max, DC) can overflow float32, which is rejected rather than returned.
     for name in ("positions", "scales", "rotations", "opacities", "sh_dc", "sh_rest"):
         if not np.isfinite(getattr(cloud, name)).all():
             raise GszFormatError(f"decoded {name} contain non-finite values (corrupt parameters)")
+    state.decoded_points += m
     return cloud
 
 
-def decode(src, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS) -> GaussianCloud:
+def concat_clouds(parts: list) -> GaussianCloud:
+    """The Gaussians of ``parts`` one after the other (layer order)."""
+    if len(parts) == 1:
+        return parts[0]
+    return GaussianCloud(**{name: np.concatenate([getattr(p, name) for p in parts])
+                            for name in ("positions", "scales", "rotations", "opacities", "sh_dc", "sh_rest")},
+                         sh_degree=parts[0].sh_degree)
+
+
+def check_header_counts(h, max_gaussians: int) -> None:
+    if h.num_gaussians > max_gaussians:
+        raise GszFormatError(f"declares {h.num_gaussians} Gaussians, above the decoder limit {max_gaussians}")
+    if h.num_gaussians == 0:
+        raise GszFormatError("declares zero Gaussians")
+
+
+def decode_container(container: Container, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS,
+                     layers: int | None = None) -> GaussianCloud:
+    """Decode the first ``layers`` layers (all when None) of a parsed, verified container."""
+    h = container.header
+    check_header_counts(h, max_gaussians)
+    plan = plan_layers(container.chunks, h.sh_degree)
+    count = len(plan) if layers is None else int(layers)
+    if not 1 <= count <= len(plan):
+        raise GszFormatError(f"asked for {count} layers, the file has {len(plan)}")
+    state = LayerState()
+    parts = [decode_layer({t: container.chunks[i].data for t, i in plan[li].items()}, h, state)
+             for li in range(count)]
+    if count == len(plan) and state.decoded_points != h.num_gaussians:
+        raise GszFormatError(f"layers hold {state.decoded_points} Gaussians, header says {h.num_gaussians}")
+    return concat_clouds(parts)
+
+
+def decode(src, *, layers: int | None = None, partial: bool = False,
+           max_gaussians: int = DEFAULT_MAX_GAUSSIANS) -> GaussianCloud:
     """Decode a .gsz file (path or bytes) into a :class:`GaussianCloud`.
+
+    layers      decode only the first ``layers`` importance layers (None: all); the Gaussians
+                come out layer after layer, each layer in Morton order
+    partial     accept a truncated file: decode its complete layers and emit one
+                :class:`GszTruncatedWarning` (the default raises GszFormatError instead)
 
     Raises GszFormatError for corrupt, truncated, hostile or unsupported files (checksums are
     verified before any payload is interpreted) and GszError when the file cannot be read.
     ``max_gaussians`` bounds what a hostile header can make the decoder allocate.
     """
     data, path = _load_bytes(src)
+    if layers is not None and int(layers) < 1:
+        raise GszError(f"layers must be >= 1, got {layers}", path)
+    if partial:
+        from .stream import StreamDecoder
+        def run_partial():
+            dec = StreamDecoder(max_gaussians=max_gaussians, max_layers=layers)
+            dec.feed(data)
+            res = dec.finish(warn=False)
+            if res.truncated and res.cloud is not None:
+                dec.finish(warn=True, source=path)
+            if res.cloud is None:
+                raise GszTruncatedError(f"truncated: {len(data)} bytes hold no complete layer "
+                                     f"(layer 0 ends at byte {res.next_layer_end or 'unknown'})")
+            return res.cloud
+        return _guard(run_partial, path)
+
     def run():
         with np.errstate(over="ignore", invalid="ignore"):
             return decode_container(read_container(data, known_types=KNOWN_CHUNKS),
-                                    max_gaussians=max_gaussians)
+                                    max_gaussians=max_gaussians, layers=layers)
     return _guard(run, path)
 
 
@@ -126,6 +231,26 @@ def inspect(src) -> dict:
             "chunks": [{"type": ch.type.decode("ascii"), "name": CHUNK_NAMES.get(ch.type, "unknown"),
                         "offset": ch.offset, "bytes": len(ch.data), "layer": ch.layer,
                         "required": bool(ch.flags & 1)} for ch in c.chunks],
+            "layers": layer_table(c),
             "meta": read_meta(c),
         }
     return _guard(run, path)
+
+
+def layer_table(container: Container) -> list[dict]:
+    """Per layer: Gaussians, byte range of its chunks, and ``decodable_at`` -- the file prefix
+    (bytes) after which this layer and every layer before it can be decoded."""
+    h = container.header
+    plan = plan_layers(container.chunks, h.sh_degree)
+    rows, total = [], 0
+    for li, got in enumerate(plan):
+        chs = [container.chunks[i] for i in got.values()]
+        geom = container.chunks[got[CHUNK_GEOM]].data
+        m = struct.unpack_from("<Q", geom, 33)[0] if len(geom) >= 41 else 0
+        total += m
+        start = min(ch.offset for ch in chs)
+        end = max(ch.offset + len(ch.data) for ch in chs)
+        rows.append({"layer": li, "gaussians": int(m), "cumulative_gaussians": int(total),
+                     "offset": int(start), "bytes": int(sum(len(ch.data) for ch in chs)),
+                     "decodable_at": int(end)})
+    return rows

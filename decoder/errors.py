@@ -22,9 +22,19 @@ class GszFormatError(GszError, ValueError):
     """A .gsz bitstream is corrupt, truncated, hostile or of an unsupported version."""
 
 
+class GszTruncatedError(GszFormatError):
+    """A .gsz file ends before its last chunk (a download cut short, a partial copy).
+    ``decode(..., partial=True)`` decodes the complete layers of such a file instead."""
+
+
 class CloudValidationError(GszError, ValueError):
     """A GaussianCloud's arrays are inconsistent (shapes, dtypes, non-finite values)."""
 
 
 class CameraFormatError(GszError, ValueError):
     """A cameras.json or COLMAP model cannot be read."""
+
+
+class GszTruncatedWarning(UserWarning):
+    """A .gsz stream ended early: only its complete layers were decoded (the documented
+    truncation signal of :class:`gsz.decoder.stream.StreamDecoder` and ``decode(partial=True)``)."""

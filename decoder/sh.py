@@ -2,10 +2,12 @@
 
 Syntax (D = 3K, K = (d+1)^2 - 1 coefficients per colour)::
 
-    u32  K_cb               codebook entries, 1..65536
+    u32  K_cb               codebook entries, 1..65536 in layer 0; 0 in layers >= 1 (they
+                            use layer 0's codebook, see GSZ.md §5)
     u32  P                  kept vectors, 0..M
     u16  D                  vector length, must equal 3K of the header's SH degree
-    ChannelSet codebook     C = D, L = K_cb  (channel j = vector component j)
+    if K_cb > 0:
+      ChannelSet codebook   C = D, L = K_cb  (channel j = vector component j)
     if P > 0:
       ChannelSet kept       C = D, L = P     (kept vectors in Morton order of their Gaussians)
       u64 n, byte[n]        rANS stream of M flags (0/1, one model): 1 = the Gaussian uses the
@@ -27,19 +29,29 @@ from .rans import decode_stream
 MAX_CODEBOOK = 1 << 16
 
 
-def read_sh(data, num_points: int, sh_degree: int) -> np.ndarray:
-    """Returns sh_rest float32 [M, K, 3]."""
+def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None):
+    """Decode one layer's SHVQ chunk.
+
+    codebook    None for layer 0 (the chunk must carry the codebook); for layers >= 1 the
+                [D, K_cb] float64 codebook layer 0 returned (the chunk must not carry one)
+    returns     (sh_rest float32 [M, K, 3], codebook [D, K_cb] float64)
+    """
     k = sh_rest_count(sh_degree)
     m = num_points
-    r = Reader(data, "SHVQ chunk")
+    what = "SHVQ chunk" if codebook is None else "SHVQ chunk (layer >= 1)"
+    r = Reader(data, what)
     kcb = r.u32()
     p = r.u32()
     d = r.u16()
     r.check(d == 3 * k, f"SH vector length {d} does not match SH degree {sh_degree} (expected {3 * k})")
-    r.check(1 <= kcb <= MAX_CODEBOOK, f"codebook size {kcb} outside 1..{MAX_CODEBOOK}")
     r.check(p <= m, f"{p} kept SH vectors for {m} Gaussians")
-    codebook = read_channel_set(r, max_length=kcb)
-    r.check(codebook.shape == (d, kcb), f"codebook has shape {codebook.shape}, expected ({d}, {kcb})")
+    if codebook is None:
+        r.check(1 <= kcb <= MAX_CODEBOOK, f"codebook size {kcb} outside 1..{MAX_CODEBOOK}")
+        codebook = read_channel_set(r, max_length=kcb)
+        r.check(codebook.shape == (d, kcb), f"codebook has shape {codebook.shape}, expected ({d}, {kcb})")
+    else:
+        r.check(kcb == 0, f"codebook size {kcb} in a layer >= 1 (must be 0: layer 0's codebook is shared)")
+        kcb = codebook.shape[1]
     out = np.empty((m, d), np.float32)
     kept_mask = np.zeros(m, bool)
     if p:
@@ -54,4 +66,4 @@ def read_sh(data, num_points: int, sh_degree: int) -> np.ndarray:
     r.check(idx.size == 0 or (idx.min() >= 0 and idx.max() < kcb), "codeword index out of range")
     out[~kept_mask] = codebook.T[idx]
     r.expect_end()
-    return out.reshape(m, k, 3)
+    return out.reshape(m, k, 3), codebook

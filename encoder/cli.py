@@ -35,6 +35,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cameras", default=None, help="cameras.json or COLMAP model for the importance pass (default: generated views)")
     p.add_argument("--train-views", type=int, default=d.train_views, help="number of generated train views (without --cameras)")
     p.add_argument("--importance-width", type=int, default=d.importance_width, help="render width of the importance pass")
+    p.add_argument("--layers", type=int, default=d.layers,
+                   help="importance-ordered layers for progressive streaming (1 = single layer); "
+                        "layer 0 = the most important Gaussians, decodable on its own")
+    p.add_argument("--first-layer", type=float, default=d.first_layer,
+                   help="fraction of the Gaussians in layer 0 (with --layers > 1)")
     p.add_argument("--seed", type=int, default=d.seed, help="RNG seed (VQ)")
     p.add_argument("--json", action="store_true", help="print a JSON report on stdout")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
@@ -60,7 +65,7 @@ def _run_fixed(a, prog) -> dict:
                          codebook=a.codebook, keep=a.keep, blocks=a.blocks, depth=a.depth,
                          rel_error=a.rel_error, beta=a.beta, sh_bits=a.sh_bits,
                          train_views=a.train_views, importance_width=a.importance_width,
-                         seed=a.seed).validate()
+                         layers=a.layers, first_layer=a.first_layer, seed=a.seed).validate()
     cloud, cameras = _read_inputs(a, prog)
     result = encode(cloud, opts, cameras=cameras, progress=prog)
     return _finish(a, result, {})
@@ -80,6 +85,7 @@ def _run_search(a, prog) -> dict:
     cloud, cameras = _read_inputs(a, prog)
     sopts = SearchOptions(solver=a.solver, blocks=a.blocks, train_views=a.train_views,
                           importance_width=a.importance_width, seed=a.seed,
+                          layers=a.layers, first_layer=a.first_layer,
                           codebook=a.codebook if a.codebook != 4096 else None)
     result = encode_to_budget(cloud, target, options=sopts, cameras=cameras, progress=prog)
     r = _finish(a, result, {"target": format_size(target, style)})
@@ -121,6 +127,10 @@ def main(argv=None) -> int:
         prog.log(f"wrote {a.output}: {r['bytes']:,} bytes ({r['ratio']:.1f}x smaller than the PLY, "
                  f"{r['bytes_per_gaussian']:.2f} B/Gaussian, {r['voxels']:,} Gaussians)")
         prog.log("  " + ", ".join(f"{k} {v:,}" for k, v in r["components"].items()))
+        if len(r.get("layers", [])) > 1:
+            prog.log("  layers: " + ", ".join(
+                f"{x['layer']}: {x['cumulative_gaussians']:,} Gaussians after {100 * x['decodable_fraction']:.1f} %"
+                for x in r["layers"]))
     return 0
 
 

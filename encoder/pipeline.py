@@ -23,7 +23,7 @@ import numpy as np
 from gsz.decoder.attributes import attributes_from_channels
 from gsz.decoder.bytesio import Writer
 from gsz.decoder.cloud import GaussianCloud
-from gsz.decoder.container import CHUNK_REQUIRED, FRAME_RDF, FileHeader, Chunk, write_container
+from gsz.decoder.container import CHUNK_REQUIRED, FRAME_RDF, LAYER_SHIFT, Chunk, FileHeader, write_container
 from gsz.decoder.errors import GszError
 from gsz.decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHVQ, RAHT_CHANNELS,
                                 ROTATION_EULER_ZYX)
@@ -39,6 +39,38 @@ from .progress import Progress
 
 class EncodeOptionsError(GszError, ValueError):
     """An encoder option is out of range."""
+
+
+#: Default layer count and layer-0 share (bench/bench_stream.py measured the trade-off).
+DEFAULT_LAYERS = 1
+DEFAULT_FIRST_LAYER = 0.1
+MAX_LAYERS = 16
+
+
+def check_layer_options(layers, first_layer, bad) -> None:
+    if not (1 <= int(layers) <= MAX_LAYERS):
+        bad(f"--layers must be 1..{MAX_LAYERS}, got {layers}")
+    if not (0.0 < float(first_layer) < 1.0):
+        bad(f"--first-layer must be in (0, 1), got {first_layer}")
+
+
+def layer_sizes(m: int, layers: int, first_layer: float) -> list[int]:
+    """Gaussians per layer: the cumulative share of layers 0..l is
+    ``first_layer ** ((L - 1 - l) / (L - 1))`` (10 %, 32 %, 100 % for L = 3), so every layer
+    roughly multiplies the scene's Gaussians by the same factor.  Every layer gets at least one
+    Gaussian (fewer layers when m < L)."""
+    layers = max(1, min(int(layers), int(m)))
+    if layers == 1:
+        return [int(m)]
+    cum = [int(round(m * float(first_layer) ** ((layers - 1 - l) / (layers - 1)))) for l in range(layers)]
+    cum[-1] = int(m)
+    sizes, prev = [], 0
+    for l, c in enumerate(cum):
+        c = max(c, prev + 1)
+        c = min(c, int(m) - (layers - 1 - l))
+        sizes.append(c - prev)
+        prev = c
+    return sizes
 
 
 @dataclass
@@ -58,6 +90,10 @@ class EncodeOptions:
     train_views      number of default train cameras (when no camera file is given)
     importance_width render width of the importance pass
     vq_iters         mini-batch k-means iterations
+    layers           importance-ordered layers (1 = a single-layer file); layer 0 holds the
+                     most important Gaussians and decodes on its own (progressive streaming)
+    first_layer      fraction of the Gaussians in layer 0 when layers > 1 (later layers grow
+                     geometrically, see :func:`layer_sizes`)
     seed             RNG seed (VQ); the same input and options give byte-identical output
     """
 
@@ -73,6 +109,8 @@ class EncodeOptions:
     train_views: int = 24
     importance_width: int = 400
     vq_iters: int | None = None
+    layers: int = DEFAULT_LAYERS
+    first_layer: float = DEFAULT_FIRST_LAYER
     seed: int = 0
 
     def validate(self) -> "EncodeOptions":
@@ -100,6 +138,7 @@ class EncodeOptions:
             bad(f"--train-views must be >= 1, got {self.train_views}")
         if int(self.importance_width) < 16:
             bad(f"--importance-width must be >= 16, got {self.importance_width}")
+        check_layer_options(self.layers, self.first_layer, bad)
         return self
 
 
@@ -120,27 +159,44 @@ def _top_k_mask(importance: np.ndarray, k: int) -> np.ndarray:
 
 
 @dataclass
-class Stage:
-    """Everything that depends on the reserve ratio and depth but not on bit-widths.
+class Layer:
+    """One importance layer: a subset of the stage's voxels coded as a scene of its own (octree,
+    RAHT tree, channel sets) on the stage's voxel grid; the SH codebook is shared.
 
-    vox        the voxelised, merged cloud (M Gaussians, Morton order)
-    geometry   GEOM chunk payload (exact bytes)
-    tree       RAHT tree of the voxels
+    index      [M_l] int64 ascending indices into the stage's voxels (so Morton order)
+    geometry   GEOM chunk payload of the layer
+    tree       RAHT tree of the layer's voxels
     raht_dc    [7] float64 RAHT root coefficients (stored exactly)
-    raht_ac    [7, M-1] float32 AC coefficients in stream (level) order
-    scales     [3, M] float32 log-scales in Morton order
-    sh         [M, D] float32 higher-degree SH vectors (D = 0 for SH degree 0)
-    importance [M] float64 merged importance
+    raht_ac    [7, M_l-1] float32 AC coefficients in stream (level) order
+    scales     [3, M_l] float32 log-scales in Morton order
     """
 
-    reserve: float
-    depth: int
-    vox: object
+    index: np.ndarray
     geometry: bytes
     tree: object
     raht_dc: np.ndarray
     raht_ac: np.ndarray
     scales: np.ndarray
+
+    @property
+    def num_points(self) -> int:
+        return len(self.index)
+
+
+@dataclass
+class Stage:
+    """Everything that depends on the reserve ratio, depth and layering but not on bit-widths.
+
+    vox        the voxelised, merged cloud (M Gaussians, Morton order)
+    layers     [Layer], importance order (layer 0 = most important voxels)
+    sh         [M, D] float32 higher-degree SH vectors in voxel order (D = 0 for SH degree 0)
+    importance [M] float64 merged importance in voxel order
+    """
+
+    reserve: float
+    depth: int
+    vox: object
+    layers: list
     sh: np.ndarray
     importance: np.ndarray
     sh_degree: int
@@ -150,10 +206,45 @@ class Stage:
     def num_points(self) -> int:
         return len(self.vox.ijk)
 
+    @property
+    def geometry_bytes(self) -> int:
+        return sum(len(l.geometry) for l in self.layers)
+
+    @property
+    def order(self) -> np.ndarray:
+        """Voxel index of every decoded Gaussian (decoders emit layer after layer)."""
+        return np.concatenate([l.index for l in self.layers])
+
+    def layer_blocks(self, blocks: int) -> list[int]:
+        """Blocks per channel in each layer: ``blocks`` spread over the layers by their share of
+        the Gaussians, so a layered file has about as many groups (and as much group metadata)
+        as a single-layer one."""
+        return scaled_blocks(blocks, [l.num_points for l in self.layers])
+
+
+def scaled_blocks(blocks: int, counts: list[int]) -> list[int]:
+    total = max(1, sum(counts))
+    if len(counts) == 1:
+        return [int(blocks)]
+    return [max(1, min(65535, int(round(blocks * c / total)))) for c in counts]
+
+
+def split_layers(importance: np.ndarray, layers: int, first_layer: float) -> np.ndarray:
+    """Layer index [M] of every voxel: the most important ``layer_sizes[0]`` go to layer 0, the
+    next ones to layer 1, ... (ties broken by lower index, deterministic)."""
+    m = importance.shape[0]
+    sizes = layer_sizes(m, layers, first_layer)
+    rank = np.lexsort((np.arange(m), -importance))
+    out = np.empty(m, np.int64)
+    out[rank] = np.repeat(np.arange(len(sizes)), sizes)
+    return out
+
 
 def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, *, depth=None,
-                  rel_error=None, progress: Progress | None = None) -> Stage:
-    """Prune to ``reserve``, voxelise, code the geometry and transform the attributes."""
+                  rel_error=None, layers: int = DEFAULT_LAYERS, first_layer: float = DEFAULT_FIRST_LAYER,
+                  progress: Progress | None = None) -> Stage:
+    """Prune to ``reserve``, voxelise, split into importance layers, code each layer's geometry
+    and transform its attributes."""
     from .importance import prune
     from .raht import raht_forward
     from .voxelize import DEFAULT_REL_ERROR, choose_depth, voxelize
@@ -169,35 +260,60 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
         vox = voxelize(pruned, imp, d)
         progress.log(f"depth {d}: {len(pruned)} Gaussians -> {len(vox.ijk)} voxels "
                      f"({100 * vox.merged_fraction:.2f} % merged)")
-    with progress.stage("geometry"):
-        geom = write_geometry(vox.ijk, vox.origin, vox.side, d)
-    with progress.stage("transform", "Euler + RAHT"):
-        c = vox.cloud
-        tree = build_raht_tree(morton_encode(vox.ijk), d)
-        euler = quaternion_to_euler(c.rotations.astype(np.float64))
-        attrs = np.concatenate([c.opacities.astype(np.float64)[:, None], euler,
-                                c.sh_dc.astype(np.float64)], axis=1)
-        dc, ac = raht_forward(attrs, tree)
     m = len(vox.ijk)
-    return Stage(reserve=float(reserve), depth=d, vox=vox, geometry=geom, tree=tree, raht_dc=dc,
-                 raht_ac=np.ascontiguousarray(ac.T, dtype=np.float32),
-                 scales=np.ascontiguousarray(c.scales.T, dtype=np.float32),
+    layer_of = split_layers(vox.importance, layers, first_layer)
+    parts = []
+    c = vox.cloud
+    for li in range(int(layer_of.max()) + 1):
+        idx = np.flatnonzero(layer_of == li)
+        tag = f"layer {li}, {len(idx)} voxels" if layers > 1 else ""
+        with progress.stage("geometry", tag):
+            geom = write_geometry(vox.ijk[idx], vox.origin, vox.side, d)
+        with progress.stage("transform", ("Euler + RAHT, " + tag) if tag else "Euler + RAHT"):
+            tree = build_raht_tree(morton_encode(vox.ijk[idx]), d)
+            euler = quaternion_to_euler(c.rotations[idx].astype(np.float64))
+            attrs = np.concatenate([c.opacities[idx].astype(np.float64)[:, None], euler,
+                                    c.sh_dc[idx].astype(np.float64)], axis=1)
+            dc, ac = raht_forward(attrs, tree)
+        parts.append(Layer(index=idx, geometry=geom, tree=tree, raht_dc=dc,
+                           raht_ac=np.ascontiguousarray(ac.T, dtype=np.float32),
+                           scales=np.ascontiguousarray(c.scales[idx].T, dtype=np.float32)))
+    return Stage(reserve=float(reserve), depth=d, vox=vox, layers=parts,
                  sh=c.sh_rest.reshape(m, -1).astype(np.float32), importance=vox.importance,
                  sh_degree=cloud.sh_degree, input_gaussians=len(cloud))
 
 
-def attribute_chunk(stage: Stage, raht_bits, scale_bits, blocks: int):
-    """ATTR chunk payload for the given bit-widths (int, or [7, B] / [3, B] arrays), the
-    attributes the decoder will reconstruct, and per-part byte counts."""
+def attribute_chunk(layer: Layer, raht_bits, scale_bits, blocks: int):
+    """One layer's ATTR chunk payload for the given bit-widths (int, or [7, B] / [3, B] arrays),
+    the attributes the decoder will reconstruct, and per-part byte counts."""
     from gsz.decoder.raht import raht_inverse
 
     w = Writer()
-    w.u8(ROTATION_EULER_ZYX).u8(len(RAHT_CHANNELS)).array(stage.raht_dc, np.float64)
-    ac_bytes, ac_rec = write_channel_set(stage.raht_ac, raht_bits, blocks)
-    sc_bytes, sc_rec = write_channel_set(stage.scales, scale_bits, blocks)
+    w.u8(ROTATION_EULER_ZYX).u8(len(RAHT_CHANNELS)).array(layer.raht_dc, np.float64)
+    ac_bytes, ac_rec = write_channel_set(layer.raht_ac, raht_bits, blocks)
+    sc_bytes, sc_rec = write_channel_set(layer.scales, scale_bits, blocks)
     w.bytes(ac_bytes).bytes(sc_bytes)
-    decoded = attributes_from_channels(raht_inverse(stage.raht_dc, ac_rec.T, stage.tree), sc_rec)
+    decoded = attributes_from_channels(raht_inverse(layer.raht_dc, ac_rec.T, layer.tree), sc_rec)
     return w.getvalue(), decoded, {"raht_bytes": len(ac_bytes), "scale_bytes": len(sc_bytes)}
+
+
+def attribute_chunks(stage: Stage, bits, blocks: int):
+    """Every layer's ATTR payload.  ``bits``: an int (uniform) or, per layer, a pair
+    (raht_bits [7, B_l], scale_bits [3, B_l]).  Returns ([payload per layer], decoded
+    Attributes in output order, summed byte counts)."""
+    from gsz.decoder.attributes import Attributes
+
+    payloads, parts, stats = [], [], {"raht_bytes": 0, "scale_bytes": 0}
+    for li, (layer, b) in enumerate(zip(stage.layers, stage.layer_blocks(blocks))):
+        rb, sb = (bits, bits) if np.isscalar(bits) else bits[li]
+        data, dec, st = attribute_chunk(layer, rb, sb, b)
+        payloads.append(data)
+        parts.append(dec)
+        for k in stats:
+            stats[k] += st[k]
+    decoded = Attributes(**{f: np.concatenate([getattr(p, f) for p in parts])
+                            for f in ("opacities", "rotations", "sh_dc", "scales")})
+    return payloads, decoded, stats
 
 
 def default_codebook_size(m: int, requested: int | None = None) -> int:
@@ -220,10 +336,12 @@ def train_sh_codebook(stage: Stage, size: int, *, seed: int = 0, iters=None,
 
 
 def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks: int):
-    """SHVQ chunk payload, the SH the decoder will reconstruct ([M, K, 3] float32), and stats.
+    """SHVQ payloads (one per layer), the SH the decoder will reconstruct ([M, K, 3] float32,
+    output order), and stats.
 
     The ``keep`` most important Gaussians keep their exact vectors (quantised at sh_bits like
-    the codebook); every other Gaussian takes its nearest codeword."""
+    the codebook); every other Gaussian takes its nearest codeword.  Layer 0 carries the
+    codebook (compacted to the codewords some layer uses); later layers refer to it."""
     from .rans import encode_stream
     from .vq import assign, compact
 
@@ -231,46 +349,65 @@ def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks
     keep = min(int(keep), m)
     kept = _top_k_mask(stage.importance, keep)
     rest = ~kept
+    idx_all = np.zeros(m, np.int64)
     if rest.any():
         cb, idx = compact(codebook, assign(stage.sh[rest], codebook))
+        idx_all[rest] = idx
     else:
-        cb, idx = np.zeros((1, d), np.float32), np.zeros(0, np.int32)
-    w = Writer()
-    w.u32(cb.shape[0]).u32(keep).u16(d)
+        cb = np.zeros((1, d), np.float32)
     cb_bytes, cb_rec = write_channel_set(cb.T, sh_bits, blocks)
-    w.bytes(cb_bytes)
     out = np.empty((m, d), np.float32)
-    stats = {"kept": keep, "codebook_size": int(cb.shape[0]), "codebook_bytes": len(cb_bytes)}
-    if keep:
-        kept_bytes, kept_rec = write_channel_set(stage.sh[kept].T, sh_bits, blocks)
-        w.bytes(kept_bytes)
-        flags = encode_stream(kept.astype(np.int64), np.zeros(m, np.int64), 1)
-        w.blob(flags)
-        out[kept] = kept_rec.T
-        stats["kept_bytes"] = len(kept_bytes) + len(flags) + 8
-    idx_blob = encode_stream(idx.astype(np.int64), np.zeros(idx.size, np.int64), 1)
-    w.blob(idx_blob)
-    out[rest] = cb_rec.T[idx]
-    stats["index_bytes"] = len(idx_blob) + 8
+    out[rest] = cb_rec.T[idx_all[rest]]
+    stats = {"kept": keep, "codebook_size": int(cb.shape[0]), "codebook_bytes": len(cb_bytes),
+             "kept_bytes": 0, "index_bytes": 0}
+    kept_counts = [int(kept[l.index].sum()) for l in stage.layers]
+    kept_blocks = scaled_blocks(blocks, kept_counts)
+    payloads = []
+    for li, layer in enumerate(stage.layers):
+        ml = layer.num_points
+        k_l = kept[layer.index]
+        p = kept_counts[li]
+        w = Writer()
+        w.u32(cb.shape[0] if li == 0 else 0).u32(p).u16(d)
+        if li == 0:
+            w.bytes(cb_bytes)
+        if p:
+            sel = layer.index[k_l]
+            kept_bytes, kept_rec = write_channel_set(stage.sh[sel].T, sh_bits, kept_blocks[li])
+            w.bytes(kept_bytes)
+            flags = encode_stream(k_l.astype(np.int64), np.zeros(ml, np.int64), 1)
+            w.blob(flags)
+            out[sel] = kept_rec.T
+            stats["kept_bytes"] += len(kept_bytes) + len(flags) + 8
+        li_idx = idx_all[layer.index[~k_l]]
+        idx_blob = encode_stream(li_idx, np.zeros(li_idx.size, np.int64), 1)
+        w.blob(idx_blob)
+        stats["index_bytes"] += len(idx_blob) + 8
+        payloads.append(w.getvalue())
     k = m and d // 3
-    return w.getvalue(), out.reshape(m, k, 3), stats
+    return payloads, out[stage.order].reshape(m, k, 3), stats
 
 
-def assemble(stage: Stage, attr: bytes, decoded, sh: bytes | None, sh_rest, meta: dict):
-    """The .gsz bytes and the cloud the decoder will reconstruct."""
+def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: dict):
+    """The .gsz bytes and the cloud the decoder will reconstruct.
+
+    attr / sh   per-layer ATTR / SHVQ payloads; decoded, sh_rest in output order"""
     import zstandard
     from gsz.decoder.geometry import voxel_centres
 
     vox = stage.vox
     m = stage.num_points
     out_cloud = GaussianCloud(
-        positions=voxel_centres(vox.ijk, vox.origin, vox.side, stage.depth).astype(np.float32),
+        positions=voxel_centres(vox.ijk[stage.order], vox.origin, vox.side, stage.depth).astype(np.float32),
         scales=decoded.scales, rotations=decoded.rotations, opacities=decoded.opacities,
         sh_dc=decoded.sh_dc, sh_rest=sh_rest if sh is not None else np.zeros((m, 0, 3), np.float32),
         sh_degree=stage.sh_degree)
-    chunks = [Chunk(CHUNK_GEOM, stage.geometry, CHUNK_REQUIRED), Chunk(CHUNK_ATTR, attr, CHUNK_REQUIRED)]
-    if sh is not None:
-        chunks.append(Chunk(CHUNK_SHVQ, sh, CHUNK_REQUIRED))
+    chunks = []
+    for li, layer in enumerate(stage.layers):
+        flags = CHUNK_REQUIRED | (li << LAYER_SHIFT)
+        chunks += [Chunk(CHUNK_GEOM, layer.geometry, flags), Chunk(CHUNK_ATTR, attr[li], flags)]
+        if sh is not None:
+            chunks.append(Chunk(CHUNK_SHVQ, sh[li], flags))
     meta_bytes = zstandard.ZstdCompressor(level=19).compress(
         json.dumps(meta, sort_keys=True, separators=(",", ":"), default=float).encode())
     chunks.append(Chunk(CHUNK_META, meta_bytes, 0))
@@ -317,10 +454,11 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
         if importance.shape != (n_in,) or not np.all(np.isfinite(importance)):
             raise EncodeOptionsError(f"importance must be {n_in} finite values")
     stage = prepare_stage(cloud, importance, opts.reserve, depth=opts.depth,
-                          rel_error=opts.rel_error, progress=progress)
+                          rel_error=opts.rel_error, layers=opts.layers, first_layer=opts.first_layer,
+                          progress=progress)
     m = stage.num_points
     with progress.stage("attributes", f"{opts.bits} bits, {opts.blocks} blocks"):
-        attr, decoded, attr_stats = attribute_chunk(stage, opts.bits, opts.bits, opts.blocks)
+        attr, decoded, attr_stats = attribute_chunks(stage, opts.bits, opts.blocks)
     sh = sh_rest = None
     sh_stats = {}
     if cloud.sh_degree > 0:
@@ -334,10 +472,10 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
         meta = {"encoder": "gsz 0.1.0", "codec": "mesongs++", "options": options_json,
                 "input_gaussians": n_in, "voxels": m}
         data, out_cloud, meta_len = assemble(stage, attr, decoded, sh, sh_rest, meta)
-    sizes = {"geometry": len(stage.geometry), "attributes": len(attr), **attr_stats,
+    sizes = {"geometry": stage.geometry_bytes, "attributes": sum(map(len, attr)), **attr_stats,
              "metadata": meta_len}
     if sh is not None:
-        sizes["sh"] = len(sh)
+        sizes["sh"] = sum(map(len, sh))
         sizes.update({f"sh_{k}": v for k, v in sh_stats.items() if k.endswith("bytes")})
     sizes["container_overhead"] = len(data) - sum(sizes[k] for k in ("geometry", "attributes", "metadata")) \
         - sizes.get("sh", 0)
@@ -347,6 +485,16 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
         "merged_fraction": stage.vox.merged_fraction, "sh_degree": cloud.sh_degree, "components": sizes,
         "sh": {k: v for k, v in sh_stats.items() if not k.endswith("bytes")},
         "seconds": dict(progress.seconds), "total_seconds": time.perf_counter() - t_start,
-        "options": options_json,
+        "options": options_json, "layers": layer_report(data),
     }
     return EncodeResult(data=data, cloud=out_cloud, report=report)
+
+
+def layer_report(data: bytes) -> list[dict]:
+    """Per layer of an encoded file: Gaussians and the prefix length that makes it decodable."""
+    from gsz.decoder.container import read_container
+    from gsz.decoder.decode import layer_table
+    rows = layer_table(read_container(data))
+    for r in rows:
+        r["decodable_fraction"] = r["decodable_at"] / len(data)
+    return rows

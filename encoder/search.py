@@ -29,9 +29,10 @@ import numpy as np
 from gsz.decoder.errors import GszError
 from gsz.decoder.groups import blocks_for
 
-from .pipeline import (EncodeOptions, EncodeResult, Stage, assemble, attribute_chunk,
-                       compute_train_importance, default_codebook_size, prepare_stage, sh_chunk,
-                       train_sh_codebook)
+from .pipeline import (DEFAULT_FIRST_LAYER, DEFAULT_LAYERS, EncodeOptions, EncodeOptionsError,
+                       EncodeResult, Stage, assemble, attribute_chunks, check_layer_options,
+                       compute_train_importance, default_codebook_size, layer_report, prepare_stage,
+                       sh_chunk, train_sh_codebook)
 from .progress import Progress
 
 SH_BITS = 8          # codebook and kept SH vectors (the paper's setting)
@@ -60,6 +61,9 @@ class SearchOptions:
     max_rounds      calibration rounds per tau
     solver          "fast" (convex hull + repair) or "cbc" (PuLP, the paper's ILP)
     eval_views      train views rendered to compare candidates; eval_width their width
+    layers          importance-ordered layers of the file (progressive streaming); the bit
+                    allocation runs over the groups of every layer at once
+    first_layer     fraction of the Gaussians in layer 0 (when layers > 1)
     """
 
     reserves: tuple = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)
@@ -76,6 +80,8 @@ class SearchOptions:
     train_views: int = 24
     importance_width: int = 400
     vq_iters: int | None = None
+    layers: int = DEFAULT_LAYERS
+    first_layer: float = DEFAULT_FIRST_LAYER
     seed: int = 0
 
 
@@ -154,8 +160,10 @@ def _attribute_tables(stage: Stage, blocks: int, weights: dict | None = None):
     from .rate import rate_matrix
     losses, rates, shapes = [], [], []
     w_sets = (None, None) if weights is None else (weights["raht"], weights["scales"])
-    for x, w in zip((stage.raht_ac, stage.scales), w_sets):
-        b = blocks_for(x.shape[1], blocks)
+    sets = [(x, w, lb) for layer, lb in zip(stage.layers, stage.layer_blocks(blocks))
+            for x, w in zip((layer.raht_ac, layer.scales), w_sets)]
+    for x, w, lb in sets:
+        b = blocks_for(x.shape[1], lb)
         if x.shape[1]:
             _, _, _, loss = quantize_all_bits(x, b)
             if w is not None:
@@ -175,10 +183,20 @@ def _group_meta_bytes(shapes) -> int:
     return sum(16 + 9 * c * b for c, b in shapes)
 
 
-def _split_bits(pick: np.ndarray, shapes):
-    (c1, b1), (c2, b2) = shapes
+def _split_bits(pick: np.ndarray, shapes) -> list:
+    """Per layer, (raht_bits [7, B_l], scale_bits [3, B_l]) from the solver's pick over every
+    layer's groups (order: layer 0 RAHT, layer 0 scales, layer 1 RAHT, ...)."""
     bits = pick.astype(np.int64) + 1
-    return bits[:c1 * b1].reshape(c1, b1), bits[c1 * b1:].reshape(c2, b2)
+    out, pos = [], 0
+    for c, b in shapes:
+        out.append(bits[pos:pos + c * b].reshape(c, b))
+        pos += c * b
+    return [(out[i], out[i + 1]) for i in range(0, len(out), 2)]
+
+
+def _concat_bits(bits: list) -> tuple[np.ndarray, np.ndarray]:
+    """Every layer's blocks side by side: ([7, sum B_l], [3, sum B_l]) for reports/heatmaps."""
+    return (np.concatenate([r for r, _ in bits], axis=1), np.concatenate([s for _, s in bits], axis=1))
 
 
 @dataclass
@@ -235,7 +253,8 @@ class _ShModel:
         q = keep / m
         h2 = 0.0 if q in (0.0, 1.0) else -(q * math.log2(q) + (1 - q) * math.log2(1 - q))
         nbytes = (self.codebook_bytes + (keep * self.bits_per_kept + (m - keep) * self.index_bits
-                  + (m * h2 if keep else 0)) / 8 + (9 * self.d * blocks_for(keep, self.blocks) if keep else 0) + 64)
+                  + (m * h2 if keep else 0)) / 8 + (9 * self.d * blocks_for(keep, self.blocks) if keep else 0)
+                  + 64 * len(self.stage.layers))
         loss = (self.cum_vq[-1] - self.cum_vq[keep]) + self.cum_keep[min(keep, len(self.cum_keep) - 1)]
         return nbytes, loss
 
@@ -247,6 +266,10 @@ class _ShModel:
 
 def _container_overhead(num_chunks: int) -> int:
     return 64 + 24 * num_chunks + 4
+
+
+def _num_chunks(stage: Stage) -> int:
+    return len(stage.layers) * (3 if stage.sh.shape[1] else 2) + 1
 
 
 def _meta(stage: Stage, sopts: SearchOptions, target: int, extra: dict) -> dict:
@@ -268,10 +291,9 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list
 
     with progress.stage("tables", f"tau {stage.reserve}: loss + rate matrices"):
         loss, rate, shapes = _attribute_tables(stage, sopts.blocks, weights)
-    n_chunks = 4 if sh_models else 3
     meta_guess = 400
-    base_fixed = (_container_overhead(n_chunks) + len(stage.geometry) + meta_guess
-                  + 2 + 8 * 7 + _group_meta_bytes(shapes))
+    base_fixed = (_container_overhead(_num_chunks(stage)) + stage.geometry_bytes + meta_guess
+                  + (2 + 8 * 7) * len(stage.layers) + _group_meta_bytes(shapes))
 
     # --- joint choice of the SH keep-count and the attribute allocation ---------------------
     sh_plan = None
@@ -293,8 +315,8 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list
             # estimates say nothing fits: try the cheapest SH anyway, calibration decides
             sh_plan = (sh_models[-1].encode(0) if best is None else best[1].encode(best[2]))
             progress.log(f"tau {stage.reserve}: keep {sh_plan.keep} exact SH vectors "
-                         f"(SH chunk {len(sh_plan.chunk):,} B)")
-    fixed = base_fixed - _group_meta_bytes(shapes) + (len(sh_plan.chunk) if sh_plan else 0)
+                         f"(SH chunks {sum(map(len, sh_plan.chunk)):,} B)")
+    fixed = base_fixed - _group_meta_bytes(shapes) + (sum(map(len, sh_plan.chunk)) if sh_plan else 0)
 
     # --- calibration: find the largest solver budget whose real file fits ------------------
     # The estimate's error (actual - predicted) drifts slowly, so the first step corrects by the
@@ -318,15 +340,16 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list
         if key in tried:
             data, cloud, info = tried[key]
         else:
-            raht_bits, scale_bits = _split_bits(pick, shapes)
+            layer_bits = _split_bits(pick, shapes)
+            raht_bits, scale_bits = _concat_bits(layer_bits)
             with progress.stage("calibrate", f"tau {stage.reserve} round {rnd + 1}"):
-                attr, decoded, attr_stats = attribute_chunk(stage, raht_bits, scale_bits, sopts.blocks)
+                attr, decoded, attr_stats = attribute_chunks(stage, layer_bits, sopts.blocks)
                 extra = {"sh_keep": sh_plan.keep if sh_plan else 0}
                 data, cloud, meta_len = assemble(stage, attr, decoded, sh_plan.chunk if sh_plan else None,
                                                  sh_plan.sh_rest if sh_plan else None,
                                                  _meta(stage, sopts, target, extra))
-            info = {"pick": pick, "raht_bits": raht_bits, "scale_bits": scale_bits,
-                    "attr_stats": attr_stats, "attr_bytes": len(attr), "meta_bytes": meta_len,
+            info = {"pick": pick, "raht_bits": raht_bits, "scale_bits": scale_bits, "layer_bits": layer_bits,
+                    "attr_stats": attr_stats, "attr_bytes": sum(map(len, attr)), "meta_bytes": meta_len,
                     "predicted_bytes": fixed + group_meta + float(rate[np.arange(len(pick)), pick].sum()) / 8,
                     "loss": float(loss[np.arange(len(pick)), pick].sum())}
             tried[key] = (data, cloud, info)
@@ -373,10 +396,11 @@ def _solve_max(loss, rate) -> np.ndarray:
 def _size_bounds(stage: Stage, blocks: int) -> tuple[float, float]:
     """Rough (min, max) file bytes at this tau: all groups at 1 bit / at 16 bits."""
     from .rate import rate_matrix
-    lo = hi = len(stage.geometry) + 400.0
-    for x in (stage.raht_ac, stage.scales):
+    lo = hi = stage.geometry_bytes + 400.0
+    for x, lb in [(x, lb) for layer, lb in zip(stage.layers, stage.layer_blocks(blocks))
+                  for x in (layer.raht_ac, layer.scales)]:
         if x.shape[1]:
-            b = blocks_for(x.shape[1], blocks)
+            b = blocks_for(x.shape[1], lb)
             r = rate_matrix(x, b)
             lo += r[:, :, 0].sum() / 8 + 9 * r.shape[0] * b
             hi += r[:, :, 15].sum() / 8 + 9 * r.shape[0] * b
@@ -401,6 +425,10 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     from .evaluate import evaluate, render_views
 
     sopts = options or SearchOptions()
+
+    def bad(msg):
+        raise EncodeOptionsError(msg)
+    check_layer_options(sopts.layers, sopts.first_layer, bad)
     progress = progress or Progress(quiet=True)
     target = int(target_bytes)
     if target <= 0:
@@ -419,7 +447,8 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
 
     def stage_for(tau):
         if tau not in stages:
-            stages[tau] = prepare_stage(cloud, importance, tau, depth=depth, progress=progress)
+            stages[tau] = prepare_stage(cloud, importance, tau, depth=depth, layers=sopts.layers,
+                                        first_layer=sopts.first_layer, progress=progress)
         return stages[tau]
 
     taus = sorted(set(float(t) for t in sopts.reserves), reverse=True)
@@ -506,6 +535,8 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
         "bytes_per_gaussian": len(data) / stage.num_points, "sh_degree": cloud.sh_degree,
         "codebook_size": int(sh_plan.stats["codebook_size"]) if sh_plan else 0,
         "sh_keep": int(sh_plan.keep) if sh_plan else 0,
+        "layers": layer_report(data),
+        "layer_blocks": [int(b.shape[1]) for b, _ in info["layer_bits"]],
         "bits": {"raht": info["raht_bits"].tolist(), "scales": info["scale_bits"].tolist(),
                  "raht_channels": ["opacity", "roll", "pitch", "yaw", "f_dc_0", "f_dc_1", "f_dc_2"],
                  "scale_channels": ["scale_0", "scale_1", "scale_2"], "sh": SH_BITS if sh_plan else None},
@@ -513,8 +544,8 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
         "candidates": [{"reserve": c[1], "bytes": len(c[2]), "train_psnr": c[0], "train_ssim": c[5]}
                        for c in sorted(candidates, key=lambda c: -c[1])],
         "train_psnr": psnr, "channel_weights": weights,
-        "components": {"geometry": len(stage.geometry), "attributes": info["attr_bytes"],
-                       **info["attr_stats"], "sh": len(sh_plan.chunk) if sh_plan else 0,
+        "components": {"geometry": stage.geometry_bytes, "attributes": info["attr_bytes"],
+                       **info["attr_stats"], "sh": sum(map(len, sh_plan.chunk)) if sh_plan else 0,
                        "metadata": info["meta_bytes"]},
         "seconds": dict(progress.seconds), "total_seconds": time.perf_counter() - t0,
     }
@@ -534,6 +565,6 @@ def _smallest_file(stage: Stage, sopts: SearchOptions, codebook) -> int:
     sh = sh_rest = None
     if codebook is not None:
         sh, sh_rest, _ = sh_chunk(stage, codebook, 0, SH_BITS, sopts.blocks)
-    attr, decoded, _ = attribute_chunk(stage, 1, 1, sopts.blocks)
+    attr, decoded, _ = attribute_chunks(stage, 1, sopts.blocks)
     data, _, _ = assemble(stage, attr, decoded, sh, sh_rest, _meta(stage, sopts, 0, {"sh_keep": 0}))
     return len(data)

@@ -22,7 +22,7 @@ def channel_sets(which: str):
     cloud = gsz.read_ply({"sh0": SAMPLE_SH0, "sh3": SAMPLE_SH3}[which])
     from gsz.encoder.pipeline import prepare_stage
     stage = prepare_stage(cloud, np.ones(len(cloud)), 1.0)   # every Gaussian kept
-    return stage.raht_ac, stage.scales
+    return stage.layers[0].raht_ac, stage.layers[0].scales
 
 
 @functools.lru_cache(maxsize=None)

@@ -20,7 +20,7 @@ def channel_sets(path):
     cloud = gsz.read_ply(path)
     from gsz.encoder.pipeline import prepare_stage
     stage = prepare_stage(cloud, np.ones(len(cloud)), 1.0)   # every Gaussian kept
-    return {"ac": stage.raht_ac, "scales": stage.scales}
+    return {"ac": stage.layers[0].raht_ac, "scales": stage.layers[0].scales}
 
 
 def real_vs_predicted(x, blocks, allocations):
