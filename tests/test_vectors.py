@@ -28,3 +28,18 @@ def test_vector_decodes_to_expected_values(name):
         assert list(a.shape) == e["shape"], f
         assert hashlib.sha256(a.tobytes()).hexdigest() == e["sha256"], f
         np.testing.assert_array_equal(a.reshape(len(cloud), -1)[:2], np.asarray(e["first"], "<f4").reshape(2, -1))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_vector_layers_decode_as_prefixes(name):
+    from gsz.decoder import StreamDecoder
+    exp = json.loads((VEC / f"{name}.json").read_text())
+    data = (VEC / f"{name}.gsz").read_bytes()
+    full = decode(data)
+    dec = StreamDecoder()
+    got = []
+    for row in exp["layers"]:
+        got += dec.feed(data[dec.bytes_received:row["decodable_at"]])
+        assert len(got) == row["layer"] + 1 and len(got[-1].cloud) == row["cumulative_gaussians"]
+        np.testing.assert_array_equal(got[-1].cloud.positions, full.positions[:row["cumulative_gaussians"]])
+    assert exp["layers"][-1]["cumulative_gaussians"] == exp["num_gaussians"]

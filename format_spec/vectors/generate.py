@@ -25,6 +25,9 @@ VECTORS = [
     ("sh0_plant_200", "houseplant_sh0_20k.ply", 200, 0, dict(reserve=1.0, bits=10)),
     ("sh1_jug_150", "measuring_jug_sh3_12k.ply", 150, 1, dict(reserve=0.9, bits=8, codebook=16, keep=10)),
     ("sh3_jug_300", "measuring_jug_sh3_12k.ply", 300, 3, dict(reserve=0.8, bits=12, codebook=32, keep=20)),
+    # three importance layers (GSZ.md §5): per-layer GEOM/ATTR/SHVQ, codebook in layer 0 only
+    ("sh2_jug_400_layers3", "measuring_jug_sh3_12k.ply", 400, 2,
+     dict(reserve=0.9, bits=10, codebook=24, keep=30, layers=3, first_layer=0.2)),
 ]
 
 
@@ -39,7 +42,7 @@ def expected_values(cloud) -> dict:
 
 def main():
     import gsz
-    from gsz.decoder import decode
+    from gsz.decoder import decode, inspect
     from gsz.encoder.pipeline import EncodeOptions, encode
 
     for name, sample, n, degree, opts in VECTORS:
@@ -52,7 +55,9 @@ def main():
         assert dec.equals(res.cloud)
         exp = expected_values(dec)
         exp.update(file=f"{name}.gsz", file_sha256=hashlib.sha256(res.data).hexdigest(),
-                   bytes=len(res.data), encoder_options=opts)
+                   bytes=len(res.data), encoder_options=opts,
+                   layers=[{k: r[k] for k in ("layer", "gaussians", "cumulative_gaussians", "decodable_at")}
+                           for r in inspect(res.data)["layers"]])
         (HERE / f"{name}.json").write_text(json.dumps(exp, indent=1) + "\n")
         print(f"{name}: {len(res.data)} bytes, {len(dec)} Gaussians")
 
