@@ -71,3 +71,27 @@ def test_bad_inputs_give_one_line_errors_and_no_output(tmp_path):
     assert not (tmp_path / "y.ply").exists()
     p = run("info", tmp_path / "missing.gsz", check=False)
     assert p.returncode == 2 and "not found" in p.stderr
+
+
+def test_layered_encode_decode_first_layers_and_partial(tmp_path):
+    out = tmp_path / "layered.gsz"
+    p = run("encode", SAMPLE_SH0, "-o", out, "--bits", "8", "--layers", "3", "--json", *FAST)
+    report = json.loads(p.stdout)
+    layers = report["layers"]
+    assert len(layers) == 3 and "geometry - layer 2" in p.stderr
+    text = run("info", out).stdout
+    assert "decodable at" in text and f"{layers[0]['gaussians']:,}" in text
+    info = json.loads(run("info", out, "--json").stdout)
+    assert [r["cumulative_gaussians"] for r in info["layers"]] == [r["cumulative_gaussians"] for r in layers]
+    first = tmp_path / "first.ply"
+    run("decode", out, "-o", first, "--layers", "1")
+    assert len(gsz.read_ply(first)) == layers[0]["gaussians"]
+    cut = tmp_path / "cut.gsz"
+    cut.write_bytes(out.read_bytes()[:layers[1]["decodable_at"] + 3])
+    bad = run("decode", cut, "-o", tmp_path / "x.ply", check=False)
+    assert bad.returncode == 2 and "truncated" in bad.stderr and "--partial" in bad.stderr
+    assert not (tmp_path / "x.ply").exists()
+    part = run("decode", cut, "-o", tmp_path / "part.ply", "--partial", "--json")
+    assert "warning: " in part.stderr and "decoded 2 of 3 layers" in part.stderr
+    assert json.loads(part.stdout)["num_gaussians"] == layers[1]["cumulative_gaussians"]
+    assert run("encode", SAMPLE_SH0, "-o", tmp_path / "y.gsz", "--layers", "0", check=False).returncode == 2
