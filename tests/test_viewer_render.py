@@ -178,3 +178,26 @@ def test_cli_errors(ctx, tmp_path, capsys):
     with pytest.raises(SystemExit) as e:   # argparse: --compare and --budgets exclude each other
         _run_cli([SAMPLE_SH0, "--compare", SAMPLE_SH0, "--budgets", "1MB"], capsys)
     assert e.value.code == 2
+
+
+def test_cli_screenshot_of_the_first_layers_of_a_layered_file(ctx, tmp_path, capsys):
+    from gsz.decoder import decode, inspect
+    from codec_util import encoded
+    res = encoded("sh0", 3000, bits=10, layers=3)
+    path = tmp_path / "layered.gsz"
+    path.write_bytes(res.data)
+    rows = inspect(res.data)["layers"]
+    full = decode(res.data)
+    shots = {}
+    for k in (1, 3):
+        out = tmp_path / f"k{k}.png"
+        rc, _, se = _run_cli([path, "--screenshot", out, "--camera", 2, "--width", W, "--layers", k], capsys)
+        assert rc == 0, se
+        shots[k] = _read_png(out)
+        part = full.subset(np.arange(rows[k - 1]["cumulative_gaussians"]))
+        assert psnr(quantize_8bit(_cpu(part, _cams(full)[2])), shots[k]) >= 30.0
+    assert psnr(shots[3], shots[1]) < 40.0          # layer 0 alone is visibly coarser
+    line = _one_line_error(*_run_cli([path, "--screenshot", tmp_path / "x.png", "--layers", 4], capsys)[::2])
+    assert "has 3 layer(s)" in line
+    line = _one_line_error(*_run_cli([SAMPLE_SH0, "--screenshot", tmp_path / "x.png", "--layers", 1], capsys)[::2])
+    assert "not a .gsz" in line

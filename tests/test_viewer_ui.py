@@ -323,3 +323,28 @@ def test_orbit_never_flips_over_the_pole(sample_sh0):
         # the image's "up" (-y row of R) stays on the scene-up side: no upside-down views
         assert -c.R[1] @ up > 0
         np.testing.assert_allclose(c.R @ c.R.T, np.eye(3), atol=1e-9)
+
+
+def test_layer_prefixes_of_a_layered_file_are_b_choices(window, sample_sh3, tmp_path):
+    """--compare with a layered .gsz: every layer prefix is a B choice, labelled with the bytes a
+    streaming client has received by then, and PSNR rises from layer 0 to the whole file."""
+    from gsz.encoder.pipeline import EncodeOptions, encode
+    res = encode(sample_sh3, EncodeOptions(bits=8, codebook=64, train_views=2, importance_width=64,
+                                           vq_iters=2, layers=3))
+    path = tmp_path / "layered.gsz"
+    path.write_bytes(res.data)
+    b = va.scene_from_file(path, "decoded")
+    more = va.layer_prefix_scenes(b)
+    assert [s.name for s in more] == ["decoded (layer 0)", "decoded (layers 0-1)"]
+    assert more[0].file_bytes < more[1].file_bytes < b.file_bytes
+    app = _app(window, sample_sh3, b, more_b=more)
+    try:
+        psnrs = []
+        for i in (1, 2, 0):
+            app.set_b(i)
+            _frame(window, app)
+            app.request_metrics(wait=True)
+            psnrs.append(app.current_metrics()["psnr"])
+        assert psnrs[0] < psnrs[1] < psnrs[2], psnrs
+    finally:
+        app.close()

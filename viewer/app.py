@@ -110,6 +110,13 @@ class Scene:
     components: dict = field(default_factory=dict)
     renderer: SplatRenderer | None = None
     sorter: DepthSorter | None = None
+    whole: GaussianCloud | None = None      # for a layer prefix: the whole file's cloud
+
+    @property
+    def frame_cloud(self) -> GaussianCloud:
+        """The cloud that defines default cameras and the up axis (the whole scene, also when
+        only some layers are shown, so views stay comparable)."""
+        return self.whole if self.whole is not None else self.cloud
 
     @property
     def label(self) -> str:
@@ -146,6 +153,23 @@ def scene_from_bytes(name: str, data: bytes, cloud: GaussianCloud | None = None)
     except Exception:
         comps = {}
     return Scene(name, cloud, None, len(data), comps)
+
+
+def layer_prefix_scenes(scene: Scene) -> list:
+    """For a scene decoded from a layered .gsz: one scene per proper prefix of its layers (what a
+    streaming client shows after layer 0, after layers 0-1, ...), each labelled with the bytes
+    received by then.  [] for single-layer files and PLYs."""
+    if not scene.path or not scene.path.lower().endswith(".gsz"):
+        return []
+    from gsz.decoder import inspect
+    rows = inspect(scene.path)["layers"]
+    out = []
+    for r in rows[:-1]:
+        n = r["cumulative_gaussians"]
+        name = f"{scene.name} (layer 0)" if r["layer"] == 0 else f"{scene.name} (layers 0-{r['layer']})"
+        out.append(Scene(name, scene.cloud.subset(np.arange(n)), scene.path, r["decodable_at"], {},
+                         whole=scene.cloud))
+    return out
 
 
 # ------------------------------------------------------------------------------------------------
@@ -189,7 +213,7 @@ class ViewerApp:
     def __init__(self, ctx, a: Scene, b: Scene | None = None, *, cameras, up,
                  width: int = 1280, height: int = 720, settings: Settings | None = None,
                  threaded_sort: bool = True, budget_jobs=None, screenshot_dir: str = ".",
-                 camera_index: int = 0):
+                 camera_index: int = 0, more_b=()):
         import moderngl
         self.ctx = ctx
         self._mgl = moderngl
@@ -209,7 +233,8 @@ class ViewerApp:
         self.b_index = 0 if b is not None else -1
         if b is not None:
             self.variants.append(b)
-        for s in self.scenes:
+            self.variants += list(more_b)      # e.g. the layer prefixes of a layered B
+        for s in self.scenes + self.variants[1:]:
             self._upload(s)
         self.budget_jobs = budget_jobs
         self._seen_budget_results = 0

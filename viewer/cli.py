@@ -43,6 +43,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "original's default camera set, as gsz-eval)")
     p.add_argument("--up", default="auto", help="scene up axis for default cameras and orbit "
                    "(auto, -y, +y, +z, ...; default auto)")
+    p.add_argument("--layers", type=int, default=None, metavar="K",
+                   help="show only the first K importance layers of a layered .gsz FILE (what a "
+                        "streaming client shows once those layers have arrived); with --compare, "
+                        "every layer prefix is also offered as a B choice")
     p.add_argument("--screenshot", metavar="OUT.png", help="render one frame headless and exit")
     p.add_argument("--camera", type=int, default=0, metavar="I", help="TEST camera index for "
                    "--screenshot and the initial view (default 0)")
@@ -144,16 +148,31 @@ def _settings(args, comparing: bool, a, b):
 def _load_scenes(args):
     """(A = original, B = decoded or None, budget jobs or None)."""
     from .app import scene_from_file
+    if args.layers is not None and (args.layers < 1 or args.budgets):
+        raise _UsageError("--layers must be >= 1 and applies to a .gsz FILE (not with --budgets)")
     if args.compare:
-        b = scene_from_file(args.file, "decoded")
+        b = _first_layers(scene_from_file(args.file, "decoded"), args.layers)
         a = scene_from_file(args.compare, "original")
         return a, b, None
-    a = scene_from_file(args.file, "original" if args.budgets else None)
+    a = _first_layers(scene_from_file(args.file, "original" if args.budgets else None), args.layers)
     jobs = None
     if args.budgets:
         from .budgets import BudgetJobs, parse_budgets
         jobs = BudgetJobs(a.cloud, parse_budgets(args.budgets), start=False)
     return a, None, jobs
+
+
+def _first_layers(scene, k):
+    """The scene cut to its first ``k`` layers (None: unchanged)."""
+    if k is None:
+        return scene
+    from .app import layer_prefix_scenes
+    prefixes = layer_prefix_scenes(scene)
+    if not scene.path or not scene.path.lower().endswith(".gsz"):
+        raise _UsageError(f"--layers {k}: {scene.path} is not a .gsz file")
+    if k > len(prefixes) + 1:
+        raise _UsageError(f"--layers {k}: {scene.path} has {len(prefixes) + 1} layer(s)")
+    return prefixes[k - 1] if k <= len(prefixes) else scene
 
 
 def _screenshot(args, a, b, jobs) -> str:
@@ -163,7 +182,7 @@ def _screenshot(args, a, b, jobs) -> str:
     if width < 1 or (args.height is not None and args.height < 1) or width > 16384 \
             or (args.height or 0) > 16384:
         raise _UsageError("--width/--height must be 1..16384")
-    cams = _load_cameras(args, a.cloud, width)
+    cams = _load_cameras(args, a.frame_cloud, width)
     if not 0 <= args.camera < len(cams.test):
         raise _UsageError(f"--camera {args.camera}: the camera set has {len(cams.test)} test "
                           f"cameras (0..{len(cams.test) - 1})")
@@ -178,7 +197,7 @@ def _screenshot(args, a, b, jobs) -> str:
     comparing = b is not None or jobs is not None
     settings = _settings(args, comparing, a, b)
     ctx = create_headless_context()
-    app = ViewerApp(ctx, a, b, cameras=cams, up=_up_vector(args.up, a.cloud, args.cameras, cams),
+    app = ViewerApp(ctx, a, b, cameras=cams, up=_up_vector(args.up, a.frame_cloud, args.cameras, cams),
                     width=cam.width, height=cam.height, settings=settings, threaded_sort=False,
                     budget_jobs=jobs)
     try:
@@ -225,11 +244,11 @@ def _draw_labels_offscreen(app) -> None:
 
 
 def _interactive(args, a, b, jobs) -> None:
-    from .app import ViewerApp
+    from .app import ViewerApp, layer_prefix_scenes
     from .window import Window, run
     width = 1280 if args.width is None else args.width
     height = 720 if args.height is None else args.height
-    cams = _load_cameras(args, a.cloud, None)
+    cams = _load_cameras(args, a.frame_cloud, None)
     if not 0 <= args.camera < len(cams.test):
         raise _UsageError(f"--camera {args.camera}: the camera set has {len(cams.test)} test cameras")
     comparing = b is not None or jobs is not None
@@ -238,9 +257,10 @@ def _interactive(args, a, b, jobs) -> None:
     try:
         fw, fh = win.framebuffer_size()
         app = ViewerApp(win.ctx, a, b, cameras=cams,
-                        up=_up_vector(args.up, a.cloud, args.cameras, cams),
+                        up=_up_vector(args.up, a.frame_cloud, args.cameras, cams),
                         width=fw, height=fh, settings=settings, budget_jobs=jobs,
-                        camera_index=args.camera)
+                        camera_index=args.camera,
+                        more_b=layer_prefix_scenes(b) if b is not None and args.layers is None else ())
         if args.render_scale is None and app.is_llvmpipe:
             app.settings.render_scale = 0.5
         if jobs is not None:
