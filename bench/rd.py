@@ -2,7 +2,8 @@
 
     .venv/bin/python bench/rd.py [--scenes a,b] [--noise | --no-noise] [--ratios 8,12,18,27,40]
                                  [--width 800] [--views 8] [--out bench/out/rd.json]
-                                 [--skip-peers] [--peer-timeout 2400] [--verbose]
+                                 [--skip-peers] [--peers sog,compressed.ply,spz]
+                                 [--peer-timeout 2400] [--verbose]
     .venv/bin/python bench/rd.py --report [--out bench/out/rd.json]   # markdown tables, no runs
 
 For every shared scene in ../shared/data (smallest first) and, unless --no-noise, its noised
@@ -380,6 +381,8 @@ def main(argv=None):
     ap.add_argument("--views", type=int, default=8)
     ap.add_argument("--out", default=str(ROOT / "bench" / "out" / "rd.json"))
     ap.add_argument("--skip-peers", action="store_true", help="gsz only (no SOG budget then)")
+    ap.add_argument("--peers", default=",".join(PEERS),
+                    help="which peers to run (default all: sog,compressed.ply,spz)")
     ap.add_argument("--peer-timeout", type=float, default=2400, help="seconds per splat-transform call")
     ap.add_argument("--verbose", action="store_true", help="also print gsz's own stage lines")
     ap.add_argument("--report", action="store_true", help="print markdown tables of --out and exit")
@@ -421,6 +424,14 @@ def main(argv=None):
 
     peer_err = None
     st = env = None
+    selected = [c.strip() for c in a.peers.split(",") if c.strip()]
+    unknown = [c for c in selected if c not in PEERS]
+    if unknown:
+        ap.error(f"--peers: unknown {unknown}, choose from {list(PEERS)}")
+    excluded = [c for c in PEERS if c not in selected]
+    if excluded:
+        log(f"PEERS NOT RUN ({', '.join(excluded)}): not selected with --peers")
+        state["meta"]["peers_excluded"] = excluded
     if a.skip_peers:
         peer_err = "--skip-peers given"
     else:
@@ -450,10 +461,14 @@ def main(argv=None):
         base = gsz.read_ply(path)
         for variant in ["grid"] + (["noised"] if a.noise else []):
             budgets = [(f"{r:g}x", int(ply_bytes / r)) for r in ratios]
-            peer_todo = [c for c in PEERS if (c, scene, variant, None) not in done] if not peer_err else []
+            peer_todo = ([c for c in selected if (c, scene, variant, None) not in done]
+                         if not peer_err else [])
             gsz_todo = [b for b in budgets if ("gsz", scene, variant, b[0]) not in done]
             sog_done = ("gsz", scene, variant, "sog") in done
-            if not peer_todo and not gsz_todo and (sog_done or peer_err):
+            have_sog = any(r["codec"] == "sog" and r["scene"] == scene and r["variant"] == variant
+                           for r in state["rows"])
+            sog_pending = not sog_done and (have_sog or "sog" in peer_todo)
+            if not peer_todo and not gsz_todo and not sog_pending:
                 log(f"{scene} {variant}: all rows present, skipped")
                 continue
             cloud = base if variant == "grid" else add_noise(base)
