@@ -403,11 +403,13 @@ def main(argv=None):
 
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    state = {"meta": {}, "rows": [], "failures": []}
+    # meta: this run; runs: the meta of every run that contributed rows (oldest first)
+    state = {"meta": {}, "runs": [], "rows": [], "failures": []}
     if out.exists():
         old = json.loads(out.read_text())
         state["rows"] = old.get("rows", [])
         state["failures"] = [f for f in old.get("failures", []) if f.get("permanent")]
+        state["runs"] = old.get("runs") or ([old["meta"]] if old.get("meta") else [])
         log(f"resuming: {len(state['rows'])} rows from {out}")
     done = {(r["codec"], r["scene"], r["variant"], r.get("budget")) for r in state["rows"]}
     done |= {(f["codec"], f["scene"], f["variant"], f.get("budget")) for f in state["failures"]}
@@ -421,6 +423,7 @@ def main(argv=None):
         "sog_flags": PEERS["sog"][1], "opacity_clamp": OPACITY_CLAMP,
         "search_options": {k: getattr(sopts, k) for k in sopts.__dataclass_fields__},
         "gsz": gsz_source(gsz), "started": time.strftime("%Y-%m-%d %H:%M:%S")})
+    state["runs"].append(state["meta"])
 
     peer_err = None
     st = env = None
