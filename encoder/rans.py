@@ -11,8 +11,10 @@ import math
 import numpy as np
 import zstandard
 
-from gsz.decoder.rans import (COARSE, EMPTY, LAPLACE, MAX_LEVEL_EXP, MAX_PRECISION, MAX_SPAN,
-                              RATIO_ONE, SINGLE, STATE_LOW, VALUE_LIMIT, WORD_BITS, ModelSet,
+from gsz.decoder.errors import GszFormatError
+from gsz.decoder.rans import (COARSE, EMPTY, LAPLACE, LAPLACE_SCALE_BITS, MAX_LEVEL_EXP,
+                              MAX_PRECISION, MAX_SPAN, RATIO_ONE, SINGLE, STATE_LOW, VALUE_LIMIT,
+                              WORD_BITS, ModelSet,
                               laplace_weights, level_weights, lut_budget, max_level_code,
                               ratio_from_code)
 
@@ -67,32 +69,101 @@ def zigzag(v: np.ndarray) -> np.ndarray:
 
 
 # ---- fitting -----------------------------------------------------------------------------------
-def _histograms(symbols: np.ndarray, model_ids: np.ndarray, num_models: int):
-    """Per-model (lo, hi, counts over lo..hi) for models that occur; counts int64."""
+class _Hist:
+    """Sparse per-model histograms of a symbol stream.
+
+    Entries e (distinct (model, value) pairs that occur) sorted by model then value:
+    ``em`` model, ``eo`` value - lo[model], ``ec`` count.  Per model (length M): ``lo``, ``span``
+    (hi - lo), ``total`` (symbols), ``k`` (distinct values), ``start`` (first entry).
+    ``sym_entry`` (optional): the entry of every symbol.
+    """
+
+    __slots__ = ("num_models", "em", "eo", "ec", "lo", "span", "total", "k", "start", "sym_entry")
+
+
+# dense (model, value) counting when the models' ranges hold at most this many cells
+_DENSE_CELLS_PER_SYMBOL = 4
+_DENSE_CELLS_MIN = 1 << 22
+
+
+def _histograms(symbols: np.ndarray, model_ids: np.ndarray, num_models: int,
+                symbol_entries: bool = False) -> _Hist:
+    """Sparse histograms of (symbols, model_ids); ValueError on mismatched sizes, ids outside
+    0..num_models-1, and per model (first offending model first) a span above 65536 or values
+    outside int32."""
     sym = np.asarray(symbols, dtype=np.int64).ravel()
     mid = np.asarray(model_ids, dtype=np.int64).ravel()
     if sym.size != mid.size:
         raise ValueError(f"{sym.size} symbols but {mid.size} model ids")
     if mid.size and (mid.min() < 0 or mid.max() >= num_models):
         raise ValueError(f"model ids must lie in 0..{num_models - 1}")
-    out = [None] * num_models
+    m_count = int(num_models)
+    h = _Hist()
+    h.num_models = m_count
+    total = np.bincount(mid, minlength=m_count).astype(np.int64) if mid.size \
+        else np.zeros(m_count, np.int64)
+    lo = np.zeros(m_count, np.int64)
+    hi = np.zeros(m_count, np.int64)
+    if mid.size:
+        if mid.size > 1 and np.all(mid[1:] >= mid[:-1]):       # sorted ids: segment reductions
+            starts = np.flatnonzero(np.r_[True, mid[1:] != mid[:-1]])
+            ids = mid[starts]
+            lo[ids] = np.minimum.reduceat(sym, starts)
+            hi[ids] = np.maximum.reduceat(sym, starts)
+        else:
+            lo_all = np.full(m_count, np.iinfo(np.int64).max)
+            hi_all = np.full(m_count, np.iinfo(np.int64).min)
+            np.minimum.at(lo_all, mid, sym)
+            np.maximum.at(hi_all, mid, sym)
+            used = total > 0
+            lo[used] = lo_all[used]
+            hi[used] = hi_all[used]
+    span = hi - lo
+    bad = (span > MAX_SPAN) | (lo < -VALUE_LIMIT) | (hi >= VALUE_LIMIT)
+    if np.any(bad):
+        m = int(np.flatnonzero(bad)[0])
+        if span[m] > MAX_SPAN:
+            raise ValueError(f"model {m}: value span {int(span[m])} exceeds 65536")
+        raise ValueError(f"model {m}: values outside int32")
+    size = np.where(total > 0, span + 1, 0)
+    ends = np.cumsum(size)
+    dstart = ends - size
+    cells = int(ends[-1]) if m_count else 0
+    h.sym_entry = None
     if sym.size == 0:
-        return out
-    order = np.argsort(mid, kind="stable")
-    ms = mid[order]
-    ss = sym[order]
-    bounds = np.flatnonzero(np.diff(ms)) + 1
-    starts = np.concatenate([[0], bounds])
-    ends = np.concatenate([bounds, [ms.size]])
-    for a, b in zip(starts, ends):
-        v = ss[a:b]
-        lo, hi = int(v.min()), int(v.max())
-        if hi - lo > MAX_SPAN:
-            raise ValueError(f"model {ms[a]}: value span {hi - lo} exceeds 65536")
-        if lo < -VALUE_LIMIT or hi >= VALUE_LIMIT:
-            raise ValueError(f"model {ms[a]}: values outside int32")
-        out[int(ms[a])] = (lo, hi, np.bincount(v - lo, minlength=hi - lo + 1).astype(np.int64))
-    return out
+        pos = np.zeros(0, np.int64)
+        cnt = np.zeros(0, np.int64)
+    else:
+        key = dstart[mid] + (sym - lo[mid])
+        if cells <= max(_DENSE_CELLS_MIN, _DENSE_CELLS_PER_SYMBOL * sym.size):
+            dense = np.bincount(key, minlength=cells)
+            pos = np.flatnonzero(dense)
+            cnt = dense[pos].astype(np.int64)
+            if symbol_entries:
+                rank = np.zeros(cells, np.int64)
+                rank[pos] = np.arange(pos.size, dtype=np.int64)
+                h.sym_entry = rank[key]
+        else:
+            if symbol_entries:
+                pos, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
+                h.sym_entry = inv.astype(np.int64).ravel()
+            else:
+                pos, cnt = np.unique(key, return_counts=True)
+            cnt = cnt.astype(np.int64)
+    em = np.searchsorted(ends, pos, side="right").astype(np.int64)
+    h.em, h.eo, h.ec = em, pos - dstart[em], cnt
+    h.lo, h.span, h.total = lo, span, total
+    h.k = np.bincount(em, minlength=m_count).astype(np.int64) if em.size \
+        else np.zeros(m_count, np.int64)
+    h.start = np.cumsum(h.k) - h.k
+    return h
+
+
+def _dense_counts(h: _Hist, m: int) -> np.ndarray:
+    a, b = int(h.start[m]), int(h.start[m] + h.k[m])
+    counts = np.zeros(int(h.span[m]) + 1, np.int64)
+    counts[h.eo[a:b]] = h.ec[a:b]
+    return counts
 
 
 def _approx_bits(counts: np.ndarray, w: np.ndarray, n: int) -> float:
@@ -234,27 +305,338 @@ def _fit_one(lo: int, hi: int, counts: np.ndarray):
     return best[1]
 
 
-def _model_set_from_fits(fits: list) -> ModelSet:
-    m_count = len(fits)
-    arrs = {k: np.zeros(m_count, dtype=np.int64)
-            for k in ("types", "lo", "span", "prec", "group", "binshift", "centre", "r_left",
-                      "r_right")}
-    bins, levels = [], []
-    for m, fit in enumerate(fits):
-        if fit is None:
-            continue
-        arrs["types"][m] = fit["type"]
-        for key in ("lo", "span", "prec", "group", "binshift", "centre", "r_left", "r_right"):
-            if key in fit:
-                arrs[key][m] = fit[key]
+# ---- vectorised fitting ------------------------------------------------------------------------
+# fit_model_set evaluates _fit_one's candidate models for all models at once, on the sparse
+# histograms.  The discrete steps (level codes, ratio estimates, weights, precisions) repeat
+# _fit_one's arithmetic element by element; only the cost sums are accumulated in another
+# order, so they can differ from _fit_one's by rounding.  Every choice between candidates whose
+# costs lie within _TIE_REL (relative) of each other is therefore left to _fit_one itself: the
+# fitted model set is exactly the one _fit_one gives.
+_TIE_REL = 1e-9
+_TIE_ABS = 1e-6
+_LOG_RATIO_GAP = np.log(_RATIO_GAP)
+_DENSE_LAPLACE_TABLE = 1 << 23      # entries of the (ratio code, distance) weight table
+
+
+def _floor_log2(x: np.ndarray) -> np.ndarray:
+    """floor(log2(x)) of positive integers < 2**53, exact (int64)."""
+    return np.frexp(np.asarray(x, dtype=np.float64))[1].astype(np.int64) - 1
+
+
+def _segments(starts: np.ndarray, size: int) -> np.ndarray:
+    """Segment index of every position 0..size-1 for the sorted segment starts (first is 0)."""
+    seg = np.zeros(size, np.int64)
+    if starts.size > 1:
+        seg[starts[1:]] = 1
+    return np.cumsum(seg)
+
+
+def _near_tie(costs: np.ndarray) -> np.ndarray:
+    """Rows whose smallest and second smallest finite costs lie within the tie tolerance."""
+    if costs.shape[1] < 2:
+        return np.zeros(costs.shape[0], bool)
+    two = np.partition(costs, 1, axis=1)[:, :2]
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(two[:, 1]) & (two[:, 1] - two[:, 0]
+                                          <= _TIE_REL * np.abs(two[:, 0]) + _TIE_ABS)
+
+
+class _Bins:
+    """The present bins at bin shift ``shift`` of the models where ``sel`` (None: all with
+    data), with what _coarse_codes and _fit_one's coarse() compute before the level group."""
+
+    def __init__(self, h: _Hist, sel, prec: np.ndarray, shift: int):
+        if sel is None:
+            em, eo, ec = h.em, h.eo, h.ec
+        else:
+            e = sel[h.em]
+            em, eo, ec = h.em[e], h.eo[e], h.ec[e]
+        b = eo >> shift if shift else eo
+        newbin = np.ones(em.size, bool)
+        newbin[1:] = (b[1:] != b[:-1]) | (em[1:] != em[:-1])
+        bs = np.flatnonzero(newbin)
+        bm, bb = em[bs], b[bs]
+        self.bc = np.add.reduceat(ec, bs).astype(np.float64) if shift else ec.astype(np.float64)
+        self.ms = ms = np.flatnonzero(np.r_[True, bm[1:] != bm[:-1]])
+        self.mm = mm = bm[ms]
+        self.loc = loc = _segments(ms, bs.size)
+        self.bb, self.shift = bb, shift
+        self.total = total = (np.int64(1) << prec[mm]).astype(np.float64)
+        if shift:
+            first = bb << shift
+            self.bsize = np.minimum(first + (1 << shift), h.span[bm] + 1) - first
+            t = self.bc / self.bsize
+            self.k = np.add.reduceat(self.bsize, ms)
+        else:
+            self.bsize = None
+            t = self.bc
+            self.k = np.diff(np.r_[ms, bs.size])
+        self.target = np.maximum(t * (total / h.total[mm].astype(np.float64))[loc] - 1.0, 0.0)
+        top = np.maximum.reduceat(self.target, ms)
+        self.pos = top > 0
+        self.top = np.where(self.pos, top, 1.0)
+        self.valid = self.k <= (np.int64(1) << prec[mm])
+        inner = np.ones(bs.size, bool)
+        inner[ms] = False
+        self.inner = inner
+        gaps = np.diff(bb, prepend=0) - 1
+        gap_bits = np.where(inner, np.where(gaps == 0, 0.3, 1 + 2 * _floor_log2(gaps + 1)), 0.0)
+        self.gap_bits = np.add.reduceat(gap_bits, ms)
+
+    def codes(self, g: int) -> np.ndarray:
+        """Level codes of the present bins for level group g (_coarse_codes, per element)."""
+        scaled = self.target * ((2.0 ** (MAX_LEVEL_EXP + g)) / self.top)[self.loc]
+        e = np.floor(np.log2(np.maximum(scaled, 1e-300))) - g
+        np.clip(e, 0, MAX_LEVEL_EXP, out=e)
+        m = np.rint(scaled / np.exp2(e)) - (1 << g)
+        carry = m >= (1 << g)
+        e[carry] += 1
+        m[carry] = 0
+        q = 1 + (e.astype(np.int64) << g) + np.maximum(m, 0).astype(np.int64)
+        q = np.minimum(np.maximum(q, 1), max_level_code(g))
+        q[~self.pos[self.loc]] = 1
+        return q
+
+    def cost(self, q: np.ndarray, g: int) -> np.ndarray:
+        """_fit_one's coarse() cost per model (up to rounding); inf where K > 2**n."""
+        ms, loc, total = self.ms, self.loc, self.total
+        w = level_weights(q, g)
+        big_w = np.add.reduceat(w * self.bsize if self.shift else w, ms)
+        f = 1.0 + ((total - self.k) * (1.0 / big_w.astype(np.float64)))[loc] * w
+        with np.errstate(invalid="ignore", divide="ignore"):    # K > 2**n: no candidate
+            bits = np.add.reduceat(self.bc * np.log2(total[loc] / f), ms)
+        dq = np.abs(np.diff(q, prepend=0))
+        dq_bits = np.where(self.inner, 1 + 2 * _floor_log2(2 * dq + 1), 0).astype(np.float64)
+        tbits = np.add.reduceat(dq_bits, ms) + self.gap_bits + 1 + 2 * _floor_log2(2 * q[ms] + 1)
+        return np.where(self.valid, bits + tbits + 16, np.inf)
+
+
+class _LaplaceTables:
+    """LAPLACE weights by ratio code and distance (laplace_weights' sequential products, so the
+    values are identical): w(u, 0) = 2**24, w(u, d) and the prefix sums S(u, D) = sum_{1..D}."""
+
+    def __init__(self, codes: np.ndarray, max_dist: int):
+        self.codes = np.unique(codes)
+        idx = np.zeros(256, np.int64)
+        idx[self.codes] = np.arange(self.codes.size)
+        self.idx = idx
+        ws, ps, base, cap = [], [], [], []
+        off = 0
+        for u in self.codes:
+            r = ratio_from_code(int(u))
+            if max_dist > 0:
+                v = np.multiply.accumulate(np.full(max_dist, r / RATIO_ONE, dtype=np.float64))
+                w = np.floor(v * float(1 << LAPLACE_SCALE_BITS)).astype(np.int64)
+                z = int(np.count_nonzero(w))       # nonincreasing: zero from index z on
+            else:
+                w, z = np.zeros(0, np.int64), 0
+            arr = np.concatenate([[1 << LAPLACE_SCALE_BITS], w[:z], [0]]).astype(np.int64)
+            pre = np.concatenate([[0], np.cumsum(w[:z]), [int(w[:z].sum())]]).astype(np.int64)
+            ws.append(arr)
+            ps.append(pre)
+            base.append(off)
+            cap.append(z + 1)
+            off += arr.size
+        self.w = np.concatenate(ws) if ws else np.zeros(0, np.int64)
+        self.pre = np.concatenate(ps) if ps else np.zeros(0, np.int64)
+        self.base = np.asarray(base, np.int64)
+        self.cap = np.asarray(cap, np.int64)
+        self.max_dist = max_dist
+        self.dense = None
+        if self.codes.size * (max_dist + 1) <= _DENSE_LAPLACE_TABLE:
+            j = np.minimum(np.arange(max_dist + 1)[None, :], self.cap[:, None])
+            self.dense = self.w[self.base[:, None] + j].astype(np.float64).ravel()
+
+    def weight(self, code: np.ndarray, dist: np.ndarray) -> np.ndarray:
+        i = self.idx[code]
+        return self.w[self.base[i] + np.minimum(dist, self.cap[i])]
+
+    def weight_f(self, code: np.ndarray, dist: np.ndarray) -> np.ndarray:
+        """weight() as float64 (dist <= max_dist)."""
+        if self.dense is None:
+            return self.weight(code, dist).astype(np.float64)
+        return self.dense[self.idx[code] * (self.max_dist + 1) + dist]
+
+    def prefix(self, code: np.ndarray, dist: np.ndarray) -> np.ndarray:
+        i = self.idx[code]
+        return self.pre[self.base[i] + np.minimum(dist, self.cap[i])]
+
+
+def _expand(starts: np.ndarray, lengths: np.ndarray):
+    """Concatenated ranges start..start+length-1 and the segment starts of the result."""
+    seg = np.cumsum(lengths) - lengths
+    out = np.arange(int(lengths.sum()), dtype=np.int64)
+    out += np.repeat(starts - seg, lengths)
+    return out, seg
+
+
+def _cand_table(cands: list) -> np.ndarray:
+    """Ragged candidate lists -> int64 [rows, max length], -1 padded."""
+    width = max(len(c) for c in cands)
+    out = np.full((len(cands), width), -1, np.int64)
+    for i, c in enumerate(cands):
+        out[i, :len(c)] = c
+    return out
+
+
+def _fit_vectorised(h: _Hist, validate: bool = True) -> ModelSet:
+    """fit_model_set's models from sparse histograms (the choices of _fit_one, see above)."""
+    m_count = h.num_models
+    k = h.k
+    types = np.where(k == 0, EMPTY, np.where(k == 1, SINGLE, COARSE)).astype(np.int64)
+    over = np.flatnonzero(k > (1 << MAX_PRECISION))
+    if over.size:
+        raise ValueError(f"{int(k[over[0]])} distinct symbols in one model: at most 65536 are "
+                         f"codable")
+    wide = k >= 2
+    z = np.zeros(m_count, np.int64)
+    lo, span, prec, group, binshift, centre, r_left, r_right = (z.copy() for _ in range(8))
+    one = k == 1
+    lo[one] = h.lo[one] + h.eo[h.start[one]]
+    lo[wide] = h.lo[wide]
+    span[wide] = h.span[wide]
+    # precision: min(16, max(ceil(log2 K), ceil(log2 N_m))), at least 1
+    nk = np.where(wide, _floor_log2(np.maximum(k - 1, 1)) + 1, 0)
+    nt = np.where(wide, _floor_log2(np.maximum(h.total - 1, 1)) + 1, 0)
+    prec[wide] = np.maximum(1, np.minimum(MAX_PRECISION, np.maximum(nk, nt)))[wide]
+    fallback = np.zeros(m_count, bool)
+    w_idx = np.flatnonzero(wide)
+    inf = np.inf
+    bins_of, levels_of = {}, {}
+    best = np.full(m_count, inf)
+    if w_idx.size:
+        all_wide = bool(np.all(wide[k > 0]))
+        # COARSE: bin shift at the middle level group ...
+        cost_h = np.full((m_count, len(COARSE_BINSHIFTS)), inf)
+        for i, s in enumerate(COARSE_BINSHIFTS):
+            sel = wide & ((span >> max(s - 1, 0)) != 0) if s else wide
+            if not sel.any():
+                break
+            bins = _Bins(h, None if (s == 0 and all_wide) else sel, prec, s)
+            cost_h[bins.mm, i] = bins.cost(bins.codes(1), 1)
+        fallback[w_idx[_near_tie(cost_h[w_idx])]] = True
+        h_best = np.asarray(COARSE_BINSHIFTS)[np.argmin(cost_h, axis=1)]
+        # ... then the level group at that shift (order g = 1, 0, 2 as _fit_one)
+        for s in COARSE_BINSHIFTS:
+            sel = wide & (h_best == s)
+            if not sel.any():
+                continue
+            bins = _Bins(h, sel, prec, s)
+            qs = [bins.codes(g) for g in (1, 0, 2)]
+            costs = np.stack([cost_h[bins.mm].min(axis=1), bins.cost(qs[1], 0),
+                              bins.cost(qs[2], 2)], axis=1)
+            fallback[bins.mm[_near_tie(costs)]] = True
+            win = np.argmin(costs, axis=1)
+            best[bins.mm] = costs.min(axis=1)
+            group[bins.mm] = np.array([1, 0, 2])[win]
+            binshift[bins.mm] = s
+            wl = win[bins.loc]
+            q = np.where(wl == 0, qs[0], np.where(wl == 1, qs[1], qs[2]))
+            cuts = bins.ms[1:]
+            for m, b_, q_ in zip(bins.mm.tolist(), np.split(bins.bb, cuts), np.split(q, cuts)):
+                bins_of[m], levels_of[m] = b_, q_
+    # LAPLACE: centre at the mode, ratios from the mean distances, coordinate search
+    lap = np.flatnonzero(wide & (span + 1 <= (np.int64(1) << prec)))
+    if lap.size:
+        lmask = np.zeros(m_count, bool)
+        lmask[lap] = True
+        e = lmask[h.em]
+        le, lo_, lc = h.em[e], h.eo[e], h.ec[e]
+        li_of = np.zeros(m_count, np.int64)
+        li_of[lap] = np.arange(lap.size)
+        li = li_of[le]                                    # local model index per entry
+        starts = np.flatnonzero(np.r_[True, le[1:] != le[:-1]])
+        maxc = np.maximum.reduceat(lc, starts)
+        is_max = np.flatnonzero(lc == maxc[li])
+        _, first = np.unique(li[is_max], return_index=True)   # first entry at the maximum
+        cen = lo_[is_max[first]]
+        d = lo_ - cen[li]
+        ad = np.abs(d)
+        left = d < 0
+        cands = []
+        for side in (left, d > 0):
+            cnt = np.bincount(li[side], weights=lc[side], minlength=lap.size)
+            dist = np.bincount(li[side], weights=(ad * lc)[side], minlength=lap.size)
+            # (float weights: exact, the sums stay far below 2**53)
+            lists = []
+            for cs, ds in zip(cnt.tolist(), dist.tolist()):
+                if cs == 0:
+                    lists.append([0])
+                    continue
+                mean = float(np.int64(ds) / np.int64(cs))
+                one_minus = min(1.0, 1.0 / max(mean, 1.0))
+                u0 = int(np.argmin(np.abs(_LOG_RATIO_GAP - math.log(one_minus * RATIO_ONE))))
+                lists.append(sorted({int(u) for u in _RATIO_BY_GAP[
+                    max(0, _RATIO_RANK[u0] - 4):_RATIO_RANK[u0] + 5:2]}))
+            cands.append(lists)
+        c0, c1 = _cand_table(cands[0]), _cand_table(cands[1])
+        n0 = (c0 >= 0).sum(axis=1)
+        n1 = (c1 >= 0).sum(axis=1)
+        rows = np.arange(lap.size)
+        mid0, mid1 = c0[rows, n0 // 2], c1[rows, n1 // 2]
+        sp = span[lap]
+        tabs = _LaplaceTables(np.r_[c0[c0 >= 0], c1[c1 >= 0]], int(sp.max()))
+        total = (np.int64(1) << prec[lap]).astype(np.float64)
+        nbits = h.total[lap] * prec[lap].astype(np.float64)     # N * n: exact
+        free = total - (sp + 1)
+        lcf = lc.astype(np.float64)
+
+        def lap_cost(rl: np.ndarray, rr: np.ndarray) -> np.ndarray:
+            """Cost of LAPLACE(centre, rl, rr) for every local model: N n - sum c log2 f + 48."""
+            big_w = (1 << LAPLACE_SCALE_BITS) + tabs.prefix(rl, cen) + tabs.prefix(rr, sp - cen)
+            a = free / big_w.astype(np.float64)
+            w = tabs.weight_f(np.where(left, rl[li], rr[li]), ad)
+            f = 1.0 + a[li] * w
+            return nbits - np.add.reduceat(lcf * np.log2(f), starts) + 8 * 6
+
+        # side 0: the left ratio over its candidates, the right one at its estimate
+        tab0 = np.full((lap.size, 1 + c0.shape[1]), inf)
+        tab0[:, 0] = best[lap]
+        for j in range(c0.shape[1]):
+            has = n0 > j
+            tab0[has, 1 + j] = lap_cost(np.where(has, c0[:, j], mid0), mid1)[has]
+        fallback[lap[_near_tie(tab0)]] = True
+        win0 = np.argmin(tab0, axis=1)
+        rl_best = np.where(win0 > 0, c0[rows, np.maximum(win0 - 1, 0)], mid0)
+        # side 1: the right ratio over its candidates (the estimate is costed already)
+        c1x = np.where(c1 == mid1[:, None], -1, c1)
+        tab1 = np.full((lap.size, 1 + c1.shape[1]), inf)
+        tab1[:, 0] = tab0.min(axis=1)
+        for j in range(c1.shape[1]):
+            has = c1x[:, j] >= 0
+            if has.any():
+                tab1[has, 1 + j] = lap_cost(rl_best, np.where(has, c1x[:, j], mid1))[has]
+        fallback[lap[_near_tie(tab1)]] = True
+        win1 = np.argmin(tab1, axis=1)
+        rr_best = np.where(win1 > 0, c1[rows, np.maximum(win1 - 1, 0)], mid1)
+        is_lap = (win0 > 0) | (win1 > 0)
+        lm = lap[is_lap]
+        types[lm] = LAPLACE
+        centre[lm] = cen[is_lap]
+        r_left[lm] = rl_best[is_lap]
+        r_right[lm] = rr_best[is_lap]
+        group[lm] = 0
+        binshift[lm] = 0
+    # near ties: the reference search decides
+    for m in np.flatnonzero(fallback).tolist():
+        fit = _fit_one(int(h.lo[m]), int(h.lo[m] + h.span[m]), _dense_counts(h, m))
+        types[m] = fit["type"]
+        for key, arr in (("lo", lo), ("span", span), ("prec", prec), ("group", group),
+                         ("binshift", binshift), ("centre", centre), ("r_left", r_left),
+                         ("r_right", r_right)):
+            arr[m] = fit.get(key, 0)
         if fit["type"] == COARSE:
             q = np.asarray(fit["q"], dtype=np.int64)
-            b = np.flatnonzero(q)
-            bins.append(b)
-            levels.append(q[b])
-    ms = ModelSet(bins=tuple(bins), levels=tuple(levels), **arrs)
-    ms.validate()
-    return ms
+            b_ = np.flatnonzero(q)
+            bins_of[m], levels_of[m] = b_, q[b_]
+    co_ids = np.flatnonzero(types == COARSE).tolist()
+    models = ModelSet(types=types, lo=lo, span=span, prec=prec, group=group, binshift=binshift,
+                      centre=centre, r_left=r_left, r_right=r_right,
+                      bins=tuple(bins_of[m] for m in co_ids),
+                      levels=tuple(levels_of[m] for m in co_ids))
+    if validate:
+        models.validate()
+    return models
 
 
 def fit_model_set(symbols: np.ndarray, model_ids: np.ndarray, num_models: int) -> ModelSet:
@@ -264,9 +646,7 @@ def fit_model_set(symbols: np.ndarray, model_ids: np.ndarray, num_models: int) -
     distinct values per model; model_ids: int array (N,) in 0..num_models-1.
     Deterministic: the same input gives the same ModelSet.
     """
-    hists = _histograms(symbols, model_ids, int(num_models))
-    fits = [None if h is None else _fit_one(*h) for h in hists]
-    return _model_set_from_fits(fits)
+    return _fit_vectorised(_histograms(symbols, model_ids, int(num_models)))
 
 
 # ---- serialisation -----------------------------------------------------------------------------
@@ -289,8 +669,11 @@ def write_model_set(models: ModelSet) -> bytes:
         models.r_left[lap].astype(np.uint8).tobytes(),
         models.r_right[lap].astype(np.uint8).tobytes(),
         varint_bytes([b.size for b in models.bins]),
-        b"".join(varint_bytes(np.diff(b, prepend=-1) - 1) for b in models.bins),
-        b"".join(varint_bytes(zigzag(np.diff(q, prepend=0))) for q in models.levels),
+        # varints are self-delimiting: one call over the concatenated columns
+        varint_bytes(np.concatenate([np.diff(b, prepend=-1) - 1 for b in models.bins])
+                     if models.bins else np.zeros(0, np.int64)),
+        varint_bytes(zigzag(np.concatenate([np.diff(q, prepend=0) for q in models.levels]))
+                     if models.levels else np.zeros(0, np.int64)),
     ])
     packed = zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_content_size=True,
                                       write_checksum=False).compress(body)
@@ -300,26 +683,139 @@ def write_model_set(models: ModelSet) -> bytes:
 
 
 # ---- encoding ----------------------------------------------------------------------------------
-def _symbol_index(sym: np.ndarray, mid: np.ndarray, models: ModelSet, tables: dict) -> np.ndarray:
-    """Global symbol index (into tables['freq']) of every (model, value); ValueError if absent."""
-    lo = models.lo[mid]
-    off = sym - lo
-    span = models.span[mid]
-    if np.any(models.types[mid] == EMPTY):
+def _coder_tables(models: ModelSet) -> dict:
+    """The encoder's part of ModelSet.build() (same frequencies, no decoding LUT), vectorised:
+    per present value of every non-empty model, in model order, ``freq`` and ``cum``; per model
+    ``sym_start``; for COARSE models the present bins (``bin_key`` = model << 17 | bin, sorted)
+    and the index of each bin's first value (``bin_first``)."""
+    t = models.types
+    m_count = models.num_models
+    span, prec = models.span, models.prec
+    k = np.zeros(m_count, np.int64)
+    k[t == SINGLE] = 1
+    lap = np.flatnonzero(t == LAPLACE)
+    k[lap] = span[lap] + 1
+    co = np.flatnonzero(t == COARSE)
+    nb = np.array([b.size for b in models.bins], np.int64)
+    allb = np.concatenate(models.bins).astype(np.int64) if co.size else np.zeros(0, np.int64)
+    allq = np.concatenate(models.levels).astype(np.int64) if co.size else np.zeros(0, np.int64)
+    bm = np.repeat(co, nb)
+    sh = models.binshift[bm]
+    bsize = np.minimum((allb + 1) << sh, span[bm] + 1) - (allb << sh)
+    if co.size:
+        k[co] = np.add.reduceat(bsize, np.cumsum(nb) - nb)
+    sym_start = np.cumsum(k) - k
+    size = int(k.sum())
+    w = np.zeros(size, np.int64)
+    w[sym_start[t == SINGLE]] = 1
+    if lap.size:
+        pos, _ = _expand(sym_start[lap], k[lap])
+        rep = np.repeat(lap, k[lap])
+        d = pos - sym_start[rep] - models.centre[rep]
+        tabs = _LaplaceTables(np.concatenate([models.r_left[lap], models.r_right[lap]]),
+                              int(span[lap].max()))
+        w[pos] = tabs.weight(np.where(d < 0, models.r_left[rep], models.r_right[rep]), np.abs(d))
+    bin_first = np.zeros(allb.size, np.int64)
+    if co.size:
+        pos, _ = _expand(sym_start[co], k[co])
+        g = models.group[bm]
+        qm = np.maximum(allq - 1, 0)
+        lw = ((np.int64(1) << g) + (qm & ((np.int64(1) << g) - 1))) << (qm >> g)
+        w[pos] = np.repeat(lw, bsize)
+        csz = np.cumsum(bsize) - bsize
+        first_bin = np.cumsum(nb) - nb
+        bin_first = sym_start[bm] + csz - np.repeat(csz[first_bin], nb)
+    # normalise_weights, per model
+    used = np.flatnonzero(k > 0)
+    freq = np.zeros(size, np.int64)
+    if used.size:
+        starts = sym_start[used]
+        rep = np.repeat(np.arange(used.size), k[used])
+        big_w = np.add.reduceat(w, starts)
+        zero = big_w == 0
+        if zero.any():
+            w[np.isin(rep, np.flatnonzero(zero))] = 1
+            big_w = np.add.reduceat(w, starts)
+        total = np.int64(1) << prec[used]
+        if np.any(k[used] > total):
+            raise GszFormatError("rANS model: more symbols than 2**n")
+        prod = w * (total - k[used])[rep]
+        wr = big_w[rep]
+        freq = 1 + prod // wr
+        short = total - np.add.reduceat(freq, starts)
+        rem = prod % wr
+        for i in np.flatnonzero(short > 0).tolist():
+            a = int(starts[i])
+            r = rem[a:a + int(k[used[i]])]
+            order = np.argsort(-r, kind="stable")
+            freq[a + order[:int(short[i])]] += 1
+    csum = np.cumsum(freq) - freq
+    cum = csum - np.repeat(csum[sym_start[used]], k[used]) if size else csum
+    return dict(freq=freq, cum=cum, sym_start=sym_start,
+                bin_key=(bm << 17) | allb, bin_first=bin_first)
+
+
+def _value_index(models: ModelSet, tabs: dict, mid: np.ndarray, off: np.ndarray) -> np.ndarray:
+    """Index into tabs['freq'] of the values lo + off of models mid (ValueErrors as before:
+    empty model, outside the range, zero frequency)."""
+    t = models.types[mid]
+    if np.any(t == EMPTY):
         raise ValueError("a symbol refers to an empty model")
-    if np.any((off < 0) | (off > span)):
+    if np.any((off < 0) | (off > models.span[mid])):
         raise ValueError("a symbol lies outside its model's range")
-    # dense per-model position tables over lo..hi
-    sizes = np.where(models.types == EMPTY, 0, models.span + 1)
-    dense_start = np.cumsum(sizes) - sizes
-    dense = np.full(int(sizes.sum()), -1, dtype=np.int64)
-    value = tables["value"]
-    owner = np.repeat(np.arange(models.num_models), tables["sym_count"])
-    dense[dense_start[owner] + value - models.lo[owner]] = np.arange(value.size)
-    g = dense[dense_start[mid] + off]
-    if np.any(g < 0):
-        raise ValueError("a symbol has zero frequency in its model")
+    g = tabs["sym_start"][mid] + np.where(t == LAPLACE, off, 0)
+    c = np.flatnonzero(t == COARSE)
+    if c.size:
+        mc, oc = mid[c], off[c]
+        sh = models.binshift[mc]
+        b = oc >> sh
+        key = (mc << 17) | b
+        bk = tabs["bin_key"]
+        i = np.searchsorted(bk, key)
+        ok = i < bk.size
+        ok[ok] = bk[i[ok]] == key[ok]
+        if not ok.all():
+            raise ValueError("a symbol has zero frequency in its model")
+        g[c] = tabs["bin_first"][i] + (oc - (b << sh))
     return g
+
+
+def _payload(freq: np.ndarray, cum: np.ndarray, shift: np.ndarray, lanes: int | None) -> bytes:
+    """Interleaved rANS payload of symbols with (freq, cum, precision) each, in order."""
+    n = freq.size
+    if lanes is None:
+        bits = float((shift - np.log2(freq)).sum()) if n else 0.0
+        big_l = choose_lanes(n, bits)
+    else:
+        big_l = int(lanes)
+    if not 1 <= big_l <= max(1, n):
+        raise ValueError(f"lane count {big_l} invalid for {n} symbols")
+    x = np.full(big_l, STATE_LOW, dtype=np.int64)
+    chunks = []
+    if n:
+        xmax = freq << (32 - shift)          # x_max = f * 2**(32 - n)
+        rows = (n + big_l - 1) // big_l
+        q = np.empty(big_l, np.int64)
+        r_ = np.empty(big_l, np.int64)
+        for r in range(rows - 1, -1, -1):
+            a = r * big_l
+            b = min(a + big_l, n)
+            k = b - a
+            xs = x[:k]
+            emit = xs >= xmax[a:b]
+            if emit.any():
+                idx = np.flatnonzero(emit)
+                sel = xs[idx]
+                chunks.append((sel & 0xFFFF).astype("<u2"))
+                xs[idx] = sel >> WORD_BITS
+            qk, rk = q[:k], r_[:k]
+            np.divmod(xs, freq[a:b], out=(qk, rk))
+            np.left_shift(qk, shift[a:b], out=xs)
+            xs += rk
+            xs += cum[a:b]
+    word_arr = np.concatenate(chunks[::-1]) if chunks else np.zeros(0, "<u2")
+    return b"".join([varint_bytes([big_l, word_arr.size]), x.astype("<u4").tobytes(),
+                     word_arr.tobytes()])
 
 
 def encode_symbols(symbols: np.ndarray, model_ids: np.ndarray, models: ModelSet,
@@ -337,41 +833,12 @@ def encode_symbols(symbols: np.ndarray, model_ids: np.ndarray, models: ModelSet,
         raise ValueError("model id out of range")
     if models.lut_entries() > lut_budget(n):
         raise ValueError("model set too large for this stream (decoder LUT budget, ENTROPY.md)")
-    t = models.build()
-    if n:
-        g = _symbol_index(sym, mid, models, t)
-        freq = t["freq"][g]
-        cum = t["cum"][g]
-        shift = models.prec[mid]
-    if lanes is None:
-        bits = float((shift - np.log2(freq)).sum()) if n else 0.0
-        big_l = choose_lanes(n, bits)
-    else:
-        big_l = int(lanes)
-    if not 1 <= big_l <= max(1, n):
-        raise ValueError(f"lane count {big_l} invalid for {n} symbols")
-    x = np.full(big_l, STATE_LOW, dtype=np.int64)
-    chunks = []
-    if n:
-        xmax_shift = 32 - shift       # x_max = f * 2**(32 - n)
-        rows = (n + big_l - 1) // big_l
-        for r in range(rows - 1, -1, -1):
-            a = r * big_l
-            b = min(a + big_l, n)
-            k = b - a
-            xs = x[:k]
-            f = freq[a:b]
-            emit = xs >= (f << xmax_shift[a:b])
-            if emit.any():
-                chunks.append((xs[emit] & 0xFFFF).astype("<u2"))
-                xs = np.where(emit, xs >> WORD_BITS, xs)
-            else:
-                chunks.append(None)
-            x[:k] = ((xs // f) << shift[a:b]) + (xs % f) + cum[a:b]
-    words = [c for c in reversed(chunks) if c is not None]
-    word_arr = np.concatenate(words) if words else np.zeros(0, "<u2")
-    return b"".join([varint_bytes([big_l, word_arr.size]), x.astype("<u4").tobytes(),
-                     word_arr.tobytes()])
+    if not n:
+        return _payload(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                        lanes)
+    tabs = _coder_tables(models)
+    g = _value_index(models, tabs, mid, sym - models.lo[mid])
+    return _payload(tabs["freq"][g], tabs["cum"][g], models.prec[mid], lanes)
 
 
 def encode_stream(symbols: np.ndarray, model_ids: np.ndarray,
@@ -380,8 +847,20 @@ def encode_stream(symbols: np.ndarray, model_ids: np.ndarray,
     mid = np.asarray(model_ids, dtype=np.int64).ravel()
     if num_models is None:
         num_models = int(mid.max()) + 1 if mid.size else 0
-    models = fit_model_set(symbols, mid, num_models)
-    return write_model_set(models) + encode_symbols(symbols, mid, models)
+    sym = np.asarray(symbols, dtype=np.int64).ravel()
+    h = _histograms(sym, mid, num_models, symbol_entries=True)
+    models = _fit_vectorised(h, validate=False)      # write_model_set validates
+    n = sym.size
+    if models.lut_entries() > lut_budget(n):
+        raise ValueError("model set too large for this stream (decoder LUT budget, ENTROPY.md)")
+    if n:
+        tabs = _coder_tables(models)
+        g = _value_index(models, tabs, h.em, h.eo + h.lo[h.em] - models.lo[h.em])[h.sym_entry]
+        payload = _payload(tabs["freq"][g], tabs["cum"][g], models.prec[mid], None)
+    else:
+        payload = _payload(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                           None)
+    return write_model_set(models) + payload
 
 
 def payload_cost_bits(symbols: np.ndarray, model_ids: np.ndarray, models: ModelSet) -> float:
@@ -390,8 +869,8 @@ def payload_cost_bits(symbols: np.ndarray, model_ids: np.ndarray, models: ModelS
     mid = np.asarray(model_ids, dtype=np.int64).ravel()
     if sym.size == 0:
         return 48.0
-    t = models.build()
-    g = _symbol_index(sym, mid, models, t)
+    t = _coder_tables(models)
+    g = _value_index(models, t, mid, sym - models.lo[mid])
     bits = float((models.prec[mid] - np.log2(t["freq"][g])).sum())
     return bits + 32.0 * choose_lanes(sym.size, bits) + 16.0
 
