@@ -51,14 +51,30 @@ def plot(scene, rows, path):
     plt.close(fig)
 
 
-def equivalent_single_bytes(psnr, lo, hi):
-    """Single-layer bytes at ``psnr``, interpolating log-bytes between two (bytes, psnr) points
-    (extrapolating linearly beyond them)."""
-    (b0, p0), (b1, p1) = sorted([lo, hi])
-    if p1 == p0:
-        return b1
+def overhead_estimate(layered_bytes, psnr, lo, hi):
+    """(overhead, how) of a layered file of ``layered_bytes`` reaching ``psnr``, against the
+    single-layer points lo = (bytes, psnr) at 95 % and hi at 100 % of the budget.
+
+    * layered PSNR >= single at the same budget: the layered file costs nothing extra at this
+      fidelity (overhead reported as <= the size difference, "bound");
+    * between the two points: single-layer bytes at that PSNR interpolated in log-bytes;
+    * below the 95 % point: extrapolated (marked, less reliable);
+    * flat single-layer curve (< 0.05 dB between the points): undefined (None)."""
+    (b0, p0), (b1, p1) = lo, hi
+    if psnr >= p1:
+        return layered_bytes / b1 - 1, "bound"
+    if p1 - p0 < 0.05:
+        return None, "flat"
     t = (psnr - p0) / (p1 - p0)
-    return math.exp(math.log(b0) + t * (math.log(b1) - math.log(b0)))
+    eq = math.exp(math.log(b0) + t * (math.log(b1) - math.log(b0)))
+    return layered_bytes / eq - 1, "interpolated" if t >= 0 else "extrapolated"
+
+
+def _fmt_overhead(r) -> str:
+    if r["overhead"] is None:
+        return "n/a (flat)"
+    sign = "<= " if r["overhead_how"] == "bound" else ""
+    return f"{sign}{100 * r['overhead']:+.2f} %" + (" (extrap.)" if r["overhead_how"] == "extrapolated" else "")
 
 
 def time_decodes(data):
@@ -100,6 +116,12 @@ def main(argv=None):
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     rows = json.loads(out.read_text()) if out.exists() else []
+    for r in rows:              # rows written before overhead_estimate existed
+        if "overhead_how" not in r:
+            r["overhead"], r["overhead_how"] = overhead_estimate(
+                r["layered_bytes"], r["layered_psnr"], (r["single95_bytes"], r["single95_psnr"]),
+                (r["single_bytes"], r["single_psnr"]))
+            r.pop("equivalent_single_bytes", None)
     done = {(r["scene"], r["variant"], r["layers"], r["first_layer"], r["ratio"]) for r in rows}
     for scene in a.scenes.split(","):
         path = SHARED / f"{scene}.ply"
@@ -134,7 +156,8 @@ def main(argv=None):
                                    "fraction": row["decodable_at"] / len(lay.data), "psnr": e["psnr"], "ssim": e["ssim"]})
             s, ev_s, _ = runs["single"]
             s95, ev_95, _ = runs["single95"]
-            eq = equivalent_single_bytes(ev_l["psnr"], (len(s95.data), ev_95["psnr"]), (len(s.data), ev_s["psnr"]))
+            ovh, how = overhead_estimate(len(lay.data), ev_l["psnr"], (len(s95.data), ev_95["psnr"]),
+                                         (len(s.data), ev_s["psnr"]))
             t_whole, t_stream = time_decodes(lay.data)
             row = {"scene": scene, "variant": variant, "ratio": a.ratio, "layers": a.layers,
                    "first_layer": a.first_layer, "target": target, "gaussians": len(lay.cloud),
@@ -142,12 +165,12 @@ def main(argv=None):
                    "layered_reserve": lay.report["reserve"], "single_reserve": s.report["reserve"],
                    "single_bytes": len(s.data), "single_psnr": ev_s["psnr"], "single_ssim": ev_s["ssim"],
                    "single95_bytes": len(s95.data), "single95_psnr": ev_95["psnr"],
-                   "equivalent_single_bytes": eq, "overhead": len(lay.data) / eq - 1,
+                   "overhead": ovh, "overhead_how": how,
                    "layer0_fraction": layer_psnr[0]["fraction"], "layer_psnr": layer_psnr,
                    "decode_s": t_whole, "stream_decode_s": t_stream,
                    "stream_vs_whole": t_stream / t_whole, "search_s": secs_l}
             print(f"   layer 0 after {100 * row['layer0_fraction']:.1f} % of the bytes; overhead "
-                  f"{100 * row['overhead']:+.2f} %; PSNR per layer "
+                  f"{_fmt_overhead(row)}; PSNR per layer "
                   + " / ".join(f"{l['psnr']:.2f}" for l in layer_psnr)
                   + f"; decode {t_whole:.2f} s whole, {t_stream:.2f} s streamed", file=sys.stderr)
             rows.append(row)
@@ -160,7 +183,7 @@ def main(argv=None):
           f"{'PSNR layered':>12}  per-layer PSNR            decode s (whole/stream)")
     for r in rows:
         print(f"{r['scene']:28} {r['variant']:6} {r['layered_bytes']:>10,} {100 * r['layer0_fraction']:6.1f} "
-              f"{100 * r['overhead']:+8.2f}% {r['single_psnr']:11.2f} {r['layered_psnr']:12.2f}  "
+              f"{_fmt_overhead(r):>9} {r['single_psnr']:11.2f} {r['layered_psnr']:12.2f}  "
               + " / ".join(f"{l['psnr']:.2f}" for l in r["layer_psnr"])
               + f"   {r['decode_s']:.2f} / {r['stream_decode_s']:.2f}")
     return 0

@@ -2,8 +2,8 @@
 
 Syntax (D = 3K, K = (d+1)^2 - 1 coefficients per colour)::
 
-    u32  K_cb               codebook entries, 1..65536 in layer 0; 0 in layers >= 1 (they
-                            use layer 0's codebook, see GSZ.md §5)
+    u32  K_cb               codebook entries, 1..65536 in the one layer that carries the
+                            codebook (the first with codeword indices, see GSZ.md §4.1), else 0
     u32  P                  kept vectors, 0..M
     u16  D                  vector length, must equal 3K of the header's SH degree
     if K_cb > 0:
@@ -32,26 +32,30 @@ MAX_CODEBOOK = 1 << 16
 def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None):
     """Decode one layer's SHVQ chunk.
 
-    codebook    None for layer 0 (the chunk must carry the codebook); for layers >= 1 the
-                [D, K_cb] float64 codebook layer 0 returned (the chunk must not carry one)
-    returns     (sh_rest float32 [M, K, 3], codebook [D, K_cb] float64)
+    codebook    the [D, K_cb] float64 codebook an earlier layer carried, or None
+    returns     (sh_rest float32 [M, K, 3], codebook [D, K_cb] float64 or None): the codebook
+                of this layer when it carries one, else the one passed in
+
+    The codebook sits in exactly one layer; a layer that carries one when an earlier layer did,
+    or that has codeword indices while no layer so far carried a codebook, is rejected.
     """
     k = sh_rest_count(sh_degree)
     m = num_points
-    what = "SHVQ chunk" if codebook is None else "SHVQ chunk (layer >= 1)"
-    r = Reader(data, what)
+    r = Reader(data, "SHVQ chunk")
     kcb = r.u32()
     p = r.u32()
     d = r.u16()
     r.check(d == 3 * k, f"SH vector length {d} does not match SH degree {sh_degree} (expected {3 * k})")
     r.check(p <= m, f"{p} kept SH vectors for {m} Gaussians")
-    if codebook is None:
-        r.check(1 <= kcb <= MAX_CODEBOOK, f"codebook size {kcb} outside 1..{MAX_CODEBOOK}")
+    if kcb:
+        r.check(codebook is None, f"a second SH codebook ({kcb} entries): an earlier layer carried one")
+        r.check(kcb <= MAX_CODEBOOK, f"codebook size {kcb} outside 1..{MAX_CODEBOOK}")
         codebook = read_channel_set(r, max_length=kcb)
         r.check(codebook.shape == (d, kcb), f"codebook has shape {codebook.shape}, expected ({d}, {kcb})")
     else:
-        r.check(kcb == 0, f"codebook size {kcb} in a layer >= 1 (must be 0: layer 0's codebook is shared)")
-        kcb = codebook.shape[1]
+        r.check(codebook is not None or p == m,
+                "codeword indices but no SH codebook in this or an earlier layer")
+        kcb = 0 if codebook is None else codebook.shape[1]
     out = np.empty((m, d), np.float32)
     kept_mask = np.zeros(m, bool)
     if p:
@@ -64,6 +68,7 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
         out[kept_mask] = kept.T
     idx = decode_stream(r.blob(), np.zeros(m - p, np.int64))
     r.check(idx.size == 0 or (idx.min() >= 0 and idx.max() < kcb), "codeword index out of range")
-    out[~kept_mask] = codebook.T[idx]
+    if idx.size:
+        out[~kept_mask] = codebook.T[idx]
     r.expect_end()
     return out.reshape(m, k, 3), codebook

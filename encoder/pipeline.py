@@ -340,8 +340,10 @@ def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks
     output order), and stats.
 
     The ``keep`` most important Gaussians keep their exact vectors (quantised at sh_bits like
-    the codebook); every other Gaussian takes its nearest codeword.  Layer 0 carries the
-    codebook (compacted to the codewords some layer uses); later layers refer to it."""
+    the codebook); every other Gaussian takes its nearest codeword.  The codebook
+    (compacted to the codewords some layer uses) goes with the first layer that has codeword
+    indices (layer 0 when none has), so a layer whose Gaussians all keep their exact vectors
+    does not wait for it; every other layer refers to it."""
     from .rans import encode_stream
     from .vq import assign, compact
 
@@ -362,14 +364,15 @@ def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks
              "kept_bytes": 0, "index_bytes": 0}
     kept_counts = [int(kept[l.index].sum()) for l in stage.layers]
     kept_blocks = scaled_blocks(blocks, kept_counts)
+    cb_layer = next((li for li, l in enumerate(stage.layers) if kept_counts[li] < l.num_points), 0)
     payloads = []
     for li, layer in enumerate(stage.layers):
         ml = layer.num_points
         k_l = kept[layer.index]
         p = kept_counts[li]
         w = Writer()
-        w.u32(cb.shape[0] if li == 0 else 0).u32(p).u16(d)
-        if li == 0:
+        w.u32(cb.shape[0] if li == cb_layer else 0).u32(p).u16(d)
+        if li == cb_layer:
             w.bytes(cb_bytes)
         if p:
             sel = layer.index[k_l]

@@ -230,3 +230,26 @@ def test_size_search_over_all_layers_hits_the_budget():
     assert len(r.report["layers"]) == 3
     assert sum(r.report["layer_blocks"]) == len(r.report["bits"]["raht"][0])
     same(decode(r.data), r.cloud)
+
+
+def test_codebook_travels_with_the_first_layer_that_needs_it():
+    """The layered test vector keeps every exact SH vector of layer 0, so the codebook is in
+    layer 1; a second codebook or indices before any codebook are rejected."""
+    import struct
+    from pathlib import Path
+    from gsz.decoder.sh import read_sh
+    data = (Path(__file__).resolve().parent.parent / "format_spec" / "vectors" / "sh2_jug_400_layers3.gsz").read_bytes()
+    c = read_container(data)
+    sh = {ch.layer: ch.data for ch in c.chunks if ch.type == b"SHVQ"}
+    heads = {l: struct.unpack_from("<IIH", d, 0) for l, d in sh.items()}
+    m = [r["gaussians"] for r in inspect(data)["layers"]]
+    assert heads[0][0] == 0 and heads[0][1] == m[0]          # layer 0: all kept, no codebook
+    assert heads[1][0] > 0 and heads[2][0] == 0
+    _, none = read_sh(sh[0], m[0], 2)
+    assert none is None
+    _, cb = read_sh(sh[1], m[1], 2)
+    with pytest.raises(GszFormatError, match="second SH codebook"):
+        read_sh(sh[1], m[1], 2, cb)
+    with pytest.raises(GszFormatError, match="no SH codebook"):
+        read_sh(sh[2], m[2], 2, None)
+    read_sh(sh[2], m[2], 2, cb)

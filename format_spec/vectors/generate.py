@@ -25,9 +25,10 @@ VECTORS = [
     ("sh0_plant_200", "houseplant_sh0_20k.ply", 200, 0, dict(reserve=1.0, bits=10)),
     ("sh1_jug_150", "measuring_jug_sh3_12k.ply", 150, 1, dict(reserve=0.9, bits=8, codebook=16, keep=10)),
     ("sh3_jug_300", "measuring_jug_sh3_12k.ply", 300, 3, dict(reserve=0.8, bits=12, codebook=32, keep=20)),
-    # three importance layers (GSZ.md §5): per-layer GEOM/ATTR/SHVQ, codebook in layer 0 only
+    # three importance layers (GSZ.md §4.1): per-layer GEOM/ATTR/SHVQ; layer 0's Gaussians all
+    # keep their exact SH vectors, so the codebook travels with layer 1
     ("sh2_jug_400_layers3", "measuring_jug_sh3_12k.ply", 400, 2,
-     dict(reserve=0.9, bits=10, codebook=24, keep=30, layers=3, first_layer=0.2)),
+     dict(reserve=0.9, bits=10, codebook=24, keep=90, layers=3, first_layer=0.2)),
 ]
 
 
