@@ -10,7 +10,7 @@ from gsz.decoder.errors import GszError
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .pipeline import EncodeOptions
+    from .pipeline import STREAMING_LAYERS, EncodeOptions
     d = EncodeOptions()
     p = argparse.ArgumentParser(
         prog="gsz-encode", description="Compress a trained 3DGS point_cloud.ply into a .gsz file.",
@@ -35,9 +35,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cameras", default=None, help="cameras.json or COLMAP model for the importance pass (default: generated views)")
     p.add_argument("--train-views", type=int, default=d.train_views, help="number of generated train views (without --cameras)")
     p.add_argument("--importance-width", type=int, default=d.importance_width, help="render width of the importance pass")
-    p.add_argument("--layers", type=int, default=d.layers,
-                   help="importance-ordered layers for progressive streaming (1 = single layer); "
-                        "layer 0 = the most important Gaussians, decodable on its own")
+    p.add_argument("--layers", type=int, nargs="?", default=d.layers, const=STREAMING_LAYERS, metavar="L",
+                   help="importance-ordered layers for progressive streaming; layer 0 = the most "
+                        "important Gaussians, decodable on its own. --layers alone = "
+                        f"{STREAMING_LAYERS} (measured in bench/RESULTS.md); default 1 (single layer, "
+                        "best fidelity per byte)")
     p.add_argument("--first-layer", type=float, default=d.first_layer,
                    help="fraction of the Gaussians in layer 0 (with --layers > 1)")
     p.add_argument("--seed", type=int, default=d.seed, help="RNG seed (VQ)")

@@ -41,8 +41,11 @@ class EncodeOptionsError(GszError, ValueError):
     """An encoder option is out of range."""
 
 
-#: Default layer count and layer-0 share (bench/bench_stream.py measured the trade-off).
+#: Default layer count (1: a single-layer file has the best fidelity per byte), the layer count
+#: of ``gsz-encode --layers`` without a number, and the layer-0 share; bench/bench_stream.py
+#: measured the trade-off (bench/RESULTS.md, "Progressive streaming").
 DEFAULT_LAYERS = 1
+STREAMING_LAYERS = 3
 DEFAULT_FIRST_LAYER = 0.1
 MAX_LAYERS = 16
 

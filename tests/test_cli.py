@@ -95,3 +95,12 @@ def test_layered_encode_decode_first_layers_and_partial(tmp_path):
     assert "warning: " in part.stderr and "decoded 2 of 3 layers" in part.stderr
     assert json.loads(part.stdout)["num_gaussians"] == layers[1]["cumulative_gaussians"]
     assert run("encode", SAMPLE_SH0, "-o", tmp_path / "y.gsz", "--layers", "0", check=False).returncode == 2
+
+
+def test_layers_flag_without_a_number_means_the_measured_streaming_default():
+    from gsz.encoder.cli import build_parser
+    from gsz.encoder.pipeline import STREAMING_LAYERS
+    p = build_parser()
+    assert p.parse_args(["in.ply", "-o", "o.gsz"]).layers == 1
+    assert p.parse_args(["in.ply", "-o", "o.gsz", "--layers"]).layers == STREAMING_LAYERS == 3
+    assert p.parse_args(["in.ply", "-o", "o.gsz", "--layers", "5"]).layers == 5
