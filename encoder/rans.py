@@ -790,30 +790,32 @@ def _payload(freq: np.ndarray, cum: np.ndarray, shift: np.ndarray, lanes: int | 
         big_l = int(lanes)
     if not 1 <= big_l <= max(1, n):
         raise ValueError(f"lane count {big_l} invalid for {n} symbols")
+    # One row of lanes per step, in place; each row's states before renormalisation and its
+    # emit flags are kept, and the words (their low 16 bits) gathered at the end.
     x = np.full(big_l, STATE_LOW, dtype=np.int64)
-    chunks = []
+    word_arr = np.zeros(0, "<u2")
     if n:
-        xmax = freq << (32 - shift)          # x_max = f * 2**(32 - n)
+        xmax = freq << (32 - shift)                    # x_max = f * 2**(32 - n)
         rows = (n + big_l - 1) // big_l
+        before = np.empty((rows, big_l), np.uint32)
+        emit = np.zeros((rows, big_l), bool)
+        sh = np.empty(big_l, np.uint8)
         q = np.empty(big_l, np.int64)
-        r_ = np.empty(big_l, np.int64)
+        rem = np.empty(big_l, np.int64)
         for r in range(rows - 1, -1, -1):
             a = r * big_l
             b = min(a + big_l, n)
             k = b - a
-            xs = x[:k]
-            emit = xs >= xmax[a:b]
-            if emit.any():
-                idx = np.flatnonzero(emit)
-                sel = xs[idx]
-                chunks.append((sel & 0xFFFF).astype("<u2"))
-                xs[idx] = sel >> WORD_BITS
-            qk, rk = q[:k], r_[:k]
+            xs, ek, sk, qk, rk = x[:k], emit[r, :k], sh[:k], q[:k], rem[:k]
+            np.greater_equal(xs, xmax[a:b], out=ek)
+            np.copyto(before[r, :k], xs, casting="unsafe")   # states < 2**32
+            np.multiply(ek.view(np.uint8), WORD_BITS, out=sk)
+            np.right_shift(xs, sk, out=xs)                   # emit: x >>= 16
             np.divmod(xs, freq[a:b], out=(qk, rk))
-            np.left_shift(qk, shift[a:b], out=xs)
+            np.left_shift(qk, shift[a:b], out=xs)            # x = (x // f) << n + x % f + c
             xs += rk
             xs += cum[a:b]
-    word_arr = np.concatenate(chunks[::-1]) if chunks else np.zeros(0, "<u2")
+        word_arr = (before[emit] & 0xFFFF).astype("<u2")
     return b"".join([varint_bytes([big_l, word_arr.size]), x.astype("<u4").tobytes(),
                      word_arr.tobytes()])
 
