@@ -348,3 +348,27 @@ def test_layer_prefixes_of_a_layered_file_are_b_choices(window, sample_sh3, tmp_
         assert psnrs[0] < psnrs[1] < psnrs[2], psnrs
     finally:
         app.close()
+
+
+def test_budget_encodes_with_the_real_encoder(window, sample_sh0):
+    """--budgets end to end with the real size search (no injected encoder): a reachable budget
+    becomes a B choice within 0.5 % below it, an unreachable one reports the minimum size."""
+    from gsz.decoder import decode
+    from gsz.viewer.budgets import BudgetJobs, parse_budgets
+    cloud = sample_sh0.subset(np.arange(0, len(sample_sh0), 8))          # 2.5k real Gaussians
+    jobs = BudgetJobs(cloud, parse_budgets("40kB,200B"), start=False)
+    app = _app(window, cloud, budget_jobs=jobs)
+    try:
+        jobs.start()
+        assert jobs.wait(timeout=600)
+        _frame(window, app)
+        snap = jobs.snapshot()
+        assert [r.label for r in snap["results"]] == ["40kB"]
+        r = snap["results"][0]
+        assert 0.995 * 40_000 <= len(r.data) <= 40_000
+        assert decode(r.data).equals(r.cloud)
+        (label, msg), = snap["errors"]
+        assert label == "200B" and "smallest reachable file" in msg
+        assert app.comparing and app.b.name == "40kB" and app.b.file_bytes == len(r.data)
+    finally:
+        app.close()
