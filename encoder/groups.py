@@ -4,9 +4,10 @@ from __future__ import annotations
 import numpy as np
 
 from gsz.decoder.bytesio import Writer
-from gsz.decoder.groups import MODEL_MODES, blocks_for, group_model_ids
+from gsz.decoder.groups import (MODEL_MODES, MODEL_PER_CHANNEL_BITS, MODEL_PER_GROUP,
+                                blocks_for, group_model_ids)
 from gsz.decoder.quant import dequantize_groups, split_lengths
-from gsz.encoder.rans import encode_stream
+from gsz.encoder.rans import encode_stream_pair
 from gsz.kernels.quantize import quantize_groups
 
 
@@ -26,14 +27,16 @@ def write_channel_set(x: np.ndarray, bits, num_blocks: int) -> tuple[bytes, np.n
         symbols = np.zeros((c, 0), np.int32)
         mins = np.zeros((c, b), np.float32)
         maxs = np.zeros((c, b), np.float32)
-    # Both model layouts are coded and the smaller kept: per-group tables win for large groups
-    # and low bit-widths, shared per-(channel, bits) tables for small groups at high bit-widths.
-    best = None
-    for mode in MODEL_MODES:
-        mids, count = group_model_ids(c, length, b, bits_arr, mode)
-        stream = encode_stream(symbols.ravel(), mids, count)
-        if best is None or len(stream) < len(best[1]):
-            best = (mode, stream)
+    # Both model layouts are coded and the smaller kept (the first on a tie): per-group tables
+    # win for large groups and low bit-widths, shared per-(channel, bits) tables for small
+    # groups at high bit-widths.  The per-(channel, bits) histograms are merged from the
+    # per-group ones (group c*B + k -> model c*16 + bits[c, k] - 1, as group_model_ids).
+    assert MODEL_MODES == (MODEL_PER_GROUP, MODEL_PER_CHANNEL_BITS)
+    mids, count = group_model_ids(c, length, b, bits_arr, MODEL_PER_GROUP)
+    merge = (np.arange(c, dtype=np.int64)[:, None] * 16 + bits_arr - 1).ravel()
+    streams = encode_stream_pair(symbols.ravel(), mids, count, merge, c * 16)
+    best = (MODEL_PER_CHANNEL_BITS, streams[1]) if len(streams[1]) < len(streams[0]) \
+        else (MODEL_PER_GROUP, streams[0])
     w = Writer()
     w.u8(c).u32(length).u16(b).u8(best[0])
     w.array(bits_arr, np.uint8).array(mins, np.float32).array(maxs, np.float32)

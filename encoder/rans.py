@@ -843,6 +843,33 @@ def encode_symbols(symbols: np.ndarray, model_ids: np.ndarray, models: ModelSet,
     return _payload(tabs["freq"][g], tabs["cum"][g], models.prec[mid], lanes)
 
 
+def _lanes_for(n: int, h: _Hist, e_freq: np.ndarray, e_shift: np.ndarray) -> int | None:
+    """choose_lanes(n, ideal bits) from the entry counts, or None when rounding could matter
+    (the exact sum over the symbols then decides, as encode_symbols)."""
+    bits = float((h.ec * (e_shift - np.log2(e_freq))).sum())
+    tol = 1e-7 * bits + 1.0
+    lanes = choose_lanes(n, bits - tol)
+    return lanes if lanes == choose_lanes(n, bits + tol) else None
+
+
+def _encode_hist(h: _Hist, n: int) -> bytes:
+    """encode_stream from the histograms (with symbol entries) of its n symbols."""
+    models = _fit_vectorised(h, validate=False)      # write_model_set validates
+    if models.lut_entries() > lut_budget(n):
+        raise ValueError("model set too large for this stream (decoder LUT budget, ENTROPY.md)")
+    if n:
+        tabs = _coder_tables(models)
+        g = _value_index(models, tabs, h.em, h.eo + h.lo[h.em] - models.lo[h.em])
+        e_freq, e_cum, e_shift = tabs["freq"][g], tabs["cum"][g], models.prec[h.em]
+        lanes = _lanes_for(n, h, e_freq, e_shift)
+        se = h.sym_entry
+        payload = _payload(e_freq[se], e_cum[se], e_shift[se], lanes)
+    else:
+        payload = _payload(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                           None)
+    return write_model_set(models) + payload
+
+
 def encode_stream(symbols: np.ndarray, model_ids: np.ndarray,
                   num_models: int | None = None) -> bytes:
     """Self-contained stream: fitted model set followed by the payload (decode_stream's input)."""
@@ -850,19 +877,72 @@ def encode_stream(symbols: np.ndarray, model_ids: np.ndarray,
     if num_models is None:
         num_models = int(mid.max()) + 1 if mid.size else 0
     sym = np.asarray(symbols, dtype=np.int64).ravel()
-    h = _histograms(sym, mid, num_models, symbol_entries=True)
-    models = _fit_vectorised(h, validate=False)      # write_model_set validates
-    n = sym.size
-    if models.lut_entries() > lut_budget(n):
-        raise ValueError("model set too large for this stream (decoder LUT budget, ENTROPY.md)")
-    if n:
-        tabs = _coder_tables(models)
-        g = _value_index(models, tabs, h.em, h.eo + h.lo[h.em] - models.lo[h.em])[h.sym_entry]
-        payload = _payload(tabs["freq"][g], tabs["cum"][g], models.prec[mid], None)
+    return _encode_hist(_histograms(sym, mid, num_models, symbol_entries=True), sym.size)
+
+
+def _merge_histograms(h: _Hist, merge: np.ndarray, num_models: int) -> _Hist:
+    """The histograms of the same symbols with model ids merge[model id] (as _histograms)."""
+    m_count = int(num_models)
+    merge = np.asarray(merge, dtype=np.int64)
+    used = np.flatnonzero(h.k > 0)
+    nm = merge[used]
+    if nm.size and (nm.min() < 0 or nm.max() >= m_count):
+        raise ValueError(f"model ids must lie in 0..{m_count - 1}")
+    out = _Hist()
+    out.num_models = m_count
+    out.total = np.bincount(nm, weights=h.total[used], minlength=m_count).astype(np.int64) \
+        if nm.size else np.zeros(m_count, np.int64)
+    lo_all = np.full(m_count, np.iinfo(np.int64).max)
+    hi_all = np.full(m_count, np.iinfo(np.int64).min)
+    np.minimum.at(lo_all, nm, h.lo[used])
+    np.maximum.at(hi_all, nm, h.lo[used] + h.span[used])
+    has = out.total > 0
+    lo = np.where(has, lo_all, 0)
+    hi = np.where(has, hi_all, 0)
+    span = hi - lo
+    bad = (span > MAX_SPAN) | (lo < -VALUE_LIMIT) | (hi >= VALUE_LIMIT)
+    if np.any(bad):
+        m = int(np.flatnonzero(bad)[0])
+        if span[m] > MAX_SPAN:
+            raise ValueError(f"model {m}: value span {int(span[m])} exceeds 65536")
+        raise ValueError(f"model {m}: values outside int32")
+    size = np.where(has, span + 1, 0)
+    ends = np.cumsum(size)
+    dstart = ends - size
+    cells = int(ends[-1]) if m_count else 0
+    em_new = merge[h.em]
+    key = dstart[em_new] + (h.lo[h.em] + h.eo - lo[em_new])
+    if cells <= max(_DENSE_CELLS_MIN, _DENSE_CELLS_PER_SYMBOL * h.em.size):
+        dense = np.bincount(key, weights=h.ec, minlength=cells)    # exact: counts < 2**53
+        pos = np.flatnonzero(dense)
+        cnt = dense[pos].astype(np.int64)
+        rank = np.zeros(cells, np.int64)
+        rank[pos] = np.arange(pos.size, dtype=np.int64)
+        emap = rank[key]
     else:
-        payload = _payload(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
-                           None)
-    return write_model_set(models) + payload
+        pos, emap = np.unique(key, return_inverse=True)
+        emap = emap.ravel()
+        cnt = np.bincount(emap, weights=h.ec, minlength=pos.size).astype(np.int64)
+    em = np.searchsorted(ends, pos, side="right").astype(np.int64)
+    out.em, out.eo, out.ec = em, pos - dstart[em], cnt
+    out.lo, out.span = lo, span
+    out.k = np.bincount(em, minlength=m_count).astype(np.int64) if em.size \
+        else np.zeros(m_count, np.int64)
+    out.start = np.cumsum(out.k) - out.k
+    out.sym_entry = emap[h.sym_entry] if h.sym_entry is not None else None
+    return out
+
+
+def encode_stream_pair(symbols: np.ndarray, model_ids: np.ndarray, num_models: int,
+                       merge: np.ndarray, merged_models: int) -> tuple[bytes, bytes]:
+    """(encode_stream(symbols, model_ids, num_models),
+    encode_stream(symbols, merge[model_ids], merged_models)): the same bytes, one pass over the
+    symbols (the second layout's histograms are merged from the first's)."""
+    mid = np.asarray(model_ids, dtype=np.int64).ravel()
+    sym = np.asarray(symbols, dtype=np.int64).ravel()
+    h = _histograms(sym, mid, num_models, symbol_entries=True)
+    first = _encode_hist(h, sym.size)
+    return first, _encode_hist(_merge_histograms(h, merge, merged_models), sym.size)
 
 
 def payload_cost_bits(symbols: np.ndarray, model_ids: np.ndarray, models: ModelSet) -> float:
