@@ -372,3 +372,43 @@ def test_budget_encodes_with_the_real_encoder(window, sample_sh0):
         assert app.comparing and app.b.name == "40kB" and app.b.file_bytes == len(r.data)
     finally:
         app.close()
+
+
+def test_simulated_network_builds_the_scene_up_layer_by_layer(window, sample_sh3, tmp_path):
+    from gsz.decoder import decode, inspect
+    from gsz.encoder.pipeline import EncodeOptions, encode
+    res = encode(sample_sh3, EncodeOptions(bits=8, codebook=64, train_views=2, importance_width=64,
+                                           vq_iters=2, layers=3))
+    path = tmp_path / "layered.gsz"
+    path.write_bytes(res.data)
+    rows = inspect(res.data)["layers"]
+    a = va.scene_from_file(path)
+    app = _app(window, a.cloud)
+    app.scenes[0] = a
+    app._upload(a)
+    try:
+        assert app.stream_candidate() is a
+        rate = len(res.data) / 1.5                       # the whole file in ~1.5 s
+        app.start_stream(a, rate)
+        first = _frame(window, app)
+        assert len(a.cloud) == 0 and first[40:].max() == 0      # nothing arrived: background only
+        assert "streaming" in a.label
+        seen = []
+        t0 = time.perf_counter()
+        while not app.stream_status["done"] and time.perf_counter() - t0 < 30:
+            img = _frame(window, app)
+            if not seen or seen[-1][0] != len(a.cloud):
+                seen.append((len(a.cloud), app.stream_status["bytes"], int(img.sum())))
+            time.sleep(0.02)
+        _frame(window, app)
+        counts = [n for n, _, _ in seen if n]
+        assert counts[-1] == rows[-1]["cumulative_gaussians"] == len(a.cloud)
+        assert set(counts) <= {r["cumulative_gaussians"] for r in rows} and counts == sorted(counts)
+        assert len(set(counts)) >= 2                      # at least two stages were on screen
+        assert time.perf_counter() - t0 > 0.8            # paced by the simulated network
+        assert a.note == "" and a.cloud.equals(decode(res.data))
+        from gsz.viewer.streaming import PIECE
+        got = app.stream_status["layer_bytes"]          # a layer shows once its bytes are in
+        assert len(got) == len(rows) and all(0 <= b - r["decodable_at"] < PIECE for b, r in zip(got, rows))
+    finally:
+        app.close()

@@ -110,7 +110,8 @@ class Scene:
     components: dict = field(default_factory=dict)
     renderer: SplatRenderer | None = None
     sorter: DepthSorter | None = None
-    whole: GaussianCloud | None = None      # for a layer prefix: the whole file's cloud
+    whole: GaussianCloud | None = None      # for a layer prefix / a stream: the whole file's cloud
+    note: str = ""                          # shown after the label (e.g. streaming progress)
 
     @property
     def frame_cloud(self) -> GaussianCloud:
@@ -120,7 +121,7 @@ class Scene:
 
     @property
     def label(self) -> str:
-        return f"{self.name}  {format_bytes(self.file_bytes)}"
+        return f"{self.name}  {format_bytes(self.file_bytes)}" + (f"  {self.note}" if self.note else "")
 
 
 def _components_of(src) -> dict:
@@ -213,7 +214,7 @@ class ViewerApp:
     def __init__(self, ctx, a: Scene, b: Scene | None = None, *, cameras, up,
                  width: int = 1280, height: int = 720, settings: Settings | None = None,
                  threaded_sort: bool = True, budget_jobs=None, screenshot_dir: str = ".",
-                 camera_index: int = 0, more_b=()):
+                 camera_index: int = 0, more_b=(), stream_rate: float | None = None):
         import moderngl
         self.ctx = ctx
         self._mgl = moderngl
@@ -260,6 +261,13 @@ class ViewerApp:
         self._metrics_thread = None
         self._frame_key = None              # what the last drawn frame showed
         self._drawn = {}
+        self.stream = None                  # StreamPlayback of a .gsz scene, or None
+        self.stream_scene = None
+        self.stream_status = None           # last snapshot (without the cloud), for the panel
+        self._stream_version = 0
+        self.stream_rate = 2e6 if stream_rate is None else float(stream_rate)
+        if stream_rate is not None:
+            self.start_stream(self.b if self.b is not None else self.a, stream_rate)
         self.comp = ctx.program(vertex_shader=load_shader("fullscreen.vert.glsl"),
                                 fragment_shader=load_shader("composite.frag.glsl"))
         self.comp_vao = ctx.vertex_array(self.comp, [])
@@ -285,6 +293,8 @@ class ViewerApp:
         return d if d > 0 else 1.0
 
     def _upload(self, scene: Scene):
+        if len(scene.cloud) == 0:           # nothing arrived yet (streaming): drawn as background
+            return
         if scene.renderer is None:
             scene.renderer = SplatRenderer(self.ctx, scene.cloud)
         if scene.sorter is None:
@@ -302,7 +312,71 @@ class ViewerApp:
     def comparing(self) -> bool:
         return self.b is not None
 
+    # -- simulated streaming ---------------------------------------------------------------------
+    def stream_candidate(self) -> Scene | None:
+        """The scene a stream replay applies to: the decoded .gsz (B, else a lone .gsz A)."""
+        for s in ([self.b] if self.b is not None else []) + [self.a]:
+            is_gsz = bool(s.path) and s.path.lower().endswith(".gsz")
+            if is_gsz and (s.whole is None or s is self.stream_scene):   # not a layer prefix
+                return s
+        return None
+
+    def start_stream(self, scene: Scene | None = None, rate: float | None = None) -> None:
+        """Replay ``scene``'s .gsz through the streaming decoder at ``rate`` bytes/s (None: as
+        fast as it decodes): the scene empties, then grows layer by layer as bytes 'arrive'."""
+        from .streaming import StreamPlayback
+        scene = scene or self.stream_candidate()
+        if scene is None or not scene.path or not scene.path.lower().endswith(".gsz"):
+            raise GszError("streaming replay needs a .gsz scene")
+        self.stop_stream()
+        with open(scene.path, "rb") as f:
+            data = f.read()
+        if scene.whole is None:
+            scene.whole = scene.cloud
+        self._set_cloud(scene, scene.whole.subset(np.arange(0)))
+        self.stream_scene = scene
+        self.stream_rate = self.stream_rate if rate is None else float(rate)
+        self._stream_version = 0
+        self.stream = StreamPlayback(data, rate)
+        self._poll_stream()
+
+    def stop_stream(self) -> None:
+        if self.stream is not None:
+            self.stream.stop()
+            self.stream = None
+
+    def _set_cloud(self, scene: Scene, cloud: GaussianCloud) -> None:
+        if scene.sorter is not None:
+            scene.sorter.close()
+            scene.sorter = None
+        if scene.renderer is not None:
+            scene.renderer.release()
+            scene.renderer = None
+        scene.cloud = cloud
+        self._upload(scene)
+        self._frame_key = None
+        self._metrics = None
+
+    def _poll_stream(self) -> None:
+        if self.stream is None:
+            return
+        snap = self.stream.snapshot()
+        scene = self.stream_scene
+        if snap["version"] != self._stream_version and snap["cloud"] is not None:
+            self._stream_version = snap["version"]
+            self._set_cloud(scene, snap["cloud"])
+        layers = f"{snap['layers']}/{snap['layers_total'] or '?'}"
+        if snap["error"]:
+            scene.note = f"stream error: {snap['error']}"
+        elif snap["done"]:
+            scene.note = ""
+        else:
+            scene.note = (f"streaming {format_bytes(snap['bytes'])} of {format_bytes(snap['total'])}, "
+                          f"layer {layers}")
+        self.stream_status = dict(snap, cloud=None)
+
     def close(self):
+        self.stop_stream()
         for s in [self.scenes[0]] + self.variants:
             if s.sorter is not None:
                 s.sorter.close()
@@ -419,6 +493,7 @@ class ViewerApp:
             self._last_version = self.control.version
             self._last_move = time.monotonic()
         self._poll_budgets()
+        self._poll_stream()
 
     def _poll_budgets(self):
         if self.budget_jobs is None:
@@ -478,6 +553,8 @@ class ViewerApp:
         cam = self.view_camera()
         needed = self._scenes_needed()
         for _, scene in needed:
+            if scene.sorter is None:        # empty (a stream before its first layer)
+                continue
             scene.sorter.request(cam)
             if wait_for_sort or scene.sorter.order() is None:
                 scene.sorter.wait_current(timeout=600.0)
@@ -485,7 +562,8 @@ class ViewerApp:
         # the last frame instead of re-rendering every splat.
         key = (camera_key(cam), cam.width, cam.height, self.width, self.height,
                dataclasses.astuple(self.settings), id(self.b),
-               tuple(scene.sorter.sorts_done for _, scene in needed))
+               tuple((id(scene.cloud), scene.sorter.sorts_done if scene.sorter else -1)
+                     for _, scene in needed))
         if key != self._frame_key or self.output is None:
             self._draw(cam, needed)
             self._frame_key = key
@@ -503,16 +581,21 @@ class ViewerApp:
         pre_s = draw_s = 0.0
         current = True
         for slot, scene in needed:
+            target = self._target(slot, cam.width, cam.height)
+            drawn[slot] = target
+            if scene.renderer is None:      # nothing arrived yet: background only
+                target.fbo.use()
+                self.ctx.viewport = (0, 0, target.width, target.height)
+                self.ctx.clear(*[float(v) for v in s.background], 0.0)
+                continue
             order = scene.sorter.order()
             current &= scene.sorter.is_current
             sort_s = max(sort_s, scene.sorter.last_sort_s)
-            target = self._target(slot, cam.width, cam.height)
             deg = min(int(s.sh_degree), scene.cloud.sh_degree)
             scene.renderer.render(cam, target, order=order, background=s.background,
                                   sh_degree=deg, scale_modifier=s.scale_modifier)
             pre_s += scene.renderer.last_times["preprocess_s"]
             draw_s += scene.renderer.last_times["draw_s"]
-            drawn[slot] = target
         # Composite into the output framebuffer.
         if self._out_size != (self.width, self.height):
             if self.output is not None:

@@ -47,6 +47,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="show only the first K importance layers of a layered .gsz FILE (what a "
                         "streaming client shows once those layers have arrived); with --compare, "
                         "every layer prefix is also offered as a B choice")
+    p.add_argument("--simulate-network", metavar="RATE", default=None,
+                   help="window: replay the .gsz (FILE, or the decoded side of --compare) as if it "
+                        "arrived at RATE (e.g. 2MB/s): the scene builds up layer by layer; the panel "
+                        "can replay at other rates")
     p.add_argument("--screenshot", metavar="OUT.png", help="render one frame headless and exit")
     p.add_argument("--camera", type=int, default=0, metavar="I", help="TEST camera index for "
                    "--screenshot and the initial view (default 0)")
@@ -177,6 +181,8 @@ def _first_layers(scene, k):
 
 def _screenshot(args, a, b, jobs) -> str:
     from .app import ViewerApp
+    if args.simulate_network is not None:
+        raise _UsageError("--simulate-network is for the window; --layers K renders a layer prefix headless")
     from .gl_renderer import create_headless_context
     width = 800 if args.width is None else args.width
     if width < 1 or (args.height is not None and args.height < 1) or width > 16384 \
@@ -245,7 +251,14 @@ def _draw_labels_offscreen(app) -> None:
 
 def _interactive(args, a, b, jobs) -> None:
     from .app import ViewerApp, layer_prefix_scenes
+    from .streaming import parse_rate
     from .window import Window, run
+    rate = None
+    if args.simulate_network is not None:
+        target = b if b is not None else a
+        if not (target.path or "").lower().endswith(".gsz") or args.layers is not None:
+            raise _UsageError("--simulate-network replays a .gsz FILE (not with --layers or --budgets)")
+        rate = parse_rate(args.simulate_network)
     width = 1280 if args.width is None else args.width
     height = 720 if args.height is None else args.height
     cams = _load_cameras(args, a.frame_cloud, None)
@@ -260,7 +273,8 @@ def _interactive(args, a, b, jobs) -> None:
                         up=_up_vector(args.up, a.frame_cloud, args.cameras, cams),
                         width=fw, height=fh, settings=settings, budget_jobs=jobs,
                         camera_index=args.camera,
-                        more_b=layer_prefix_scenes(b) if b is not None and args.layers is None else ())
+                        more_b=layer_prefix_scenes(b) if b is not None and args.layers is None else (),
+                        stream_rate=rate)
         if args.render_scale is None and app.is_llvmpipe:
             app.settings.render_scale = 0.5
         if jobs is not None:

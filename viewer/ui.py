@@ -90,6 +90,22 @@ def draw_panel(app) -> None:
             for label, msg in snap["errors"]:
                 imgui.text_colored(imgui.ImVec4(1, 0.4, 0.4, 1), f"{label}: {msg}")
 
+    cand = app.stream_candidate()
+    if cand is not None:
+        imgui.separator_text("streaming (simulated network)")
+        st_ = app.stream_status
+        if st_ is not None:
+            frac = st_["bytes"] / max(1, st_["total"])
+            imgui.progress_bar(frac, imgui.ImVec2(-1, 0),
+                               f"{format_bytes(st_['bytes'])} / {format_bytes(st_['total'])}")
+            imgui.text(f"layers {st_['layers']}/{st_['layers_total'] or '?'}   {len(app.stream_scene.cloud):,} splats"
+                       + ("   done" if st_["done"] else ""))
+        mbps = app.stream_rate / 1e6
+        _, mbps = imgui.slider_float("MB/s", mbps, 0.05, 100.0, "%.2f", imgui.SliderFlags_.logarithmic)
+        app.stream_rate = mbps * 1e6
+        if imgui.button(f"replay {cand.name} at {mbps:.2f} MB/s"):
+            app.start_stream(cand, app.stream_rate)
+
     if app.comparing:
         imgui.separator_text("compare")
         for m in MODES:
