@@ -56,6 +56,8 @@ class SearchOptions:
     reserves        tau grid, descending
     max_candidates  taus spread over the feasible range, encoded and compared by train PSNR
     refine_steps    rounds of also trying the grid neighbours of the best tau so far
+    max_extra_depth octree levels beyond the position-error default tried (one at a time, at
+                    the best tau) while the best file stays below the budget at full quality
     weight_channels weight Omega per channel by measured rendering sensitivity (channel_weights)
     tolerance       accepted shortfall below the target (fraction)
     max_rounds      calibration rounds per tau
@@ -68,6 +70,7 @@ class SearchOptions:
 
     reserves: tuple = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)
     max_candidates: int = 3
+    max_extra_depth: int = 3
     refine_steps: int = 3
     weight_channels: bool = True
     tolerance: float = 0.005
@@ -445,11 +448,11 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     # --- tau grid: bounds from cheap estimates, then candidates spread over the feasible range --
     stages: dict[float, Stage] = {}
 
-    def stage_for(tau):
-        if tau not in stages:
-            stages[tau] = prepare_stage(cloud, importance, tau, depth=depth, layers=sopts.layers,
-                                        first_layer=sopts.first_layer, progress=progress)
-        return stages[tau]
+    def stage_for(tau, d=depth):
+        if (tau, d) not in stages:
+            stages[(tau, d)] = prepare_stage(cloud, importance, tau, depth=d, layers=sopts.layers,
+                                             first_layer=sopts.first_layer, progress=progress)
+        return stages[(tau, d)]
 
     taus = sorted(set(float(t) for t in sopts.reserves), reverse=True)
     top = stage_for(taus[0])
@@ -491,9 +494,9 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     candidates, log = [], []
     evaluated = set()
 
-    def try_tau(tau):
+    def try_tau(tau, d=depth):
         evaluated.add(tau)
-        stage = stage_for(tau)
+        stage = stage_for(tau, d)
         sh_models = []
         for cb in codebooks:
             with progress.stage("sh-model", f"tau {tau}, codebook {len(cb)}"):
@@ -506,6 +509,7 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
         with progress.stage("eval", f"tau {tau}"):
             ev = evaluate(refs, out, eval_cams)
         progress.log(f"tau {tau}: {len(data):,} bytes, train PSNR {ev['psnr']:.2f} dB")
+        info["depth"] = d
         candidates.append((ev["psnr"], tau, data, out, info, ev["ssim"]))
 
     for tau in feasible:
@@ -521,12 +525,28 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
             break
         for tau in nbrs:
             try_tau(tau)
+    # deeper octree while the best file stays below the budget with every group at its best
+    # width: the position error of the voxel grid is then what limits fidelity, and each level
+    # halves it for about 3 bits per voxel
+    for _ in range(sopts.max_extra_depth):
+        if not candidates:
+            break
+        best = max(candidates, key=lambda c: (c[0], c[1]))
+        d_next = best[4]["depth"] + 1
+        if len(best[2]) >= target * (1.0 - sopts.tolerance) or d_next > 21:
+            break
+        progress.log(f"best file {len(best[2]):,} B is below the budget at depth {d_next - 1}: "
+                     f"trying depth {d_next}")
+        n_before = len(candidates)
+        try_tau(best[1], d_next)
+        if len(candidates) == n_before or candidates[-1][0] <= best[0]:
+            break
     if not candidates:
         smallest = _smallest_file(stage_for(taus[-1]), sopts, codebooks[-1] if codebooks else None)
         raise BudgetError(target, smallest)
     candidates.sort(key=lambda c: (-c[0], -c[1]))
     psnr, tau, data, out, info, ssim = candidates[0]
-    stage = stage_for(tau)
+    stage = stage_for(tau, info["depth"])
     sh_plan = info["sh_plan"]
     report = {
         "mode": "size-search", "target_bytes": target, "bytes": len(data),
@@ -541,7 +561,8 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
                  "raht_channels": ["opacity", "roll", "pitch", "yaw", "f_dc_0", "f_dc_1", "f_dc_2"],
                  "scale_channels": ["scale_0", "scale_1", "scale_2"], "sh": SH_BITS if sh_plan else None},
         "calibration": info["rounds"],
-        "candidates": [{"reserve": c[1], "bytes": len(c[2]), "train_psnr": c[0], "train_ssim": c[5]}
+        "candidates": [{"reserve": c[1], "depth": c[4]["depth"], "bytes": len(c[2]), "train_psnr": c[0],
+                        "train_ssim": c[5]}
                        for c in sorted(candidates, key=lambda c: -c[1])],
         "train_psnr": psnr, "channel_weights": weights,
         "components": {"geometry": stage.geometry_bytes, "attributes": info["attr_bytes"],

@@ -98,3 +98,20 @@ def test_channel_weights_are_measured_sensitivities():
     assert w["sh"] > 0
     # deterministic for a seed (the search's allocation depends on it)
     assert channel_weights(c, cams) == w
+
+
+def test_budget_above_full_quality_buys_a_deeper_octree(imp_cache):
+    """When every group is at its best width and the file is still below the budget, the
+    position error of the voxel grid limits fidelity: the search tries deeper octrees, keeps the
+    better one, and never goes over the budget."""
+    c = sample("sh3", 3000)
+    from gsz.encoder.voxelize import DEFAULT_REL_ERROR, choose_depth
+    d0 = choose_depth(c.positions, rel_error=DEFAULT_REL_ERROR)
+    c, res = _search("sh3", 3000, 2_000_000, imp_cache)
+    r = res.report
+    assert len(res.data) <= 2_000_000
+    depths = {cand["depth"] for cand in r["candidates"]}
+    assert d0 in depths and max(depths) > d0
+    at_d0 = max(cand["train_psnr"] for cand in r["candidates"] if cand["depth"] == d0)
+    assert r["depth"] > d0 and r["train_psnr"] > at_d0
+    assert decode(res.data).equals(res.cloud)
