@@ -93,6 +93,31 @@ def time_decodes(data):
     return min(whole), min(stream)
 
 
+def fixed_configuration(a) -> int:
+    """Layered vs single-layer bytes at ``--reserve 0.8 --bits B`` (no search noise)."""
+    import gsz
+    from gsz.encoder.pipeline import EncodeOptions, compute_train_importance, encode
+    print("| scene | layers | bytes | vs 1 layer | geometry B | RAHT B | scales B | layer ends (fraction of the file) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for scene in a.scenes.split(","):
+        path = SHARED / f"{scene}.ply"
+        if not path.exists():
+            continue
+        cloud = gsz.read_ply(path)
+        imp = compute_train_importance(cloud, EncodeOptions(train_views=8, importance_width=200))
+        base = None
+        for layers in (1, 2, 3, 4):
+            r = encode(cloud, EncodeOptions(bits=a.fixed_bits, layers=layers, first_layer=a.first_layer),
+                       importance=imp)
+            c = r.report["components"]
+            base = base or len(r.data)
+            rel = "—" if layers == 1 else f"{100 * (len(r.data) / base - 1):+.2f} %"
+            ends = ", ".join(f"{x['decodable_fraction']:.3f}" for x in r.report["layers"])
+            print(f"| {scene} | {layers} | {len(r.data):,} | {rel} | {c['geometry']:,} | {c['raht_bytes']:,} | "
+                  f"{c['scale_bytes']:,} | {ends} |", flush=True)
+    return 0
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", default=",".join(SCENES))
@@ -105,10 +130,15 @@ def main(argv=None):
     ap.add_argument("--redo", action="store_true",
                     help="re-measure the layered file of finished scene/budget rows (after a codec "
                          "change), keeping their single-layer references")
+    ap.add_argument("--fixed-bits", type=int, default=None, metavar="B",
+                    help="instead: bytes of 1..4-layer files at a fixed configuration (reserve 0.8, "
+                         "uniform B bits) and where they go, per scene")
     a = ap.parse_args(argv)
     if not SHARED.exists():
         print(f"SKIP: {SHARED} not present")
         return 0
+    if a.fixed_bits is not None:
+        return fixed_configuration(a)
     import gsz
     from gsz.decoder import iter_layers
     from gsz.encoder.cameras import load_cameras
