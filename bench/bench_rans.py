@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/bench_rans.py [--n 10000000] [--models 100] [--repeat 3]
     .venv/bin/python bench/bench_rans.py --scene ../shared/data/flowers_daffodils_sh2.ply --bits 8
+    .venv/bin/python bench/bench_rans.py --channel-sets [--repeat 3]
 
 Data: N symbols in -128..127, M equal blocks, each a rounded Laplace with its own scale
 (U(0.5, 20)), as in platform-notes.md section 5.  Reports encode/decode Msym/s (best of
@@ -9,6 +10,14 @@ Data: N symbols in -128..127, M equal blocks, each a rounded Laplace with its ow
 entropy, incremental decoding in batches of 4096, and constriction's AnsCoder with the same
 quantised probabilities as a yardstick.  With --scene: opacity, scales, rotation and DC of a
 real PLY, min-max quantised per channel to --bits, 80 blocks per channel (one model each).
+
+With --channel-sets: ``gsz.encoder.groups.write_channel_set`` (quantise + both rANS model layouts
++ serialise: what every ``attribute_chunk`` of the size search runs) on the real channel sets of
+houseplant and flowers (``prepare_stage(cloud, ones, 0.8)``, layer 0: RAHT AC [7, L] and scales
+[3, L], 80 blocks) at uniform 8 and 12 bits and random [C, 80] bit-widths in 4..14 (seed 1).
+Reports best-of---repeat wall and process-CPU time of the whole call, of its quantisation part
+alone (``quantize_groups`` + ``dequantize_groups``, torch with one thread), the difference
+(entropy coding), the output size and a hash of the bytes (to compare implementations: the output is normative).
 """
 from __future__ import annotations
 
@@ -45,6 +54,44 @@ def scene_symbols(path: str, bits: int, blocks: int = 80):
     return q.T.ravel(), mids, ch * blocks
 
 
+def channel_set_bench(repeat: int, scenes=("houseplant_sh0", "flowers_daffodils_sh2")):
+    import hashlib
+    from pathlib import Path
+
+    from gsz.decoder.groups import blocks_for
+    from gsz.decoder.ply import read_ply
+    from gsz.decoder.quant import dequantize_groups, split_lengths
+    from gsz.encoder.groups import write_channel_set
+    from gsz.encoder.pipeline import prepare_stage
+    from gsz.kernels.quantize import quantize_groups
+
+    import torch
+    torch.set_num_threads(1)    # the quantiser's torch threads only add noise on a loaded machine
+    data = Path(__file__).resolve().parents[2] / "shared" / "data"
+    print(f"{'scene':12s} {'set':6s} {'bits':5s} {'total s':>8s} {'quant s':>8s} {'coding s':>8s} "
+          f"{'total cpu':>9s} {'quant cpu':>9s} {'coding cpu':>10s} {'bytes':>10s} mode  sha256")
+    for name in scenes:
+        cloud = read_ply(str(data / f"{name}.ply"))
+        layer = prepare_stage(cloud, np.ones(len(cloud)), 0.8).layers[0]
+        for set_name, x in (("ac", layer.raht_ac), ("scales", layer.scales)):
+            c, length = x.shape
+            for bits in (8, 12, "rand"):
+                b = np.random.default_rng(1).integers(4, 15, (c, 80)) if bits == "rand" else bits
+                (out, _), t_all, c_all = timed(lambda: write_channel_set(x, b, 80), repeat)
+                nb = blocks_for(length, 80)
+                ba = np.broadcast_to(np.asarray(b, np.int64), (c, nb)).copy()
+
+                def quant_only():
+                    sym, mins, maxs = quantize_groups(x, nb, ba)
+                    return dequantize_groups(sym, mins, maxs, ba, split_lengths(length, nb))
+
+                _, t_q, c_q = timed(quant_only, repeat)
+                print(f"{name[:12]:12s} {set_name:6s} {str(bits):5s} {t_all:8.3f} {t_q:8.3f} "
+                      f"{t_all - t_q:8.3f} {c_all:9.3f} {c_q:9.3f} {c_all - c_q:10.3f} "
+                      f"{len(out):10,d} {out[7]:4d}  "
+                      f"{hashlib.sha256(out).hexdigest()[:16]}", flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=10_000_000)
@@ -53,7 +100,12 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--scene", default=None, help="real PLY instead of synthetic data")
     ap.add_argument("--bits", type=int, default=8, help="quantisation bits with --scene")
+    ap.add_argument("--channel-sets", action="store_true",
+                    help="time write_channel_set on real channel sets instead")
     args = ap.parse_args(argv)
+    if args.channel_sets:
+        channel_set_bench(args.repeat)
+        return
     if args.scene:
         sym, mids, m = scene_symbols(args.scene, args.bits)
         n = sym.size
