@@ -1,7 +1,8 @@
 """Size-search benchmark: 5 budgets per scene spanning 8x..40x compression, RD plots.
 
     .venv/bin/python bench/bench_search.py [--scenes a,b] [--ratios 8,12,18,27,40] [--noise]
-                                           [--scaling] [--out bench/out/search.json]
+                                           [--scaling [--fractions 0.125,0.25,0.5,1]]
+                                           [--out bench/out/search.json]
 
 Per scene and budget: target, actual bytes, deviation, test-view PSNR/SSIM (gsz-eval's
 protocol, default cameras), search seconds and per-stage seconds.  --scaling also times the
@@ -49,6 +50,7 @@ def main(argv=None):
     ap.add_argument("--ratios", default="8,12,18,27,40")
     ap.add_argument("--noise", action="store_true")
     ap.add_argument("--scaling", action="store_true")
+    ap.add_argument("--fractions", default="0.125,0.25,0.5,1", help="--scaling: subsample fractions")
     ap.add_argument("--width", type=int, default=800)
     ap.add_argument("--out", default=str(ROOT / "bench" / "out" / "search.json"))
     a = ap.parse_args(argv)
@@ -106,7 +108,7 @@ def main(argv=None):
             plot(scene, scene_rows, out_dir / f"rd_{scene}.png")
     if a.scaling:
         c = gsz.read_ply(SHARED / "flowers_daffodils_sh2.ply")
-        for frac in (0.125, 0.25, 0.5, 1.0):
+        for frac in [float(f) for f in a.fractions.split(",")]:
             idx = np.sort(np.random.default_rng(0).choice(len(c), int(frac * len(c)), replace=False))
             sub = c.subset(idx)
             target = int(os.path.getsize(SHARED / "flowers_daffodils_sh2.ply") * frac / 20)
