@@ -66,6 +66,9 @@ class SearchOptions:
     layers          importance-ordered layers of the file (progressive streaming); the bit
                     allocation runs over the groups of every layer at once
     first_layer     fraction of the Gaussians in layer 0 (when layers > 1)
+    layer0_share    wanted fraction of the file bytes before layer 0 is decodable: when the
+                    chosen file's layer 0 ends after more than 1.5x this, the layers are
+                    re-split with a proportionally smaller layer 0 and that candidate re-encoded
     """
 
     reserves: tuple = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)
@@ -85,6 +88,7 @@ class SearchOptions:
     vq_iters: int | None = None
     layers: int = DEFAULT_LAYERS
     first_layer: float = DEFAULT_FIRST_LAYER
+    layer0_share: float = 0.1
     seed: int = 0
 
 
@@ -448,11 +452,11 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     # --- tau grid: bounds from cheap estimates, then candidates spread over the feasible range --
     stages: dict[float, Stage] = {}
 
-    def stage_for(tau, d=depth):
-        if (tau, d) not in stages:
-            stages[(tau, d)] = prepare_stage(cloud, importance, tau, depth=d, layers=sopts.layers,
-                                             first_layer=sopts.first_layer, progress=progress)
-        return stages[(tau, d)]
+    def stage_for(tau, d=depth, fl=sopts.first_layer):
+        if (tau, d, fl) not in stages:
+            stages[(tau, d, fl)] = prepare_stage(cloud, importance, tau, depth=d, layers=sopts.layers,
+                                                 first_layer=fl, progress=progress)
+        return stages[(tau, d, fl)]
 
     taus = sorted(set(float(t) for t in sopts.reserves), reverse=True)
     top = stage_for(taus[0])
@@ -494,9 +498,9 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     candidates, log = [], []
     evaluated = set()
 
-    def try_tau(tau, d=depth):
+    def try_tau(tau, d=depth, fl=sopts.first_layer):
         evaluated.add(tau)
-        stage = stage_for(tau, d)
+        stage = stage_for(tau, d, fl)
         sh_models = []
         for cb in codebooks:
             with progress.stage("sh-model", f"tau {tau}, codebook {len(cb)}"):
@@ -509,7 +513,7 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
         with progress.stage("eval", f"tau {tau}"):
             ev = evaluate(refs, out, eval_cams)
         progress.log(f"tau {tau}: {len(data):,} bytes, train PSNR {ev['psnr']:.2f} dB")
-        info["depth"] = d
+        info["depth"], info["first_layer"] = d, fl
         candidates.append((ev["psnr"], tau, data, out, info, ev["ssim"]))
 
     for tau in feasible:
@@ -541,12 +545,32 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
         try_tau(best[1], d_next)
         if len(candidates) == n_before or candidates[-1][0] <= best[0]:
             break
+    # layered files: layer 0 should arrive after about `layer0_share` of the bytes.  Kept exact
+    # SH vectors make the most important Gaussians several times dearer than the rest, so on SH
+    # scenes a Gaussian share of `first_layer` can cost far more bytes; re-split the chosen
+    # configuration with a proportionally smaller layer 0 (at most twice).
+    rejected = set()
+    for _ in range(2 if sopts.layers > 1 else 0):
+        if not candidates:
+            break
+        best = max((c for c in candidates if id(c) not in rejected), key=lambda c: (c[0], c[1]))
+        share = layer_report(best[2])[0]["decodable_fraction"]
+        if share <= 1.5 * sopts.layer0_share:
+            break
+        fl = best[4]["first_layer"] * sopts.layer0_share / share
+        progress.log(f"layer 0 arrives after {100 * share:.1f} % of the file: re-splitting the layers "
+                     f"with {100 * fl:.2f} % of the Gaussians in layer 0")
+        n_before = len(candidates)
+        try_tau(best[1], best[4]["depth"], fl)
+        if len(candidates) > n_before:
+            rejected.add(id(best))
     if not candidates:
         smallest = _smallest_file(stage_for(taus[-1]), sopts, codebooks[-1] if codebooks else None)
         raise BudgetError(target, smallest)
-    candidates.sort(key=lambda c: (-c[0], -c[1]))
-    psnr, tau, data, out, info, ssim = candidates[0]
-    stage = stage_for(tau, info["depth"])
+    chosen = [c for c in candidates if id(c) not in rejected]
+    chosen.sort(key=lambda c: (-c[0], -c[1]))
+    psnr, tau, data, out, info, ssim = chosen[0]
+    stage = stage_for(tau, info["depth"], info["first_layer"])
     sh_plan = info["sh_plan"]
     report = {
         "mode": "size-search", "target_bytes": target, "bytes": len(data),
@@ -561,8 +585,10 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
                  "raht_channels": ["opacity", "roll", "pitch", "yaw", "f_dc_0", "f_dc_1", "f_dc_2"],
                  "scale_channels": ["scale_0", "scale_1", "scale_2"], "sh": SH_BITS if sh_plan else None},
         "calibration": info["rounds"],
-        "candidates": [{"reserve": c[1], "depth": c[4]["depth"], "bytes": len(c[2]), "train_psnr": c[0],
-                        "train_ssim": c[5]}
+        "first_layer": info["first_layer"],
+        "candidates": [{"reserve": c[1], "depth": c[4]["depth"], "first_layer": c[4]["first_layer"],
+                        "bytes": len(c[2]), "train_psnr": c[0], "train_ssim": c[5],
+                        "layer0_too_late": id(c) in rejected}
                        for c in sorted(candidates, key=lambda c: -c[1])],
         "train_psnr": psnr, "channel_weights": weights,
         "components": {"geometry": stage.geometry_bytes, "attributes": info["attr_bytes"],

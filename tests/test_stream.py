@@ -253,3 +253,24 @@ def test_codebook_travels_with_the_first_layer_that_needs_it():
     with pytest.raises(GszFormatError, match="no SH codebook"):
         read_sh(sh[2], m[2], 2, None)
     read_sh(sh[2], m[2], 2, cb)
+
+
+def test_search_resplits_layers_when_layer_zero_arrives_too_late():
+    """When layer 0 ends after more than 1.5x the wanted share of the bytes (on SH scenes kept
+    exact SH vectors make it dear), the chosen configuration is re-split with a smaller layer 0.
+    (SH-0 sample with a deliberately small wanted share, so the SH codebook, which always
+    travels early, does not bound what a re-split can reach.)"""
+    from gsz.encoder.search import SearchOptions, encode_to_budget
+    cloud = sample("sh0", 4000)
+    target = 40_000
+    r = encode_to_budget(cloud, target, options=SearchOptions(
+        layers=3, layer0_share=0.04, train_views=4, importance_width=120, eval_views=2, eval_width=120,
+        codebook=64, vq_iters=10, max_candidates=1, refine_steps=0, max_extra_depth=0))
+    cands = r.report["candidates"]
+    late = [c for c in cands if c["layer0_too_late"]]
+    assert late and late[0]["first_layer"] == 0.1
+    assert r.report["first_layer"] < 0.1
+    assert target * 0.995 <= len(r.data) <= target
+    share = r.report["layers"][0]["decodable_fraction"]
+    assert share < 0.07
+    same(decode(r.data), r.cloud)
