@@ -27,19 +27,27 @@ CHUNK_NAMES = {CHUNK_GEOM: "geometry (octree)", CHUNK_ATTR: "attributes (RAHT + 
                CHUNK_SHVQ: "SH (codebook + kept + indices)", CHUNK_META: "metadata (JSON)"}
 
 
-def _load_bytes(src):
-    if isinstance(src, (bytes, bytearray, memoryview)):
-        return memoryview(src), None
-    path = os.fspath(src)
+def open_gsz(path: str):
+    """Open a .gsz file for reading; a GszError naming the file when it cannot be opened."""
     try:
-        with open(path, "rb") as f:
-            return memoryview(f.read()), path
+        return open(path, "rb")
     except FileNotFoundError:
         raise GszError("file not found", path) from None
     except IsADirectoryError:
         raise GszError("is a directory, expected a .gsz file", path) from None
     except OSError as e:
         raise GszError(f"cannot read: {e.strerror or e}", path) from None
+
+
+def _load_bytes(src):
+    if isinstance(src, (bytes, bytearray, memoryview)):
+        return memoryview(src), None
+    path = os.fspath(src)
+    with open_gsz(path) as f:
+        try:
+            return memoryview(f.read()), path
+        except OSError as e:
+            raise GszError(f"cannot read: {e.strerror or e}", path) from None
 
 
 def _guard(fn, path):

@@ -29,7 +29,8 @@ import numpy as np
 from .cloud import GaussianCloud
 from .container import (CHUNK_REQUIRED, DEFAULT_MAX_GAUSSIANS, HEADER_SIZE, MAGIC, parse_header,
                         parse_table, table_size)
-from .decode import LayerState, _guard, check_header_counts, concat_clouds, decode_layer, plan_layers
+from .decode import (LayerState, _guard, check_header_counts, concat_clouds, decode_layer, open_gsz,
+                     plan_layers)
 from .errors import GszError, GszFormatError, GszTruncatedWarning
 from .layout import KNOWN_CHUNKS
 
@@ -237,16 +238,7 @@ def _pieces(source, chunk_size: int):
             yield mv[s:s + chunk_size]
         return
     if isinstance(source, (str, os.PathLike)):
-        path = os.fspath(source)
-        try:
-            f = open(path, "rb")
-        except FileNotFoundError:
-            raise GszError("file not found", path) from None
-        except IsADirectoryError:
-            raise GszError("is a directory, expected a .gsz file", path) from None
-        except OSError as e:
-            raise GszError(f"cannot read: {e.strerror or e}", path) from None
-        with f:
+        with open_gsz(os.fspath(source)) as f:
             yield from _pieces(f, chunk_size)
         return
     if hasattr(source, "read"):

@@ -159,6 +159,9 @@ def test_iter_layers_over_paths_readers_and_piece_iterables(sh3_layered, tmp_pat
     with pytest.warns(GszTruncatedWarning, match="cut.gsz"):
         got = list(iter_layers(tmp_path / "cut.gsz"))
     assert len(got) == sum(r["decodable_at"] <= len(data) // 2 for r in inspect(data)["layers"])
+    from gsz.decoder import GszError
+    with pytest.raises(GszError, match="missing.gsz: file not found"):
+        list(iter_layers(tmp_path / "missing.gsz"))
 
 
 def test_corruption_in_a_later_layer_raises_after_the_earlier_layers(sh3_layered):
