@@ -338,10 +338,19 @@ def train_sh_codebook(stage: Stage, size: int, *, seed: int = 0, iters=None,
     return train_codebook(stage.sh, w, min(int(size), stage.num_points), seed=seed, progress=bar, **kw)
 
 
-def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks: int):
+def codebook_blocks(entries: int, blocks: int) -> int:
+    """Blocks per component of the SH codebook in the size search: one per 128 codewords (at
+    most ``blocks``).  Codewords of one component span a similar range, while every block costs
+    9 bytes of metadata per component (45 x 80 x 9 = 32 kB for a degree-3 codebook at 80)."""
+    return max(1, min(int(blocks), int(entries) // 128))
+
+
+def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks: int,
+             cb_blocks: int | None = None):
     """SHVQ payloads (one per layer), the SH the decoder will reconstruct ([M, K, 3] float32,
     output order), and stats.
 
+    ``cb_blocks``: blocks of the codebook ChannelSet (default ``blocks``).
     The ``keep`` most important Gaussians keep their exact vectors (quantised at sh_bits like
     the codebook); every other Gaussian takes its nearest codeword.  The codebook
     (compacted to the codewords some layer uses) goes with the first layer that has codeword
@@ -360,7 +369,7 @@ def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks
         idx_all[rest] = idx
     else:
         cb = np.zeros((1, d), np.float32)
-    cb_bytes, cb_rec = write_channel_set(cb.T, sh_bits, blocks)
+    cb_bytes, cb_rec = write_channel_set(cb.T, sh_bits, blocks if cb_blocks is None else cb_blocks)
     out = np.empty((m, d), np.float32)
     out[rest] = cb_rec.T[idx_all[rest]]
     stats = {"kept": keep, "codebook_size": int(cb.shape[0]), "codebook_bytes": len(cb_bytes),

@@ -31,6 +31,7 @@ from gsz.decoder.groups import blocks_for
 
 from .pipeline import (DEFAULT_FIRST_LAYER, DEFAULT_LAYERS, EncodeOptions, EncodeOptionsError,
                        EncodeResult, Stage, assemble, attribute_chunks, check_layer_options,
+                       codebook_blocks,
                        compute_train_importance, default_codebook_size, layer_report, prepare_stage,
                        sh_chunk, train_sh_codebook)
 from .progress import Progress
@@ -231,7 +232,8 @@ class _ShModel:
         m, d = x.shape
         cb, idx = compact(codebook, assign(x, codebook))
         self.codebook = cb
-        b = blocks_for(cb.shape[0], blocks)
+        b = blocks_for(cb.shape[0], codebook_blocks(cb.shape[0], blocks))
+        self.cb_blocks = b
         sym, mn, mx = quantize_groups(cb.T, b, np.full((d, b), SH_BITS))
         cb_q = dequantize_groups(sym, mn, mx, np.full((d, b), SH_BITS), split_lengths(cb.shape[0], b)).T
         err_vq = ((x.astype(np.float64) - cb_q[idx]) ** 2).sum(1)
@@ -266,7 +268,8 @@ class _ShModel:
         return nbytes, loss
 
     def encode(self, keep: int) -> _ShPlan:
-        chunk, sh_rest, stats = sh_chunk(self.stage, self.codebook, keep, SH_BITS, self.blocks)
+        chunk, sh_rest, stats = sh_chunk(self.stage, self.codebook, keep, SH_BITS, self.blocks,
+                                         cb_blocks=self.cb_blocks)
         nb, loss = self.estimate(keep)
         return _ShPlan(keep, chunk, sh_rest, stats, nb, loss)
 
@@ -611,7 +614,8 @@ def _smallest_file(stage: Stage, sopts: SearchOptions, codebook) -> int:
     no kept SH)."""
     sh = sh_rest = None
     if codebook is not None:
-        sh, sh_rest, _ = sh_chunk(stage, codebook, 0, SH_BITS, sopts.blocks)
+        sh, sh_rest, _ = sh_chunk(stage, codebook, 0, SH_BITS, sopts.blocks,
+                                  cb_blocks=codebook_blocks(len(codebook), sopts.blocks))
     attr, decoded, _ = attribute_chunks(stage, 1, sopts.blocks)
     data, _, _ = assemble(stage, attr, decoded, sh, sh_rest, _meta(stage, sopts, 0, {"sh_keep": 0}))
     return len(data)
