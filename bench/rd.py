@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/rd.py [--scenes a,b] [--noise | --no-noise] [--ratios 8,12,18,27,40]
                                  [--width 800] [--views 8] [--out bench/out/rd.json]
-                                 [--skip-peers] [--peers sog,compressed.ply,spz]
+                                 [--skip-peers | --skip-gsz] [--peers sog,compressed.ply,spz]
                                  [--peer-timeout 2400] [--verbose]
     .venv/bin/python bench/rd.py --report [--out bench/out/rd.json]   # markdown tables, no runs
 
@@ -381,6 +381,8 @@ def main(argv=None):
     ap.add_argument("--views", type=int, default=8)
     ap.add_argument("--out", default=str(ROOT / "bench" / "out" / "rd.json"))
     ap.add_argument("--skip-peers", action="store_true", help="gsz only (no SOG budget then)")
+    ap.add_argument("--skip-gsz", action="store_true",
+                    help="peers only (their results do not depend on gsz's code; gsz rows can follow later)")
     ap.add_argument("--peers", default=",".join(PEERS),
                     help="which peers to run (default all: sog,compressed.ply,spz)")
     ap.add_argument("--peer-timeout", type=float, default=2400, help="seconds per splat-transform call")
@@ -466,11 +468,11 @@ def main(argv=None):
             budgets = [(f"{r:g}x", int(ply_bytes / r)) for r in ratios]
             peer_todo = ([c for c in selected if (c, scene, variant, None) not in done]
                          if not peer_err else [])
-            gsz_todo = [b for b in budgets if ("gsz", scene, variant, b[0]) not in done]
+            gsz_todo = [] if a.skip_gsz else [b for b in budgets if ("gsz", scene, variant, b[0]) not in done]
             sog_done = ("gsz", scene, variant, "sog") in done
             have_sog = any(r["codec"] == "sog" and r["scene"] == scene and r["variant"] == variant
                            for r in state["rows"])
-            sog_pending = not sog_done and (have_sog or "sog" in peer_todo)
+            sog_pending = not a.skip_gsz and not sog_done and (have_sog or "sog" in peer_todo)
             if not peer_todo and not gsz_todo and not sog_pending:
                 log(f"{scene} {variant}: all rows present, skipped")
                 continue
@@ -518,6 +520,8 @@ def main(argv=None):
 
             sog = [r for r in state["rows"] if r["codec"] == "sog" and r["scene"] == scene
                    and r["variant"] == variant]
+            if a.skip_gsz:
+                continue
             if sog and not sog_done:
                 gsz_todo.append(("sog", sog[0]["bytes"]))
             elif not sog and not sog_done:
