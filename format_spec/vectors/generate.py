@@ -1,17 +1,26 @@
-"""Regenerate the .gsz test vectors and their expected decoded values.
+"""Expected decoded values of the .gsz test vectors (and, with --encode, the vectors themselves).
 
-    .venv/bin/python format_spec/vectors/generate.py
+    .venv/bin/python format_spec/vectors/generate.py            # rewrite the .json files only
+    .venv/bin/python format_spec/vectors/generate.py --encode   # re-encode the .gsz files too
+
+The .gsz files are the fixed bitstream of the format: the default mode reads the committed files
+and only rewrites the JSON beside each (run it after changing what the JSON lists; `git diff
+--stat` must then show only .json files).  ``--encode`` re-encodes every vector from tests/data
+with the current encoder and overwrites the .gsz files -- the bytes change whenever the encoder's
+choices change, so only use it when the format version changes.
 
 Each vector is a tiny real scene cut from tests/data, encoded with fixed options.  The JSON
 beside each file lists what an independent decoder must produce: the count, the SH degree, the
 SHA-256 of every decoded field as float32 little-endian bytes (fields in the order positions,
-scales, rotations, opacities, sh_dc, sh_rest; arrays C-contiguous with the shapes given), and the
-first decoded values in readable form.  Only rerun this when the format version changes.
+scales, rotations, opacities, sh_dc, sh_rest; arrays C-contiguous with the shapes given), the
+first decoded values in readable form, and per layer its Gaussian count, ``decodable_at`` and
+intermediate values of each chunk (GSZ.md §12), so that a decoder can find which stage is wrong.
 """
 from __future__ import annotations
 
 import hashlib
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +41,10 @@ VECTORS = [
 ]
 
 
+def sha(a, dtype) -> str:
+    return hashlib.sha256(np.ascontiguousarray(a, dtype=np.dtype(dtype)).tobytes()).hexdigest()
+
+
 def expected_values(cloud) -> dict:
     out = {"num_gaussians": len(cloud), "sh_degree": cloud.sh_degree, "fields": {}}
     for f in FIELDS:
@@ -41,26 +54,97 @@ def expected_values(cloud) -> dict:
     return out
 
 
-def main():
-    import gsz
-    from gsz.decoder import decode, inspect
-    from gsz.encoder.pipeline import EncodeOptions, encode
+def intermediates(data: bytes) -> list[dict]:
+    """Per layer, the values between the stages of GSZ.md §6-§8 (see GSZ.md §12 for their layout).
 
+    Computed with the reference decoder's modules, stage by stage, from the committed bytes."""
+    from gsz.decoder.bytesio import Reader
+    from gsz.decoder.container import read_container
+    from gsz.decoder.decode import plan_layers
+    from gsz.decoder.geometry import read_geometry
+    from gsz.decoder.groups import read_channel_set
+    from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHVQ, KNOWN_CHUNKS
+    from gsz.decoder.morton import morton_encode
+    from gsz.decoder.raht import build_raht_tree, raht_inverse
+    from gsz.decoder.rans import decode_stream, read_varint
+
+    c = read_container(data, known_types=KNOWN_CHUNKS)
+    degree = c.header.sh_degree
+    rows = []
+    codebook_size = 0
+    for got in plan_layers(c.chunks, degree):
+        row = {}
+        gdata = c.chunks[got[CHUNK_GEOM]].data
+        geom = read_geometry(gdata, max_points=c.header.num_gaussians)
+        m = len(geom.ijk)
+        codes = morton_encode(geom.ijk)
+        decisions, _ = read_varint(np.frombuffer(gdata, np.uint8), 42, "S")   # after scheme byte
+        row["geom"] = {"depth": geom.depth, "origin": [float(v) for v in geom.origin],
+                       "side": float(geom.side), "voxels": m, "octree_decisions": int(decisions),
+                       "morton_sha256": sha(codes, "<u8"), "first_voxels": geom.ijk[:2].tolist()}
+        tree = build_raht_tree(codes, geom.depth)
+        r = Reader(c.chunks[got[CHUNK_ATTR]].data)
+        r.u8(), r.u8()
+        dc = r.array(np.float64, 7)
+        ac = read_channel_set(r, max_length=m)
+        direct = read_channel_set(r, max_length=m)
+        raht = raht_inverse(dc, ac.T, tree)
+        row["attr"] = {"dc": [float(v) for v in dc],
+                       "ac_sha256": sha(ac, "<f8"), "ac_first": ac[:, :2].tolist(),
+                       "raht_sha256": sha(raht, "<f8"), "raht_first": raht[:2].tolist(),
+                       "direct_sha256": sha(direct, "<f8")}
+        if degree > 0:
+            r = Reader(c.chunks[got[CHUNK_SHVQ]].data)
+            kcb, p, d = r.u32(), r.u32(), r.u16()
+            sh = {"K_cb": kcb, "P": p, "D": d}
+            if kcb:
+                cb = read_channel_set(r, max_length=kcb)
+                codebook_size = kcb
+                sh["codebook_sha256"] = sha(cb, "<f8")
+            if p:
+                kept = read_channel_set(r, max_length=p)
+                flags = decode_stream(r.blob(), np.zeros(m, np.int64))
+                sh["kept_sha256"] = sha(kept, "<f8")
+                sh["flags_sha256"] = sha(flags, "u1")
+            idx = decode_stream(r.blob(), np.zeros(m - p, np.int64))
+            sh["codebook_size_used"] = codebook_size
+            sh["indices_sha256"] = sha(idx, "<u4")
+            sh["indices_first"] = idx[:8].tolist()
+            row["shvq"] = sh
+        rows.append(row)
+    return rows
+
+
+def write_json(name: str, data: bytes, opts: dict) -> None:
+    from gsz.decoder import decode, inspect
+
+    dec = decode(data)
+    exp = expected_values(dec)
+    exp.update(file=f"{name}.gsz", file_sha256=hashlib.sha256(data).hexdigest(),
+               bytes=len(data), encoder_options=opts,
+               layers=[{k: r[k] for k in ("layer", "gaussians", "cumulative_gaussians", "decodable_at")}
+                       for r in inspect(data)["layers"]])
+    for row, extra in zip(exp["layers"], intermediates(data)):
+        row.update(extra)
+    (HERE / f"{name}.json").write_text(json.dumps(exp, indent=1) + "\n")
+    print(f"{name}: {len(data)} bytes, {len(dec)} Gaussians")
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else argv
+    reencode = "--encode" in argv
     for name, sample, n, degree, opts in VECTORS:
-        src = gsz.read_ply(ROOT / "tests" / "data" / sample)
-        idx = np.sort(np.random.default_rng(2024).choice(len(src), n, replace=False))
-        cloud = src.subset(idx).with_sh_degree(degree)
-        res = encode(cloud, EncodeOptions(train_views=4, importance_width=96, **opts))
-        (HERE / f"{name}.gsz").write_bytes(res.data)
-        dec = decode(res.data)
-        assert dec.equals(res.cloud)
-        exp = expected_values(dec)
-        exp.update(file=f"{name}.gsz", file_sha256=hashlib.sha256(res.data).hexdigest(),
-                   bytes=len(res.data), encoder_options=opts,
-                   layers=[{k: r[k] for k in ("layer", "gaussians", "cumulative_gaussians", "decodable_at")}
-                           for r in inspect(res.data)["layers"]])
-        (HERE / f"{name}.json").write_text(json.dumps(exp, indent=1) + "\n")
-        print(f"{name}: {len(res.data)} bytes, {len(dec)} Gaussians")
+        if reencode:
+            import gsz
+            from gsz.decoder import decode
+            from gsz.encoder.pipeline import EncodeOptions, encode
+            src = gsz.read_ply(ROOT / "tests" / "data" / sample)
+            idx = np.sort(np.random.default_rng(2024).choice(len(src), n, replace=False))
+            cloud = src.subset(idx).with_sh_degree(degree)
+            res = encode(cloud, EncodeOptions(train_views=4, importance_width=96, **opts))
+            (HERE / f"{name}.gsz").write_bytes(res.data)
+            assert decode(res.data).equals(res.cloud)
+        write_json(name, (HERE / f"{name}.gsz").read_bytes(), opts)
 
 
 if __name__ == "__main__":
