@@ -46,9 +46,11 @@ from typing import Callable
 
 import numpy as np
 
+from gsz.decoder import native
 from gsz.decoder.errors import GszFormatError
 from gsz.decoder.morton import MAX_DEPTH, morton_decode
-from gsz.decoder.rans import COARSE, ModelSet, RansDecoder, lut_budget, read_varint
+from gsz.decoder.rans import (COARSE, ModelSet, RansDecoder, lut_budget, parse_payload_header,
+                              read_varint)
 
 # ---------------------------------------------------------------- model constants (normative)
 #: Coding precision of the binary probability bank (frequencies out of 2**BANK_BITS).
@@ -372,13 +374,14 @@ def max_symbols(depth: int, num_points: int) -> int:
     return 8 * depth * num_points
 
 
-def decode_octree(payload, depth: int, num_points: int) -> np.ndarray:
-    """Decode a geometry payload (``format_spec/OCTREE.md``) to voxel coordinates.
+def decode_octree_codes(payload, depth: int, num_points: int) -> np.ndarray:
+    """Decode a geometry payload (``format_spec/OCTREE.md``) to the voxels' Morton codes.
 
     payload: bytes-like; depth: octree depth d in 1..21 (coordinates in [0, 2^d));
     num_points: the number of occupied voxels M declared by the container.
-    Returns int64 [M, 3] (x, y, z), unique, in ascending Morton order.
+    Returns uint64 [M], strictly ascending.
     Raises GszFormatError on any corrupt, truncated or inconsistent payload.
+    Uses the C traversal when ``gsz.decoder.native`` is enabled (identical output and checks).
     """
     if not 1 <= depth <= MAX_DEPTH:
         raise GszFormatError(f"octree depth {depth} outside [1, {MAX_DEPTH}]")
@@ -393,7 +396,16 @@ def decode_octree(payload, depth: int, num_points: int) -> np.ndarray:
     if num_symbols > max_symbols(depth, num_points):
         raise GszFormatError(f"octree payload declares {num_symbols} symbols, more than "
                              f"{max_symbols(depth, num_points)} possible for {num_points} points")
-    dec = RansDecoder(memoryview(buf)[pos:], num_symbols, bank_model_set(num_symbols))
+    body = buf[pos:]
+    if native.enabled() and num_points <= native.module().MAX_POINTS:
+        # the payload header is validated here exactly as RansDecoder does (ENTROPY.md 4.1);
+        # the C code re-checks what it relies on
+        lanes, _, p = parse_payload_header(body, num_symbols)
+        tables = native.octree_tables(bank_precision(num_symbols))
+        raw = native.module().octree_decode(tables, int(depth), int(num_points), int(num_symbols),
+                                            int(lanes), body[p:])
+        return np.frombuffer(raw, dtype="<u8").astype(np.uint64, copy=False)
+    dec = RansDecoder(body, num_symbols, bank_model_set(num_symbols))
 
     def read_bits(level, k, idx, model):
         b = dec.decode(model)
@@ -403,4 +415,15 @@ def decode_octree(payload, depth: int, num_points: int) -> np.ndarray:
 
     codes = walk_octree(depth, num_points, read_bits)
     dec.finish()
-    return morton_decode(codes)
+    return codes
+
+
+def decode_octree(payload, depth: int, num_points: int) -> np.ndarray:
+    """Decode a geometry payload (``format_spec/OCTREE.md``) to voxel coordinates.
+
+    payload: bytes-like; depth: octree depth d in 1..21 (coordinates in [0, 2^d));
+    num_points: the number of occupied voxels M declared by the container.
+    Returns int64 [M, 3] (x, y, z), unique, in ascending Morton order.
+    Raises GszFormatError on any corrupt, truncated or inconsistent payload.
+    """
+    return morton_decode(decode_octree_codes(payload, depth, num_points))

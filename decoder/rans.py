@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import native
 from .errors import GszFormatError
 
 # ---- constants (normative, see ENTROPY.md) ---------------------------------------------------
@@ -422,6 +423,23 @@ def lut_budget(num_symbols: int) -> int:
     return max(MIN_LUT_BUDGET, LUT_PER_SYMBOL * int(num_symbols))
 
 
+def parse_payload_header(b: np.ndarray, num_symbols: int) -> tuple[int, int, int]:
+    """Lane count L, word count W and the offset of the initial states of a payload (ENTROPY.md
+    section 4.1), with its checks: 1 <= L <= max(1, N), exactly 4 L + 2 W bytes after the two
+    varints.  b: uint8 array of the whole payload."""
+    n = int(num_symbols)
+    if n < 0:
+        raise GszFormatError("rANS: negative symbol count")
+    lanes, p = read_varint(b, 0, "lane count")
+    words, p = read_varint(b, p, "word count")
+    if lanes < 1 or lanes > max(1, n):
+        raise GszFormatError(f"rANS: lane count {lanes} invalid for {n} symbols")
+    if 4 * lanes + 2 * words != b.size - p:
+        raise GszFormatError(f"rANS: payload holds {b.size - p} bytes after its header, "
+                             f"expected {4 * lanes} state + {2 * words} word bytes")
+    return lanes, words, p
+
+
 class RansDecoder:
     """Incremental decoder of one interleaved-rANS payload (ENTROPY.md section 4).
 
@@ -432,26 +450,25 @@ class RansDecoder:
     def __init__(self, payload: bytes | memoryview, num_symbols: int, models: ModelSet):
         b = np.frombuffer(payload, dtype=np.uint8)
         n = int(num_symbols)
-        if n < 0:
-            raise GszFormatError("rANS: negative symbol count")
-        lanes, p = read_varint(b, 0, "lane count")
-        words, p = read_varint(b, p, "word count")
-        if lanes < 1 or lanes > max(1, n):
-            raise GszFormatError(f"rANS: lane count {lanes} invalid for {n} symbols")
-        if 4 * lanes + 2 * words != b.size - p:
-            raise GszFormatError(f"rANS: payload holds {b.size - p} bytes after its header, "
-                                 f"expected {4 * lanes} state + {2 * words} word bytes")
+        lanes, words, p = parse_payload_header(b, n)
         self._states = np.frombuffer(b, dtype="<u4", count=lanes, offset=p).astype(np.int64)
         if np.any(self._states < STATE_LOW):
             raise GszFormatError("rANS: initial state below 2**16")
-        self._words = np.frombuffer(b, dtype="<u2", count=words,
-                                    offset=p + 4 * lanes).astype(np.int64)
+        self._word_bytes = b[p + 4 * lanes:]    # the 16-bit words, little-endian
+        self._nwords = words
+        self._words_i64 = None                  # int64 copy for the NumPy row loop, on demand
         self._lanes = lanes
         self._n = n
         self._pos = 0            # index of the next symbol
         self._wpos = 0           # index of the next word
         self._models = models
         self._t = models.build(lut_budget(n))
+
+    @property
+    def _words(self) -> np.ndarray:
+        if self._words_i64 is None:
+            self._words_i64 = self._word_bytes.view("<u2").astype(np.int64)
+        return self._words_i64
 
     @property
     def position(self) -> int:
@@ -470,6 +487,16 @@ class RansDecoder:
         if self._pos + count > self._n:
             raise GszFormatError(f"rANS: asked for {self._pos + count} symbols, "
                                  f"stream has {self._n}")
+        if native.enabled():
+            # C row loop: same decode step, same checks (model range, empty models, words)
+            out = np.empty(count, dtype=np.int64)
+            t = self._t
+            self._wpos = native.module().rans_decode(
+                np.ascontiguousarray(mids), out, self._states, self._word_bytes, self._wpos,
+                self._pos, t["packed_lut"], t["lut_base"], t["mask"], self._models.prec,
+                t["value"])
+            self._pos += count
+            return out
         m_count = self._models.num_models
         if mids.min() < 0 or mids.max() >= m_count:
             raise GszFormatError(f"rANS: model id outside 0..{m_count - 1}")
@@ -533,8 +560,8 @@ class RansDecoder:
         """Check that all symbols were decoded, every word consumed and every state is 2**16."""
         if self._pos != self._n:
             raise GszFormatError(f"rANS: {self._n - self._pos} symbols left undecoded")
-        if self._wpos != self._words.size:
-            raise GszFormatError(f"rANS: {self._words.size - self._wpos} words left unread")
+        if self._wpos != self._nwords:
+            raise GszFormatError(f"rANS: {self._nwords - self._wpos} words left unread")
         if np.any(self._states != STATE_LOW):
             raise GszFormatError("rANS: final states differ from 2**16 (corrupt payload)")
 

@@ -1,0 +1,103 @@
+"""Switch between the NumPy reference decoder and the optional C accelerator ``_native``.
+
+The NumPy modules (``octree``, ``rans``, ``raht``) are the normative reference; the C module
+(``decoder/_native.c``, compiled by ``pip install`` when a C compiler exists) implements the same
+integer arithmetic and gives bit-identical output, about 10x faster.  It is used when
+
+* it was built and imports (a stale build with another ABI number is ignored), and
+* the environment variable ``GSZ_NATIVE`` is not ``0`` when gsz is imported, and
+* :func:`set_enabled` has not switched it off (tests compare both paths in one process).
+
+Nothing here changes the bitstream: both paths read and write identical bytes.
+"""
+from __future__ import annotations
+
+import contextlib
+import functools
+import os
+
+import numpy as np
+
+#: ABI number the Python side expects (GSZ_NATIVE_ABI in _native.c).
+ABI = 1
+
+_module = None
+_why_not = ""
+if os.environ.get("GSZ_NATIVE", "1").strip() == "0":
+    _why_not = "disabled by GSZ_NATIVE=0"
+else:
+    try:
+        from . import _native as _candidate
+    except ImportError as exc:            # not compiled (no C compiler at install time)
+        _why_not = f"extension not built ({exc})"
+    else:
+        if getattr(_candidate, "ABI", None) == ABI:
+            _module = _candidate
+        else:
+            _why_not = f"stale extension build (ABI {getattr(_candidate, 'ABI', None)}, want {ABI})"
+
+_enabled = _module is not None
+
+
+def native_available() -> bool:
+    """True when the C accelerator is built, importable and not disabled by ``GSZ_NATIVE=0``."""
+    return _module is not None
+
+
+def enabled() -> bool:
+    """True when decoding (and octree encoding) currently use the C accelerator."""
+    return _enabled
+
+
+def active_path() -> str:
+    """``"native"`` or ``"numpy"``: which implementation decoding uses now."""
+    return "native" if _enabled else "numpy"
+
+
+def unavailable_reason() -> str:
+    """Why the accelerator is not available ('' when it is)."""
+    return _why_not
+
+
+def set_enabled(flag: bool) -> bool:
+    """Use the accelerator (if available) or force the NumPy reference; returns the old setting."""
+    global _enabled
+    old = _enabled
+    _enabled = bool(flag) and _module is not None
+    return old
+
+
+@contextlib.contextmanager
+def numpy_only():
+    """Context manager: the NumPy reference path inside the block (process-wide, not per thread)."""
+    old = set_enabled(False)
+    try:
+        yield
+    finally:
+        set_enabled(old)
+
+
+def module():
+    """The C module (only call when :func:`enabled`)."""
+    return _module
+
+
+@functools.lru_cache(maxsize=8)
+def octree_tables(precision: int) -> tuple:
+    """The tables the C octree traversal takes, built from the normative Python definitions in
+    ``gsz.decoder.octree``: neighbourhood plans, child plans, P16_TO_MODEL, the frequency of a 0
+    of every bank model at rANS ``precision`` (``octree.bank_precision``), the chunk schedule,
+    COUNT_LIMIT and MIX_WEIGHT.  The C code hard-codes only the context layout, checked here."""
+    from . import octree as o
+    if (o.NUM_COARSE, o.NUM_FINE) != (_module.NUM_COARSE, _module.NUM_FINE):
+        raise AssertionError("octree context layout differs between Python and _native.c")
+    ms = o._bank_model_set(int(precision))
+    t = ms.build()
+    if not (np.all(t["sym_count"] == 2) and np.all(ms.prec == precision)
+            and np.array_equal(t["value"], np.tile([0, 1], o.NUM_MODELS))):
+        raise AssertionError("bank models are not binary models of one precision")
+    freq0 = np.ascontiguousarray(t["freq"][t["sym_start"]], dtype=np.int64)
+    c64 = (lambda a: np.ascontiguousarray(a, dtype=np.int64))
+    return (c64(o.PLAN_KNOWN), c64(o.PLAN_UNKNOWN), c64(o.CHILD_PAR), c64(o.CHILD_IDX),
+            c64(o.P16_TO_MODEL), freq0, int(precision), o.CHUNK_MIN, o.CHUNK_MAX,
+            o.COUNT_LIMIT, o.MIX_WEIGHT)
