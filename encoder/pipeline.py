@@ -194,6 +194,9 @@ class Stage:
     layers     [Layer], importance order (layer 0 = most important voxels)
     sh         [M, D] float32 higher-degree SH vectors in voxel order (D = 0 for SH degree 0)
     importance [M] float64 merged importance in voxel order
+    source     [M] int64 index into the input cloud of the one Gaussian a voxel holds, -1 where
+               several were merged (lets the size search reuse per-Gaussian work across taus)
+    cache      scratch for work that depends on the stage only (the size search's tables)
     """
 
     reserve: float
@@ -204,6 +207,8 @@ class Stage:
     importance: np.ndarray
     sh_degree: int
     input_gaussians: int
+    source: np.ndarray | None = None
+    cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def num_points(self) -> int:
@@ -264,6 +269,10 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
         progress.log(f"depth {d}: {len(pruned)} Gaussians -> {len(vox.ijk)} voxels "
                      f"({100 * vox.merged_fraction:.2f} % merged)")
     m = len(vox.ijk)
+    members = np.bincount(vox.index_of_point, minlength=m)
+    source = np.full(m, -1, np.int64)
+    source[vox.index_of_point] = kept
+    source[members != 1] = -1
     layer_of = split_layers(vox.importance, layers, first_layer)
     parts = []
     c = vox.cloud
@@ -283,7 +292,7 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
                            scales=np.ascontiguousarray(c.scales[idx].T, dtype=np.float32)))
     return Stage(reserve=float(reserve), depth=d, vox=vox, layers=parts,
                  sh=c.sh_rest.reshape(m, -1).astype(np.float32), importance=vox.importance,
-                 sh_degree=cloud.sh_degree, input_gaussians=len(cloud))
+                 sh_degree=cloud.sh_degree, input_gaussians=len(cloud), source=source)
 
 
 def attribute_chunk(layer: Layer, raht_bits, scale_bits, blocks: int):
@@ -346,11 +355,13 @@ def codebook_blocks(entries: int, blocks: int) -> int:
 
 
 def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks: int,
-             cb_blocks: int | None = None):
+             cb_blocks: int | None = None, index: np.ndarray | None = None):
     """SHVQ payloads (one per layer), the SH the decoder will reconstruct ([M, K, 3] float32,
     output order), and stats.
 
     ``cb_blocks``: blocks of the codebook ChannelSet (default ``blocks``).
+    ``index``: [M] nearest codeword of every voxel's vector when the caller has it (the size
+    search assigns once per stage and codebook), else computed here.
     The ``keep`` most important Gaussians keep their exact vectors (quantised at sh_bits like
     the codebook); every other Gaussian takes its nearest codeword.  The codebook
     (compacted to the codewords some layer uses) goes with the first layer that has codeword
@@ -365,7 +376,8 @@ def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks
     rest = ~kept
     idx_all = np.zeros(m, np.int64)
     if rest.any():
-        cb, idx = compact(codebook, assign(stage.sh[rest], codebook))
+        near = assign(stage.sh[rest], codebook) if index is None else np.asarray(index)[rest]
+        cb, idx = compact(codebook, near)
         idx_all[rest] = idx
     else:
         cb = np.zeros((1, d), np.float32)

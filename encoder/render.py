@@ -54,6 +54,7 @@ issued and the torch path is used.  ``GSZ_RENDER_BACKEND=torch`` forces the refe
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import threading
@@ -362,6 +363,8 @@ def _rasterize_torch(p: _Projected, W: int, H: int, want_importance: bool):
 
 _KERNEL = None
 _KERNEL_TRIED = False
+#: Threads of the compiled kernel when set (see :func:`render_threads`); None: torch's setting.
+_THREADS = None
 _KERNEL_LOCK = threading.Lock()
 _KERNEL_SRC = Path(__file__).resolve().parent.parent / "kernels" / "render_cpu.cpp"
 
@@ -391,6 +394,21 @@ def _load_kernel():
         return _KERNEL
 
 
+@contextlib.contextmanager
+def render_threads(n: int | None):
+    """Run the compiled kernel with ``n`` threads inside the block, whatever torch's own
+    thread count is.  The size search runs torch's maths single-threaded (OpenMP barriers stall
+    on a shared 2-core machine) but keeps the renderer, whose tiles are handed out dynamically,
+    on every core; the kernel's output does not depend on its thread count."""
+    global _THREADS
+    old = _THREADS
+    _THREADS = None if n is None else max(1, int(n))
+    try:
+        yield
+    finally:
+        _THREADS = old
+
+
 def kernel_available() -> bool:
     """True when the compiled C++ rasteriser can be used (builds it on first call)."""
     return _load_kernel() is not None
@@ -418,7 +436,7 @@ def _render_arrays(cloud: GaussianCloud, camera: Camera, deg: int, scale_modifie
             imp = np.zeros(len(cloud), dtype=np.float64)
             imp[p.index.numpy()] = imp_vis
         return img, trans, imp
-    nthreads = max(1, torch.get_num_threads())
+    nthreads = _THREADS or max(1, torch.get_num_threads())
     cam = np.concatenate([camera.R.reshape(-1), camera.t,
                           [camera.fx, camera.fy, camera.cx, camera.cy]]).astype(np.float64)
     k = (deg + 1) ** 2 - 1

@@ -20,6 +20,7 @@ Method (MesonGS++'s, with the measured improvements noted):
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from dataclasses import dataclass
@@ -162,27 +163,44 @@ def channel_weights(cloud, cameras, *, seed: int = 0) -> dict:
     return {"raht": [w / norm for w in raht], "scales": [w / norm for w in scales], "sh": sh / norm}
 
 
-def _attribute_tables(stage: Stage, blocks: int, weights: dict | None = None):
+def _attribute_sets(stage: Stage, blocks: int):
+    """(x [C, L], blocks) of every attribute channel set of the stage, in the solver's group
+    order (layer 0 RAHT, layer 0 scales, layer 1 RAHT, ...)."""
+    return [(x, blocks_for(x.shape[1], lb)) for layer, lb in zip(stage.layers, stage.layer_blocks(blocks))
+            for x in (layer.raht_ac, layer.scales)]
+
+
+def _raw_tables(stage: Stage, blocks: int):
+    """Unweighted loss [C, B, 16] and rate [C, B, 16] of every channel set, computed once per
+    stage (the size bounds, every calibration round and every re-run of a tau share them)."""
     from gsz.kernels.quantize import quantize_all_bits
 
     from .rate import rate_matrix
+    key = ("tables", blocks)
+    if key not in stage.cache:
+        out = []
+        for x, b in _attribute_sets(stage, blocks):
+            if x.shape[1]:
+                _, _, _, loss = quantize_all_bits(x, b)
+                rate = rate_matrix(x, b)
+            else:
+                loss = np.zeros((x.shape[0], b, 16))
+                rate = np.zeros((x.shape[0], b, 16))
+            out.append((loss, rate))
+        stage.cache[key] = out
+    return stage.cache[key]
+
+
+def _attribute_tables(stage: Stage, blocks: int, weights: dict | None = None):
     losses, rates, shapes = [], [], []
     w_sets = (None, None) if weights is None else (weights["raht"], weights["scales"])
-    sets = [(x, w, lb) for layer, lb in zip(stage.layers, stage.layer_blocks(blocks))
-            for x, w in zip((layer.raht_ac, layer.scales), w_sets)]
-    for x, w, lb in sets:
-        b = blocks_for(x.shape[1], lb)
-        if x.shape[1]:
-            _, _, _, loss = quantize_all_bits(x, b)
-            if w is not None:
-                loss = loss * np.asarray(w, np.float64)[:, None, None]
-            rate = rate_matrix(x, b)
-        else:
-            loss = np.zeros((x.shape[0], b, 16))
-            rate = np.zeros((x.shape[0], b, 16))
+    for i, (loss, rate) in enumerate(_raw_tables(stage, blocks)):
+        w = w_sets[i % 2]
+        if w is not None:
+            loss = loss * np.asarray(w, np.float64)[:, None, None]
         losses.append(loss.reshape(-1, 16))
         rates.append(rate.reshape(-1, 16))
-        shapes.append((x.shape[0], b))
+        shapes.append(loss.shape[:2])
     return np.concatenate(losses), np.concatenate(rates), tuple(shapes)
 
 
@@ -217,37 +235,97 @@ class _ShPlan:
     est_loss: float
 
 
-class _ShModel:
-    """Estimated SH bytes and SSE as functions of the keep-count P (one VQ assignment, cumulative
-    sums over importance order), and exact encoding of the chosen P."""
+class _ShStageStats:
+    """What the SH estimates need from a stage whatever the codebook: importance order, the
+    error and rate of the kept (exact, SH_BITS) vectors for every keep-count up to the largest
+    on the KEEP_FRACTIONS grid.  Computed once per stage and shared by its codebooks."""
 
-    def __init__(self, stage: Stage, codebook: np.ndarray, blocks: int):
+    def __init__(self, stage: Stage, blocks: int):
         from gsz.decoder.quant import dequantize_groups, split_lengths
         from gsz.kernels.quantize import quantize_groups
 
         from .rate import rate_matrix
-        from .vq import assign, compact
-        self.stage, self.blocks = stage, blocks
         x = stage.sh
         m, d = x.shape
-        cb, idx = compact(codebook, assign(x, codebook))
+        self.order = np.lexsort((np.arange(m), -stage.importance))        # importance rank
+        p_max = max(1, int(round(KEEP_FRACTIONS[-1] * m)))
+        top = x[self.order[:p_max]]
+        bk = blocks_for(p_max, blocks)
+        sym, mn, mx = quantize_groups(top.T, bk, np.full((d, bk), SH_BITS))
+        top_q = dequantize_groups(sym, mn, mx, np.full((d, bk), SH_BITS), split_lengths(p_max, bk)).T
+        err_keep = ((top.astype(np.float64) - top_q) ** 2).sum(1)
+        self.cum_keep = np.concatenate([[0.0], np.cumsum(err_keep)])
+        self.bits_per_kept = float(rate_matrix(top.T, bk)[:, :, SH_BITS - 1].sum()) / p_max
+
+
+class _Assigner:
+    """Nearest-codeword index of every voxel's SH vector, per codebook, reused across taus.
+
+    Nearly every voxel holds a single input Gaussian (flowers: 99.5 %) whose vector is that
+    Gaussian's own, so the index is computed once per input Gaussian and codebook (on first
+    need) and looked up for every later stage; merged voxels (and any vector that is not
+    bit-identical to its source's) are assigned afresh.  Deterministic: the same stages in the
+    same order give the same indices."""
+
+    def __init__(self, cloud):
+        n = len(cloud)
+        self.sh = np.ascontiguousarray(cloud.sh_rest.reshape(n, -1), dtype=np.float32)
+        self.known = {}                       # id(codebook) -> (codebook, index [N], known [N])
+
+    def __call__(self, stage: Stage, codebook: np.ndarray) -> np.ndarray:
+        from .vq import assign
+        x = stage.sh
+        out = np.empty(x.shape[0], np.int32)
+        if stage.source is None or x.shape[1] != self.sh.shape[1]:
+            out[:] = assign(x, codebook)
+            return out
+        entry = self.known.get(id(codebook))
+        if entry is None or entry[0] is not codebook:
+            entry = (codebook, np.zeros(self.sh.shape[0], np.int32), np.zeros(self.sh.shape[0], bool))
+            self.known[id(codebook)] = entry
+        _, index, known = entry
+        src = stage.source
+        single = np.flatnonzero(src >= 0)
+        same = np.all(x[single] == self.sh[src[single]], axis=1)
+        reuse = single[same]
+        need = src[reuse][~known[src[reuse]]]
+        if need.size:
+            index[need] = assign(self.sh[need], codebook)
+            known[need] = True
+        out[reuse] = index[src[reuse]]
+        fresh = np.ones(x.shape[0], bool)
+        fresh[reuse] = False
+        if fresh.any():
+            out[fresh] = assign(x[fresh], codebook)
+        return out
+
+
+class _ShModel:
+    """Estimated SH bytes and SSE as functions of the keep-count P (one VQ assignment, cumulative
+    sums over importance order), and exact encoding of the chosen P."""
+
+    def __init__(self, stage: Stage, codebook: np.ndarray, blocks: int, base: _ShStageStats,
+                 index: np.ndarray):
+        from gsz.decoder.quant import dequantize_groups, split_lengths
+        from gsz.kernels.quantize import quantize_groups
+
+        from .rate import rate_matrix
+        from .vq import compact
+        self.stage, self.blocks = stage, blocks
+        self.raw_codebook, self.index = codebook, index
+        x = stage.sh
+        m, d = x.shape
+        cb, idx = compact(codebook, index)
         self.codebook = cb
         b = blocks_for(cb.shape[0], codebook_blocks(cb.shape[0], blocks))
         self.cb_blocks = b
         sym, mn, mx = quantize_groups(cb.T, b, np.full((d, b), SH_BITS))
         cb_q = dequantize_groups(sym, mn, mx, np.full((d, b), SH_BITS), split_lengths(cb.shape[0], b)).T
         err_vq = ((x.astype(np.float64) - cb_q[idx]) ** 2).sum(1)
-        order = np.lexsort((np.arange(m), -stage.importance))        # importance rank
-        self.order = order
-        p_max = max(1, int(round(KEEP_FRACTIONS[-1] * m)))
-        top = x[order[:p_max]]
-        bk = blocks_for(p_max, blocks)
-        sym, mn, mx = quantize_groups(top.T, bk, np.full((d, bk), SH_BITS))
-        top_q = dequantize_groups(sym, mn, mx, np.full((d, bk), SH_BITS), split_lengths(p_max, bk)).T
-        err_keep = ((top.astype(np.float64) - top_q) ** 2).sum(1)
-        self.cum_vq = np.concatenate([[0.0], np.cumsum(err_vq[order])])
-        self.cum_keep = np.concatenate([[0.0], np.cumsum(err_keep)])
-        self.bits_per_kept = float(rate_matrix(top.T, bk)[:, :, SH_BITS - 1].sum()) / p_max
+        self.order = base.order
+        self.cum_vq = np.concatenate([[0.0], np.cumsum(err_vq[base.order])])
+        self.cum_keep = base.cum_keep
+        self.bits_per_kept = base.bits_per_kept
         counts = np.bincount(idx, minlength=cb.shape[0]).astype(np.float64)
         p = counts[counts > 0] / m
         self.index_bits = float(-(p * np.log2(p)).sum())
@@ -268,8 +346,10 @@ class _ShModel:
         return nbytes, loss
 
     def encode(self, keep: int) -> _ShPlan:
-        chunk, sh_rest, stats = sh_chunk(self.stage, self.codebook, keep, SH_BITS, self.blocks,
-                                         cb_blocks=self.cb_blocks)
+        # the compacted codebook's row order is the raw one's, so the raw codebook with the
+        # stage's assignment gives exactly what sh_chunk would compute itself
+        chunk, sh_rest, stats = sh_chunk(self.stage, self.raw_codebook, keep, SH_BITS, self.blocks,
+                                         cb_blocks=self.cb_blocks, index=self.index)
         nb, loss = self.estimate(keep)
         return _ShPlan(keep, chunk, sh_rest, stats, nb, loss)
 
@@ -405,13 +485,9 @@ def _solve_max(loss, rate) -> np.ndarray:
 
 def _size_bounds(stage: Stage, blocks: int) -> tuple[float, float]:
     """Rough (min, max) file bytes at this tau: all groups at 1 bit / at 16 bits."""
-    from .rate import rate_matrix
     lo = hi = stage.geometry_bytes + 400.0
-    for x, lb in [(x, lb) for layer, lb in zip(stage.layers, stage.layer_blocks(blocks))
-                  for x in (layer.raht_ac, layer.scales)]:
+    for (x, b), (_, r) in zip(_attribute_sets(stage, blocks), _raw_tables(stage, blocks)):
         if x.shape[1]:
-            b = blocks_for(x.shape[1], lb)
-            r = rate_matrix(x, b)
             lo += r[:, :, 0].sum() / 8 + 9 * r.shape[0] * b
             hi += r[:, :, 15].sum() / 8 + 9 * r.shape[0] * b
     if stage.sh.shape[1]:
@@ -431,8 +507,44 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     round, candidates with their train PSNR, and seconds per stage.  Raises BudgetError with the
     smallest reachable size when the budget cannot be met.
     """
+    with _search_threads():
+        return _encode_to_budget(cloud, target_bytes, options, importance, cameras, progress)
+
+
+@contextlib.contextmanager
+def _search_threads():
+    """torch's own maths single-threaded for the search, the renderer on every core.
+
+    The search's torch work is many small ops (quantising one channel set block by block, SH
+    k-means chunks); on the shared 2-core machine two OpenMP threads stall at every barrier
+    when another job holds a core (measured: quantize_groups of a 24 x 170k SH set 1.1 s with 2
+    threads vs 0.03-0.05 s with 1; 47 such calls cost 32 s of a flowers search).  The renderer
+    hands out tiles dynamically, so it keeps the cores torch had.  Results do not depend on
+    either thread count."""
+    import torch
+
+    from .render import render_threads
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        with render_threads(old):
+            yield
+    finally:
+        torch.set_num_threads(old)
+
+
+def _train_psnr(refs, cloud, cameras) -> float:
+    """Mean PSNR over the views (gsz-eval's protocol: 8-bit renders, per-view PSNR, plain
+    mean) -- all the search compares candidates by; SSIM would cost more than the renders."""
+    from .evaluate import render_views
+    from .metrics import psnr
+    imgs = render_views(cloud, cameras)
+    return float(np.mean([psnr(r, i) for r, i in zip(refs, imgs)]))
+
+
+def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progress) -> EncodeResult:
     from .cameras import load_cameras
-    from .evaluate import evaluate, render_views
+    from .evaluate import render_views
 
     sopts = options or SearchOptions()
 
@@ -463,7 +575,8 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
 
     taus = sorted(set(float(t) for t in sopts.reserves), reverse=True)
     top = stage_for(taus[0])
-    lo1, hi1 = _size_bounds(top, sopts.blocks)
+    with progress.stage("tables", f"tau {taus[0]}: size bounds"):
+        lo1, hi1 = _size_bounds(top, sopts.blocks)
     m1 = top.num_points
     feasible = []
     for tau in taus:
@@ -500,24 +613,28 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
 
     candidates, log = [], []
     evaluated = set()
+    assigner = _Assigner(cloud) if codebooks else None
 
     def try_tau(tau, d=depth, fl=sopts.first_layer):
         evaluated.add(tau)
         stage = stage_for(tau, d, fl)
         sh_models = []
+        if codebooks:
+            with progress.stage("sh-model", f"tau {tau}: kept-vector statistics"):
+                base = _ShStageStats(stage, sopts.blocks)
         for cb in codebooks:
             with progress.stage("sh-model", f"tau {tau}, codebook {len(cb)}"):
-                sh_models.append(_ShModel(stage, cb, sopts.blocks))
+                sh_models.append(_ShModel(stage, cb, sopts.blocks, base, assigner(stage, cb)))
         res = _encode_tau(stage, target, sopts, sh_models, progress, log, weights)
         if res is None:
             progress.log(f"tau {tau}: budget not reachable")
             return
         data, out, info = res
         with progress.stage("eval", f"tau {tau}"):
-            ev = evaluate(refs, out, eval_cams)
-        progress.log(f"tau {tau}: {len(data):,} bytes, train PSNR {ev['psnr']:.2f} dB")
+            p = _train_psnr(refs, out, eval_cams)
+        progress.log(f"tau {tau}: {len(data):,} bytes, train PSNR {p:.2f} dB")
         info["depth"], info["first_layer"] = d, fl
-        candidates.append((ev["psnr"], tau, data, out, info, ev["ssim"]))
+        candidates.append((p, tau, data, out, info))
 
     for tau in feasible:
         try_tau(tau)
@@ -572,7 +689,7 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
         raise BudgetError(target, smallest)
     chosen = [c for c in candidates if id(c) not in rejected]
     chosen.sort(key=lambda c: (-c[0], -c[1]))
-    psnr, tau, data, out, info, ssim = chosen[0]
+    psnr, tau, data, out, info = chosen[0]
     stage = stage_for(tau, info["depth"], info["first_layer"])
     sh_plan = info["sh_plan"]
     report = {
@@ -590,7 +707,7 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
         "calibration": info["rounds"],
         "first_layer": info["first_layer"],
         "candidates": [{"reserve": c[1], "depth": c[4]["depth"], "first_layer": c[4]["first_layer"],
-                        "bytes": len(c[2]), "train_psnr": c[0], "train_ssim": c[5],
+                        "bytes": len(c[2]), "train_psnr": c[0],
                         "layer0_too_late": id(c) in rejected}
                        for c in sorted(candidates, key=lambda c: -c[1])],
         "train_psnr": psnr, "channel_weights": weights,
