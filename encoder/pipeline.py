@@ -248,13 +248,12 @@ def split_layers(importance: np.ndarray, layers: int, first_layer: float) -> np.
     return out
 
 
-def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, *, depth=None,
-                  rel_error=None, layers: int = DEFAULT_LAYERS, first_layer: float = DEFAULT_FIRST_LAYER,
-                  progress: Progress | None = None) -> Stage:
-    """Prune to ``reserve``, voxelise, split into importance layers, code each layer's geometry
-    and transform its attributes."""
+def voxelize_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, *, depth=None,
+                   rel_error=None, progress: Progress | None = None):
+    """Prune to ``reserve`` and voxelise: (kept input indices [K], Voxelized).  ``vox.cloud``
+    (voxel centres, merged attributes) is what a decoder would reconstruct with every attribute
+    exact, so its fidelity bounds what any bit allocation at this reserve and depth reaches."""
     from .importance import prune
-    from .raht import raht_forward
     from .voxelize import DEFAULT_REL_ERROR, choose_depth, voxelize
 
     progress = progress or Progress(quiet=True)
@@ -268,6 +267,23 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
         vox = voxelize(pruned, imp, d)
         progress.log(f"depth {d}: {len(pruned)} Gaussians -> {len(vox.ijk)} voxels "
                      f"({100 * vox.merged_fraction:.2f} % merged)")
+    return kept, vox
+
+
+def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, *, depth=None,
+                  rel_error=None, layers: int = DEFAULT_LAYERS, first_layer: float = DEFAULT_FIRST_LAYER,
+                  progress: Progress | None = None, voxelized=None) -> Stage:
+    """Prune to ``reserve``, voxelise, split into importance layers, code each layer's geometry
+    and transform its attributes.  ``voxelized``: the (kept, Voxelized) of
+    :func:`voxelize_stage` for these arguments when the caller already has it."""
+    from .raht import raht_forward
+
+    progress = progress or Progress(quiet=True)
+    if voxelized is None:
+        voxelized = voxelize_stage(cloud, importance, reserve, depth=depth, rel_error=rel_error,
+                                   progress=progress)
+    kept, vox = voxelized
+    d = vox.depth
     m = len(vox.ijk)
     members = np.bincount(vox.index_of_point, minlength=m)
     source = np.full(m, -1, np.int64)

@@ -34,7 +34,7 @@ from .pipeline import (DEFAULT_FIRST_LAYER, DEFAULT_LAYERS, EncodeOptions, Encod
                        EncodeResult, Stage, assemble, attribute_chunks, check_layer_options,
                        codebook_blocks,
                        compute_train_importance, default_codebook_size, layer_report, prepare_stage,
-                       sh_chunk, train_sh_codebook)
+                       sh_chunk, train_sh_codebook, voxelize_stage)
 from .progress import Progress
 
 SH_BITS = 8          # codebook and kept SH vectors (the paper's setting)
@@ -71,6 +71,9 @@ class SearchOptions:
     layer0_share    wanted fraction of the file bytes before layer 0 is decodable: when the
                     chosen file's layer 0 ends after more than 1.5x this, the layers are
                     re-split with a proportionally smaller layer 0 and that candidate re-encoded
+    screen          before encoding a tau below the best so far, render its exact-attribute
+                    (pruned + voxelised) cloud and skip the tau when that bound is no better
+                    than the best candidate's train PSNR
     """
 
     reserves: tuple = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)
@@ -91,6 +94,7 @@ class SearchOptions:
     layers: int = DEFAULT_LAYERS
     first_layer: float = DEFAULT_FIRST_LAYER
     layer0_share: float = 0.1
+    screen: bool = True
     seed: int = 0
 
 
@@ -569,11 +573,18 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
 
     # --- tau grid: bounds from cheap estimates, then candidates spread over the feasible range --
     stages: dict[float, Stage] = {}
+    voxelized: dict = {}
+
+    def vox_for(tau, d=depth):
+        if (tau, d) not in voxelized:
+            voxelized[(tau, d)] = voxelize_stage(cloud, importance, tau, depth=d, progress=progress)
+        return voxelized[(tau, d)]
 
     def stage_for(tau, d=depth, fl=sopts.first_layer):
         if (tau, d, fl) not in stages:
             stages[(tau, d, fl)] = prepare_stage(cloud, importance, tau, depth=d, layers=sopts.layers,
-                                                 first_layer=fl, progress=progress)
+                                                 first_layer=fl, progress=progress,
+                                                 voxelized=vox_for(tau, d))
         return stages[(tau, d, fl)]
 
     taus = sorted(set(float(t) for t in sopts.reserves), reverse=True)
@@ -616,10 +627,41 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
 
     candidates, log = [], []
     evaluated = set()
+    screened = []
     assigner = _Assigner(cloud) if codebooks else None
+
+    def cannot_win(tau) -> bool:
+        """True when even exact attributes at tau render no better than the best candidate so
+        far (train views): then no allocation at tau can win and its encode is skipped.
+        Checked only below the best tau (fewer Gaussians: the bound falls with tau, and above
+        the best it would almost never prune); monotone in tau, so a tau below one that failed
+        fails without a render."""
+        if not sopts.screen or not candidates:
+            return False
+        best = max(candidates, key=lambda c: (c[0], c[1]))
+        if tau >= best[1]:
+            return False
+        inferred = False
+        for s in screened:
+            if s["skipped"] and s["reserve"] >= tau:
+                bound, inferred = s["bound_psnr"], True     # an upper bound of tau's own
+                break
+        else:
+            with progress.stage("screen", f"tau {tau}: exact-attribute bound"):
+                bound = _train_psnr(refs, vox_for(tau)[1].cloud, eval_cams)
+        skip = bound <= best[0]
+        screened.append({"reserve": tau, "bound_psnr": bound, "inferred": inferred,
+                         "best_psnr": best[0], "skipped": skip})
+        if skip:
+            what = "a larger tau's exact attributes reach" if inferred else "exact attributes reach"
+            progress.log(f"tau {tau}: {what} only {bound:.2f} dB <= {best[0]:.2f} dB "
+                         f"(tau {best[1]}): skipped")
+        return skip
 
     def try_tau(tau, d=depth, fl=sopts.first_layer):
         evaluated.add(tau)
+        if d == depth and fl == sopts.first_layer and cannot_win(tau):
+            return
         stage = stage_for(tau, d, fl)
         sh_models = []
         if codebooks:
@@ -713,6 +755,7 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
                         "bytes": len(c[2]), "train_psnr": c[0],
                         "layer0_too_late": id(c) in rejected}
                        for c in sorted(candidates, key=lambda c: -c[1])],
+        "screened": screened,
         "train_psnr": psnr, "channel_weights": weights,
         "components": {"geometry": stage.geometry_bytes, "attributes": info["attr_bytes"],
                        **info["attr_stats"], "sh": sum(map(len, sh_plan.chunk)) if sh_plan else 0,
