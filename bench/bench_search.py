@@ -44,6 +44,30 @@ def plot(scene, rows, path):
     plt.close(fig)
 
 
+def _evaluate(refs, cloud, cams):
+    """Test-view PSNR/SSIM with torch single-threaded (SSIM's convolutions stall with two
+    OpenMP threads on the shared machine; the values do not depend on it)."""
+    import torch
+    from gsz.encoder.evaluate import evaluate
+    from gsz.encoder.render import render_threads
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        with render_threads(old):
+            return evaluate(refs, cloud, cams)
+    finally:
+        torch.set_num_threads(old)
+
+
+def _native() -> bool:
+    """Whether the optional C accelerator (gsz.decoder._native) is in use (GSZ_NATIVE=0: no)."""
+    try:
+        from gsz.decoder import native
+        return bool(native.enabled())
+    except Exception:
+        return False
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", default=",".join(SCENES))
@@ -59,12 +83,13 @@ def main(argv=None):
         return 0
     import gsz
     from gsz.encoder.cameras import load_cameras
-    from gsz.encoder.evaluate import evaluate, render_views
+    from gsz.encoder.evaluate import render_views
     from gsz.encoder.pipeline import EncodeOptions, compute_train_importance
     from gsz.encoder.progress import Progress
     from gsz.encoder.search import BudgetError, encode_to_budget
 
     rows = []
+    print(f"uptime: {os.popen('uptime').read().strip()}; native accelerator: {_native()}", flush=True)
     out_dir = Path(a.out).parent
     out_dir.mkdir(parents=True, exist_ok=True)
     for scene in a.scenes.split(","):
@@ -78,32 +103,42 @@ def main(argv=None):
         for variant, cloud in variants:
             cams = load_cameras(None, cloud, n_test=8, width=a.width).test
             refs = render_views(cloud, cams)
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             imp = compute_train_importance(cloud, EncodeOptions())
-            t_imp = time.perf_counter() - t0
+            t_imp, c_imp = time.perf_counter() - t0, time.process_time() - c0
             for ratio in [float(r) for r in a.ratios.split(",")]:
                 target = int(ply_bytes / ratio)
                 prog = Progress(quiet=True)
+                load0 = os.getloadavg()[0]
                 t0 = time.perf_counter()
                 try:
                     res = encode_to_budget(cloud, target, importance=imp, progress=prog)
                 except BudgetError as e:
                     print(f"{scene:30s} {variant:6s} {ratio:4.0f}x: unreachable ({e})")
                     continue
+                # search seconds = the search plus the importance pass it would run itself
                 t_search = time.perf_counter() - t0 + t_imp
-                ev = evaluate(refs, res.cloud, cams)
+                load1 = os.getloadavg()[0]
+                ev = _evaluate(refs, res.cloud, cams)
                 r = res.report
                 row = {"scene": scene, "variant": variant, "ratio_target": ratio, "target": target,
                        "bytes": r["bytes"], "deviation": r["deviation"], "psnr": ev["psnr"], "ssim": ev["ssim"],
-                       "reserve": r["reserve"], "sh_keep": r["sh_keep"], "rounds": len(r["calibration"]),
-                       "search_seconds": t_search, "stage_seconds": {"importance": t_imp, **r["seconds"]},
+                       "reserve": r["reserve"], "depth": r["depth"], "sh_keep": r["sh_keep"],
+                       "codebook_size": r["codebook_size"], "rounds": len(r["calibration"]),
+                       "candidates": len(r["candidates"]), "screened": sum(s["skipped"] for s in r["screened"]),
+                       "note": r.get("note"),
+                       "search_seconds": t_search, "cpu_seconds": r["cpu_seconds"] + c_imp,
+                       "stage_seconds": {"importance": t_imp, **r["seconds"]},
+                       "load_before": load0, "load_after": load1, "native": _native(),
                        "gaussians": len(cloud)}
                 rows.append(row)
                 scene_rows.append(row)
                 print(f"{scene:30s} {variant:6s} {ratio:4.0f}x: target {target:>11,} actual {r['bytes']:>11,} "
                       f"({100 * r['deviation']:+.3f} %)  PSNR {ev['psnr']:6.2f} SSIM {ev['ssim']:.4f}  "
-                      f"tau {r['reserve']} keep {r['sh_keep']} rounds {row['rounds']}  {t_search:.1f} s",
-                      flush=True)
+                      f"tau {r['reserve']} d {r['depth']} K {r['codebook_size']} keep {r['sh_keep']} "
+                      f"rounds {row['rounds']} cand {row['candidates']}+{row['screened']} screened  "
+                      f"{t_search:.1f} s ({row['cpu_seconds']:.1f} s CPU, load {load0:.1f}-{load1:.1f})"
+                      + (f"  [{r['note']}]" if r.get("note") else ""), flush=True)
         if scene_rows:
             plot(scene, scene_rows, out_dir / f"rd_{scene}.png")
     if a.scaling:
@@ -113,12 +148,18 @@ def main(argv=None):
             sub = c.subset(idx)
             target = int(os.path.getsize(SHARED / "flowers_daffodils_sh2.ply") * frac / 20)
             prog = Progress(quiet=True)
+            load0 = os.getloadavg()[0]
             t0 = time.perf_counter()
-            res = encode_to_budget(sub, target, progress=prog)
+            res = encode_to_budget(sub, target, progress=prog)     # importance included
             dt = time.perf_counter() - t0
-            print(f"scaling flowers x{frac}: N={len(sub):,} target {target:,} -> {res.report['bytes']:,} "
-                  f"in {dt:.1f} s  stages " + ", ".join(f"{k} {v:.1f}" for k, v in prog.seconds.items()), flush=True)
-            rows.append({"scaling": frac, "n": len(sub), "seconds": dt, "stage_seconds": prog.seconds})
+            r = res.report
+            print(f"scaling flowers x{frac}: N={len(sub):,} target {target:,} -> {r['bytes']:,} "
+                  f"in {dt:.1f} s ({r['cpu_seconds']:.1f} s CPU, load {load0:.1f}), {len(r['candidates'])} candidates, "
+                  f"stages " + ", ".join(f"{k} {v:.1f}" for k, v in prog.seconds.items()), flush=True)
+            rows.append({"scaling": frac, "n": len(sub), "target": target, "bytes": r["bytes"], "seconds": dt,
+                         "cpu_seconds": r["cpu_seconds"], "candidates": len(r["candidates"]),
+                         "screened": sum(s["skipped"] for s in r["screened"]), "reserve": r["reserve"],
+                         "load_before": load0, "native": _native(), "stage_seconds": prog.seconds})
     Path(a.out).write_text(json.dumps(rows, indent=1, default=float))
     print(f"wrote {a.out}")
     return 0
