@@ -114,25 +114,30 @@ class _TauPlan:
 _SENS_SIGMA = {"opacity": 0.05, "euler": 0.02, "f_dc": 0.02, "scale": 0.02, "sh": 0.01}
 
 
-def channel_weights(cloud, cameras, *, seed: int = 0) -> dict:
+def channel_weights(cloud, cameras, *, seed: int = 0, base_images=None) -> dict:
     """Rendering sensitivity of every quantised channel: image MSE added per unit of parameter
     SSE, measured by perturbing one channel of every Gaussian with Gaussian noise and rendering
     the given (train) views.  Returns {"raht": [7], "scales": [3], "sh": float}, normalised so the
     mean RAHT/scale weight is 1.  The size search multiplies the loss matrix Omega by these, so
-    the allocation minimises (approximately) rendered error instead of raw parameter SSE."""
+    the allocation minimises (approximately) rendered error instead of raw parameter SSE.
+    ``base_images``: the unperturbed renders (``render(cloud, camera).image``) when the caller
+    has them."""
     from gsz.decoder.cloud import GaussianCloud
     from gsz.decoder.rotation import euler_to_quaternion, quaternion_to_euler
 
     from .render import render
     rng = np.random.default_rng(seed)
-    base = [render(cloud, c).image.astype(np.float64) for c in cameras]
+    base = [render(cloud, c).image.astype(np.float64) for c in cameras] if base_images is None \
+        else [np.asarray(b, np.float64) for b in base_images]
     euler = quaternion_to_euler(cloud.rotations.astype(np.float64))
     n = len(cloud)
 
+    def mse_of(sq):
+        return float(np.mean([e.mean() for e in sq]))
+
     def sensitivity(mod, sigma, count):
         img = [render(mod, c).image.astype(np.float64) for c in cameras]
-        mse = float(np.mean([((a - b) ** 2).mean() for a, b in zip(img, base)]))
-        return max(mse, 1e-30) / (sigma ** 2 * count)
+        return max(mse_of([(a - b) ** 2 for a, b in zip(img, base)]), 1e-30) / (sigma ** 2 * count)
 
     def variant(**kw):
         f = dict(positions=cloud.positions, scales=cloud.scales, rotations=cloud.rotations,
@@ -153,9 +158,22 @@ def channel_weights(cloud, cameras, *, seed: int = 0) -> dict:
     for k in range(3):
         q = euler_to_quaternion(noisy(euler, k, sg))
         raht.append(sensitivity(variant(rotations=q), sg, n))
+    # Image channel k depends on DC colour channel k only (geometry, alpha and T do not involve
+    # colour; the 0-clamp is per channel), so one render with all three perturbed gives each
+    # channel's error image exactly as three renders would (the other channels' errors are
+    # exact zeros there): the same weights for a third of the renders.
     sg = _SENS_SIGMA["f_dc"]
+    dc = cloud.sh_dc.astype(np.float64).copy()
     for k in range(3):
-        raht.append(sensitivity(variant(sh_dc=noisy(cloud.sh_dc, k, sg)), sg, n))
+        dc[:, k] += rng.normal(0, sg, n)
+    sq = [(render(variant(sh_dc=dc), c).image.astype(np.float64) - b) ** 2 for c, b in zip(cameras, base)]
+    for k in range(3):
+        only = []
+        for e in sq:
+            ek = np.zeros_like(e)
+            ek[..., k] = e[..., k]
+            only.append(ek)
+        raht.append(max(mse_of(only), 1e-30) / (sg ** 2 * n))
     sg = _SENS_SIGMA["scale"]
     scales = [sensitivity(variant(scales=noisy(cloud.scales, k, sg)), sg, n) for k in range(3)]
     sh = 0.0
@@ -618,12 +636,17 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
 
     eval_cams = load_cameras(None, cloud, n_train=max(sopts.eval_views, 1), n_test=1,
                              width=sopts.eval_width).train[:sopts.eval_views]
+    from .metrics import quantize_8bit
+    from .render import render
     with progress.stage("eval-reference", f"{len(eval_cams)} train views"):
-        refs = render_views(cloud, eval_cams)
+        # float renders (the first two also serve as the sensitivity's base), 8-bit as
+        # render_views makes them
+        ref_float = [render(cloud, c).image for c in eval_cams]
+        refs = [quantize_8bit(np.asarray(img)) for img in ref_float]
     weights = None
     if sopts.weight_channels:
         with progress.stage("sensitivity", "per-channel rendering weights of Omega"):
-            weights = channel_weights(cloud, eval_cams[:2], seed=sopts.seed)
+            weights = channel_weights(cloud, eval_cams[:2], seed=sopts.seed, base_images=ref_float[:2])
 
     candidates, log = [], []
     evaluated = set()
