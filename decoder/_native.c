@@ -128,8 +128,9 @@ typedef struct {
     unsigned kmask_f[8][NUM_T], kmask_o[8][NUM_T];   /* known neighbour bits (< k), face / other */
     int ucnt_f[8][NUM_T], ucnt_o[8][NUM_T];          /* unknown neighbours (>= k) in that node */
     int child_par[8][NUM_T], child_idx[8][NUM_T];    /* neighbour table derivation */
-    /* ctx_lut[(k * 8 + q) * 512 + w]: contribution of the q-th node of child k's octant, whose
-     * 9-bit occupancy word is w (bit 8 = node present, bits 0..7 = child bits decoded so far),
+    /* ctx_lut[(k * 8 + q) * 256 + w]: contribution of the q-th node of child k's octant, whose
+     * context byte is w (bit 7 = node present, bits 0..6 = child bits decoded so far; child 7
+     * is never a known neighbour bit, k <= 7),
      * to the context: fine part  kn_f*3087 + unk_f*441 + kn_o*21 + unk_o  in bits 0..15 and
      * coarse part  (kn_f + kn_o)*27 + unk_f + unk_o  in bits 16..31.  Both context ids are linear
      * in the four counts (OCTREE.md §4), so summing the contributions gives them directly. */
@@ -164,10 +165,15 @@ static inline int bin_decode(BinDec *d, const OctTables *tb, int64_t model, Err 
     const int bit = z >= f0;
     const uint64_t f = bit ? total - f0 : f0, c = bit ? f0 : 0;
     x = f * (x >> n) + (z - c);
-    if (x < 65536u) {
-        if (d->wpos >= d->nwords) return fail(e, "rANS: payload truncated (word stream exhausted)");
-        x = (x << 16) | rd_u16(d->words + 2 * d->wpos);
-        d->wpos++;
+    /* renormalisation without a branch (taken about every other decision, unpredictably):
+     * the next word is read speculatively; a renormalisation past the last word is an error */
+    const uint64_t need = x < 65536u;
+    if (d->wpos >= d->nwords) {
+        if (need) return fail(e, "rANS: payload truncated (word stream exhausted)");
+    } else {
+        const uint64_t wv = rd_u16(d->words + 2 * d->wpos);
+        x = (x << (need << 4)) | (wv & (0 - need));
+        d->wpos += (int64_t)need;
     }
     d->st[d->lane] = x;
     if (++d->lane == d->lanes) d->lane = 0;
@@ -199,7 +205,7 @@ static int symout_reserve(SymOut *o, int64_t extra, Err *e)
 /* Counts of one fine context, with the chunk-local cache of its model and the bookkeeping of
  * the per-level halving, in one 16-byte record (one cache miss per decision instead of four). */
 typedef struct {
-    uint32_t n0, n1;
+    uint32_t n0, n1;     /* adjacent: (&n0)[bit] is the count of `bit` */
     uint32_t stamp;      /* chunk whose model is cached in `model` (0: none) */
     uint8_t model;
     uint8_t listed;      /* level + 1 of the halving list this context is on (0: none) */
@@ -260,14 +266,16 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
     FineCtx *ff = NULL;
     uint64_t *codes = NULL, *ncodes = NULL;
     int32_t *nbr = NULL, *nnbr = NULL, *coded = NULL, *start = NULL;
-    uint16_t *occ = NULL;    /* per node: 0x100 (present) | child bits decoded so far; occ[n] = 0 */
+    uint8_t *occ = NULL;     /* per node: during the bit-planes 0x80 (present) | child bits 0..6
+                              * decoded so far (occ[n] = 0: absent); after them the occupancy */
+    uint8_t *hi7 = NULL;     /* child 7 of every node (bit-plane 7), merged into occ after it */
     int64_t n = 1, known_off = 0;
     int32_t *cbuf_c = NULL, *cbuf_f = NULL;     /* contexts and models of one chunk */
     uint8_t *mbuf = NULL;
     uint32_t stamp = 0;
     IdList list = {0}, carry = {0};
     size_t cap_codes = 0, cap_ncodes = 0, cap_nbr = 0, cap_nnbr = 0, cap_occ = 0, cap_coded = 0,
-           cap_start = 0;
+           cap_start = 0, cap_hi7 = 0;
 
     *codes_out = NULL;
     *count_out = 0;
@@ -307,10 +315,11 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
             known_off += n;
             if (symout_reserve(out, 8 * n, e) < 0) goto done;
         }
-        if (ensure((void **)&occ, &cap_occ, ((size_t)n + 1) * sizeof *occ, e) < 0
+        if (ensure((void **)&occ, &cap_occ, (size_t)n + 1, e) < 0
+            || ensure((void **)&hi7, &cap_hi7, (size_t)n, e) < 0
             || ensure((void **)&coded, &cap_coded, (size_t)n * sizeof *coded, e) < 0)
             goto done;
-        for (int64_t i = 0; i < n; i++) occ[i] = 0x100;
+        memset(occ, 0x80, (size_t)n);                /* present, no child known yet */
         occ[n] = 0;                                  /* the absent neighbour */
         for (int k = 0; k < 8; k++) {
             int64_t cnt = n;
@@ -319,12 +328,13 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
                 cnt = 0;
                 for (int64_t i = 0; i < n; i++) {
                     if (occ[i] & 0x7F) coded[cnt++] = (int32_t)i;
-                    else occ[i] |= 0x80;
+                    else hi7[i] = 1;
                 }
             }
-            const int nt = tb->nt[k];
             const int *tk = tb->t[k];
-            const uint32_t *lut = tb->ctx_lut + (size_t)k * 8 * 512;
+            const int t0 = tk[0], t1 = tk[1], t2 = tk[2], t3 = tk[3], t4 = tk[4], t5 = tk[5],
+                      t6 = tk[6], t7 = tk[7];
+            const uint32_t *lut = tb->ctx_lut + (size_t)k * 8 * 256;
             const unsigned below = (1u << k) - 1u;
             const int32_t fine_k = k * (7 * 7 * 21 * 21), coarse_k = k * (27 * 27);
             const int32_t fine_lb = lb * (NUM_FINE / NUM_LB);
@@ -338,8 +348,12 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
                 for (int64_t i = s; i < end; i++) {
                     const int64_t node = (k == 7) ? coded[i] : i;
                     const int32_t *nb = nbr + node * NUM_T;
-                    uint32_t acc = 0;
-                    for (int q = 0; q < nt; q++) acc += lut[q * 512 + occ[nb[tk[q]]]];
+                    /* 8 octant nodes (padded with zero-contribution entries), unrolled with
+                     * their offsets in registers */
+                    const uint32_t acc = lut[occ[nb[t0]]] + lut[256 + occ[nb[t1]]]
+                                         + lut[512 + occ[nb[t2]]] + lut[768 + occ[nb[t3]]]
+                                         + lut[1024 + occ[nb[t4]]] + lut[1280 + occ[nb[t5]]]
+                                         + lut[1536 + occ[nb[t6]]] + lut[1792 + occ[nb[t7]]];
                     int sib = popcount8(occ[node] & below);
                     if (sib > NUM_SIB - 1) sib = NUM_SIB - 1;
                     const int32_t cix = (coarse_k + (int32_t)(acc >> 16)) * NUM_SIB + sib;
@@ -382,14 +396,15 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
                         out->models[out->len] = mbuf[i - s];
                         out->len++;
                     }
-                    occ[node] |= (uint16_t)(bit << k);
+                    if (k < 7) occ[node] |= (uint8_t)(bit << k);
+                    else hi7[node] = (uint8_t)bit;
                     cc[2 * cbuf_c[i - s] + bit]++;
-                    if (bit) ff[cbuf_f[i - s]].n1++;
-                    else ff[cbuf_f[i - s]].n0++;
+                    (&ff[cbuf_f[i - s]].n0)[bit]++;       /* n0 or n1, without a branch */
                 }
                 s = end;
             }
         }
+        for (int64_t i = 0; i < n; i++) occ[i] = (uint8_t)((occ[i] & 0x7F) | (hi7[i] << 7));
         /* halving: every coarse pair, and the listed fine contexts */
         for (int64_t i = 0; i < NUM_COARSE; i++) {
             const uint32_t a = cc[2 * i], b = cc[2 * i + 1];
@@ -435,13 +450,13 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
         const int32_t absent = (int32_t)total;
         int64_t c = 0;
         for (int64_t r = 0; r < n; r++) {
-            const unsigned o = occ[r] & 0xFFu;
+            const unsigned o = occ[r];
             const int32_t *nb = nbr + r * NUM_T;
             unsigned pv[NUM_T];      /* occupancy of the parent's 27 neighbours (0 if absent) */
             int32_t ps[NUM_T];       /* their first-child index */
             if (!last) {
                 for (int t = 0; t < NUM_T; t++) {
-                    pv[t] = occ[nb[t]] & 0xFFu;
+                    pv[t] = occ[nb[t]];
                     ps[t] = start[nb[t]];
                 }
             }
@@ -478,7 +493,7 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
     rc = 0;
 done:
     free(cc); free(ff); free(codes); free(ncodes); free(nbr); free(nnbr);
-    free(occ); free(coded); free(start);
+    free(occ); free(hi7); free(coded); free(start);
     free(cbuf_c); free(cbuf_f); free(mbuf); free(list.v); free(carry.v);
     return rc;
 }
@@ -549,25 +564,30 @@ static int load_tables(OctTables *tb, PyObject *tables, Py_buffer *views, int *n
             sf += popcount8(tb->kmask_f[k][t]) + tb->ucnt_f[k][t];
             so += popcount8(tb->kmask_o[k][t]) + tb->ucnt_o[k][t];
         }
-        if (sf > 6 || so > 20 || tb->nt[k] > 8) {
+        unsigned bits7 = 0;
+        for (int t = 0; t < NUM_T; t++) bits7 |= tb->kmask_f[k][t] | tb->kmask_o[k][t];
+        if (sf > 6 || so > 20 || tb->nt[k] > 8 || (bits7 & 0x80)) {
             PyErr_SetString(PyExc_ValueError, "octree plan table exceeds the context ranges");
             return -1;
         }
     }
-    tb->ctx_lut = malloc(8 * 8 * 512 * sizeof *tb->ctx_lut);
+    tb->ctx_lut = calloc(8 * 8 * 256, sizeof *tb->ctx_lut);
     if (!tb->ctx_lut) { PyErr_NoMemory(); return -1; }
+    /* pad every octant list to 8 entries: the node itself with an all-zero LUT block */
+    for (int k = 0; k < 8; k++)
+        for (int q = tb->nt[k]; q < 8; q++) tb->t[k][q] = SELF_T;
     for (int k = 0; k < 8; k++)
         for (int q = 0; q < tb->nt[k]; q++) {
             const int t = tb->t[k][q];
-            for (unsigned w = 0; w < 512; w++) {
-                const int present = (w >> 8) & 1;
+            for (unsigned w = 0; w < 256; w++) {
+                const int present = (w >> 7) & 1;
                 const unsigned kf = (unsigned)popcount8(w & tb->kmask_f[k][t]);
                 const unsigned ko = (unsigned)popcount8(w & tb->kmask_o[k][t]);
                 const unsigned uf = (unsigned)(present * tb->ucnt_f[k][t]);
                 const unsigned uo = (unsigned)(present * tb->ucnt_o[k][t]);
                 const unsigned fine = kf * (7 * 21 * 21) + uf * (21 * 21) + ko * 21 + uo;
                 const unsigned coarse = (kf + ko) * 27 + uf + uo;
-                tb->ctx_lut[(k * 8 + q) * 512 + w] = fine | (coarse << 16);
+                tb->ctx_lut[(k * 8 + q) * 256 + w] = fine | (coarse << 16);
             }
         }
     for (int i = 0; i < 65536; i++) {
@@ -825,73 +845,562 @@ static PyObject *py_bank_encode(PyObject *self, PyObject *args)
 }
 
 /* ================================================================== generic rANS (ENTROPY.md §4.3) */
-PyDoc_STRVAR(rans_decode_doc,
-"rans_decode(mids, out, states, words, wpos, pos, lut, lut_base, mask, prec, value) -> wpos\n\n"
-"Decode len(mids) symbols of an interleaved rANS payload with the tables of\n"
-"gsz.decoder.rans.ModelSet.build(): symbol j (global index pos + j) on lane (pos + j) %% L,\n"
-"L = len(states) (int64, updated in place); `words` = the payload's 16-bit words (LE bytes),\n"
-"wpos = words consumed so far.  Writes the decoded values (int64) to `out`; returns the new\n"
-"wpos.  Raises GszFormatError on a bad model id or an exhausted word stream.");
+/*
+ * Native decoding tables of a model set (ENTROPY.md §3.3-3.4), compact:
+ *   lut[lut_base[m] + z]  uint16  index k (within model m) of the present value owning slot z
+ *   fc[sym_base[m] + k]   uint32  (c_k << 16) | (f_k - 1)      (f_k <= 2^16, c_k < 2^16)
+ *   val[sym_base[m] + k]  int32   the value v_k (all values lie in [-2^31, 2^31))
+ *   prec[m]               uint8   n_m, or 255 for an EMPTY model
+ * 2 bytes per LUT slot and 8 per present value (the NumPy tables use 8 and 40).  Measured: the
+ * decode step's dependent loads (lut, then fc) must stay in the L1/L2 caches; one 8-byte entry
+ * per slot (a single load, but a 4x larger table) was 1.7x slower on the flowers scene.
+ */
+#define PREC_EMPTY 255
 
-static PyObject *py_rans_decode(PyObject *self, PyObject *args)
+/* The d-th largest (1 <= d <= k) of k distinct keys.  Small k: a size-d min-heap; large k: an
+ * MSB-first radix select (12-bit digits over the 60-bit keys, five linear passes). */
+static uint64_t select_dth_largest(const uint64_t *key, int64_t k, int64_t d, uint32_t *hist,
+                                   uint64_t *heap)
 {
-    PyObject *o_mids, *o_out, *o_st, *o_words, *o_lut, *o_base, *o_mask, *o_prec, *o_value;
-    long long wpos, pos;
-    if (!PyArg_ParseTuple(args, "OOOOLLOOOOO", &o_mids, &o_out, &o_st, &o_words, &wpos, &pos,
-                          &o_lut, &o_base, &o_mask, &o_prec, &o_value))
+    if (k <= 32) {
+        int64_t hn = 0;
+        for (int64_t i = 0; i < k; i++) {
+            const uint64_t v = key[i];
+            if (hn < d) {
+                int64_t j = hn++;
+                while (j > 0 && heap[(j - 1) / 2] > v) { heap[j] = heap[(j - 1) / 2]; j = (j - 1) / 2; }
+                heap[j] = v;
+            } else if (v > heap[0]) {
+                int64_t j = 0;
+                for (;;) {
+                    const int64_t l = 2 * j + 1, r = l + 1;
+                    int64_t m = j;
+                    uint64_t mv = v;
+                    if (l < hn && heap[l] < mv) { m = l; mv = heap[l]; }
+                    if (r < hn && heap[r] < mv) { m = r; }
+                    if (m == j) break;
+                    heap[j] = heap[m];
+                    j = m;
+                }
+                heap[j] = v;
+            }
+        }
+        return heap[0];
+    }
+    /* MSB-first radix select, 8-bit digits over the 64-bit keys; stops as soon as a single
+     * key is left under the prefix (usually after two passes) */
+    uint64_t prefix = 0;
+    int64_t need = d;
+    for (int shift = 56; shift >= 0; shift -= 8) {
+        memset(hist, 0, 256 * sizeof *hist);
+        const int hs = shift + 8;
+        for (int64_t i = 0; i < k; i++)
+            if (hs == 64 || (key[i] >> hs) == (prefix >> hs)) hist[(key[i] >> shift) & 255]++;
+        int dg = 255;
+        for (; dg > 0; dg--) {
+            if (need <= (int64_t)hist[dg]) break;
+            need -= hist[dg];
+        }
+        prefix |= (uint64_t)dg << shift;
+        if (hist[dg] == 1) {
+            /* exactly one key carries this prefix: it is the answer */
+            for (int64_t i = 0; i < k; i++)
+                if ((key[i] >> shift) == (prefix >> shift)) return key[i];
+        }
+    }
+    return prefix;
+}
+
+PyDoc_STRVAR(rans_tables_doc,
+"rans_tables(types, lo, span, prec, group, binshift, centre, rl, rr, nbins, bins, levels,\n"
+"            max_lut) -> (lut, fc, val, lut_base, sym_base, mprec)\n\n"
+"Build the compact native decoding tables of a ModelSet (int64 parameter arrays; nbins /\n"
+"bins / levels: the COARSE models' present-bin counts, bins and level codes, concatenated in\n"
+"model order).  Same weights and normalisation as gsz.decoder.rans (ENTROPY.md 3.3-3.5).\n"
+"Re-checks every parameter it relies on; raises GszFormatError when one is out of range or\n"
+"the LUT would exceed max_lut.");
+
+static PyObject *py_rans_tables(PyObject *self, PyObject *args)
+{
+    PyObject *o[12];
+    long long max_lut;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOL", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6],
+                          &o[7], &o[8], &o[9], &o[10], &o[11], &max_lut))
         return NULL;
-    PyObject *objs[9] = {o_mids, o_out, o_st, o_words, o_lut, o_base, o_mask, o_prec, o_value};
-    const Py_ssize_t isz[9] = {8, 8, 8, 1, 8, 8, 8, 8, 8};
-    const int wr[9] = {0, 1, 1, 0, 0, 0, 0, 0, 0};
-    Py_buffer v[9];
+    Py_buffer v[12];
     int nv = 0;
-    for (; nv < 9; nv++)
-        if (getbuf(objs[nv], &v[nv], isz[nv], 'x', wr[nv], "rans_decode argument") < 0) {
+    for (; nv < 12; nv++)
+        if (getbuf(o[nv], &v[nv], 8, 'i', 0, "rans_tables argument") < 0) {
             release_views(v, nv);
             return NULL;
         }
-    const int64_t count = v[0].len / 8, lanes = v[2].len / 8, nwords = v[3].len / 2;
-    const int64_t lut_len = v[4].len / 8, nmodels = v[5].len / 8, nvalues = v[8].len / 8;
+    const int64_t *type = v[0].buf, *lo = v[1].buf, *span = v[2].buf, *prec = v[3].buf;
+    const int64_t *group = v[4].buf, *bshift = v[5].buf, *centre = v[6].buf, *rl = v[7].buf;
+    const int64_t *rr = v[8].buf, *nbins = v[9].buf, *bins = v[10].buf, *levels = v[11].buf;
+    const int64_t M = v[0].len / 8, ncoarse = v[9].len / 8, nball = v[10].len / 8;
     Err e = {0};
-    if (v[1].len / 8 != count || v[6].len / 8 != nmodels || v[7].len / 8 != nmodels
-        || lanes < 1 || wpos < 0 || wpos > nwords || pos < 0) {
-        fail(&e, "rans_decode: inconsistent arguments");
-    }
-    if (!e.failed && count) {
-        const int64_t *mids = v[0].buf, *lut = v[4].buf, *base = v[5].buf, *mask = v[6].buf;
-        const int64_t *prec = v[7].buf, *value = v[8].buf;
-        int64_t *out = v[1].buf, *st = v[2].buf;
-        const uint8_t *words = v[3].buf;
-        Py_BEGIN_ALLOW_THREADS
-        int64_t lane = pos % lanes, w = wpos;
-        for (int64_t j = 0; j < count; j++) {
-            const int64_t m = mids[j];
-            if (m < 0 || m >= nmodels) { fail(&e, "rANS: model id outside the model set"); break; }
-            const int64_t mk = mask[m], n = prec[m];
-            if (mk < 0) { fail(&e, "rANS: symbol refers to an empty model"); break; }
-            if (n < 0 || n > 16) { fail(&e, "rANS: precision above 16"); break; }
-            uint64_t x = (uint64_t)st[lane];
-            const int64_t idx = base[m] + (int64_t)(x & (uint64_t)mk);
-            if (base[m] < 0 || idx >= lut_len) { fail(&e, "rANS: decoding table index out of range"); break; }
-            const int64_t ent = lut[idx];
-            const int64_t g = ent >> 33;
-            if (g < 0 || g >= nvalues) { fail(&e, "rANS: decoding table entry out of range"); break; }
-            x = (uint64_t)((ent >> 16) & 0x1FFFF) * (x >> n) + (uint64_t)(ent & 0xFFFF);
-            if (x < 65536u) {
-                if (w >= nwords) { fail(&e, "rANS: payload truncated (word stream exhausted)"); break; }
-                x = (x << 16) | rd_u16(words + 2 * w);
-                w++;
-            }
-            st[lane] = (int64_t)x;
-            out[j] = value[g];
-            if (++lane == lanes) lane = 0;
+    PyObject *res = NULL;
+    uint16_t *lut = NULL;
+    uint32_t *hist = NULL, *fc = NULL;
+    int32_t *val = NULL;
+    int64_t *lut_base = NULL, *sym_base = NULL, *w = NULL, *fr = NULL, *off = NULL;
+    uint64_t *key = NULL, *heap = NULL;
+    uint8_t *mprec = NULL;
+    for (int i = 1; i < 9; i++)
+        if (v[i].len != v[0].len) fail(&e, "rANS model set: parameter arrays differ in length");
+    if (v[11].len != v[10].len) fail(&e, "rANS model set: coarse code arrays differ in length");
+    /* pass 1: validate, count LUT slots and present values (bounded by max_lut) */
+    int64_t lut_total = 0, sym_total = 0, ci = 0, bi = 0;
+    for (int64_t m = 0; !e.failed && m < M; m++) {
+        const int64_t t = type[m], n = prec[m], sp = span[m];
+        if (t < 0 || t > 3) { fail(&e, "rANS model set: unknown model type"); break; }
+        if (t == 0) continue;
+        if (n < 0 || n > 16 || sp < 0 || sp > 65536) {
+            fail(&e, "rANS model set: precision or span out of range");
+            break;
         }
-        wpos = w;
+        if (lo[m] < -((int64_t)1 << 31) || lo[m] + sp >= ((int64_t)1 << 31)) {
+            fail(&e, "rANS model set: value range outside [-2**31, 2**31)");
+            break;
+        }
+        int64_t k = 0;
+        if (t == 1) {
+            if (sp != 0 || n != 0) { fail(&e, "rANS model set: single model with a span or precision"); break; }
+            k = 1;
+        } else if (t == 3) {
+            if (centre[m] < 0 || centre[m] > sp || rl[m] < 0 || rl[m] > 255 || rr[m] < 0 || rr[m] > 255) {
+                fail(&e, "rANS model set: laplace parameter out of range");
+                break;
+            }
+            k = sp + 1;
+        } else {
+            if (ci >= ncoarse) { fail(&e, "rANS model set: coarse code arrays missing"); break; }
+            const int64_t nb = nbins[ci++], h = bshift[m], g = group[m];
+            if (h < 0 || h > 16 || g < 0 || g > 3 || nb < 1 || nb > nball - bi) {
+                fail(&e, "rANS model set: coarse parameter out of range");
+                break;
+            }
+            for (int64_t j = 0; j < nb; j++) {
+                const int64_t b = bins[bi + j], q = levels[bi + j];
+                if ((j == 0 && b != 0) || (j > 0 && b <= bins[bi + j - 1]) || b > (sp >> h)
+                    || q < 1 || q > ((int64_t)25 << g)) {
+                    fail(&e, "rANS model set: coarse bins or levels invalid");
+                    break;
+                }
+                const int64_t hi = ((b + 1) << h) < sp + 1 ? ((b + 1) << h) : sp + 1;
+                k += hi - (b << h);
+            }
+            if (e.failed) break;
+            if (bins[bi + nb - 1] != (sp >> h)) {
+                fail(&e, "rANS model set: coarse bins not covering the range");
+                break;
+            }
+            bi += nb;
+        }
+        if (k < 1 || k > ((int64_t)1 << n)) { fail(&e, "rANS model: more symbols than 2**n"); break; }
+        lut_total += (int64_t)1 << n;
+        sym_total += k;
+        if (lut_total > max_lut) break;
+    }
+    if (!e.failed && lut_total > max_lut)
+        fail(&e, "rANS: model set needs more LUT entries than this stream allows");
+    if (!e.failed && (ci != ncoarse || bi != nball))
+        fail(&e, "rANS model set: coarse code arrays do not match the models");
+    /* the tables are written straight into the bytes objects returned (no copy) */
+    PyObject *bo[6] = {NULL, NULL, NULL, NULL, NULL, NULL};
+    if (!e.failed) {
+        const Py_ssize_t sizes[6] = {(Py_ssize_t)(lut_total * 2), (Py_ssize_t)(sym_total * 4),
+                                     (Py_ssize_t)(sym_total * 4), (Py_ssize_t)(M * 8),
+                                     (Py_ssize_t)(M * 8), (Py_ssize_t)M};
+        for (int i = 0; i < 6; i++) {
+            bo[i] = PyBytes_FromStringAndSize(NULL, sizes[i]);
+            if (!bo[i]) { fail_nomem(&e); break; }
+        }
+    }
+    if (!e.failed) {
+        lut = (uint16_t *)PyBytes_AS_STRING(bo[0]);
+        fc = (uint32_t *)PyBytes_AS_STRING(bo[1]);
+        val = (int32_t *)PyBytes_AS_STRING(bo[2]);
+        lut_base = (int64_t *)PyBytes_AS_STRING(bo[3]);
+        sym_base = (int64_t *)PyBytes_AS_STRING(bo[4]);
+        mprec = (uint8_t *)PyBytes_AS_STRING(bo[5]);
+        w = malloc(65537 * sizeof *w);
+        fr = malloc(65537 * sizeof *fr);
+        off = malloc(65537 * sizeof *off);
+        key = malloc(65537 * sizeof *key);
+        heap = malloc(65537 * sizeof *heap);
+        hist = malloc(4096 * sizeof *hist);
+        if (!w || !fr || !off || !key || !heap || !hist) fail_nomem(&e);
+    }
+    if (!e.failed) {
+        Py_BEGIN_ALLOW_THREADS
+        int64_t lpos = 0, spos = 0;
+        ci = 0;
+        bi = 0;
+        for (int64_t m = 0; m < M; m++) {
+            const int64_t t = type[m], n = prec[m], sp = span[m];
+            lut_base[m] = lpos;
+            sym_base[m] = spos;
+            if (t == 0) { mprec[m] = PREC_EMPTY; continue; }
+            mprec[m] = (uint8_t)n;
+            /* present values (offsets from lo) and their weights, ENTROPY.md 3.3 */
+            int64_t k = 0;
+            if (t == 1) {
+                off[0] = 0;
+                w[0] = 1;
+                k = 1;
+            } else if (t == 2) {
+                const int64_t nb = nbins[ci++], h = bshift[m], g = group[m];
+                for (int64_t j = 0; j < nb; j++) {
+                    const int64_t b = bins[bi + j], qm = levels[bi + j] - 1;
+                    const int64_t wt = (((int64_t)1 << g) + (qm & (((int64_t)1 << g) - 1))) << (qm >> g);
+                    const int64_t hi = ((b + 1) << h) < sp + 1 ? ((b + 1) << h) : sp + 1;
+                    for (int64_t x = b << h; x < hi; x++) { off[k] = x; w[k] = wt; k++; }
+                }
+                bi += nb;
+            } else {
+                /* 3.5: sequential binary64 products, W_d = floor(v_d * 2^24) */
+                const int64_t c = centre[m];
+                k = sp + 1;
+                for (int64_t i = 0; i < k; i++) off[i] = i;
+                w[c] = (int64_t)1 << 24;
+                for (int side = 0; side < 2; side++) {
+                    const int64_t u = side == 0 ? rl[m] : rr[m];
+                    const int64_t r = 65536 - (((16 + (u & 15)) << 16) >> ((u >> 4) + 5));
+                    const double rho = (double)r / 65536.0;
+                    const int64_t len = side == 0 ? c : sp - c;
+                    double vd = 1.0;
+                    for (int64_t d = 1; d <= len; d++) {
+                        vd = vd * rho;
+                        w[side == 0 ? c - d : c + d] = (int64_t)floor(vd * 16777216.0);
+                    }
+                }
+            }
+            /* normalisation, 3.4 */
+            const int64_t T = (int64_t)1 << n;
+            int64_t W = 0;
+            for (int64_t i = 0; i < k; i++) W += w[i];
+            if (W == 0) {
+                for (int64_t i = 0; i < k; i++) w[i] = 1;
+                W = k;
+            }
+            const int64_t R = T - k;
+            int64_t sumf = 0;
+            for (int64_t i = 0; i < k; i++) {
+                const int64_t prod = w[i] * R;          /* < 2^60 */
+                fr[i] = 1 + prod / W;
+                sumf += fr[i];
+                /* remainder (< 2^44), then the complemented index: distinct keys whose
+                 * descending order is "largest remainder first, ties by lower index" */
+                key[i] = ((uint64_t)(prod % W) << 16) | (uint64_t)(0xFFFF - i);
+            }
+            const int64_t dshort = T - sumf;
+            if (dshort < 0 || dshort >= k) { fail(&e, "rANS model: normalisation out of range"); break; }
+            if (dshort > 0) {
+                const uint64_t thr = select_dth_largest(key, k, dshort, hist, heap);
+                for (int64_t i = 0; i < k; i++) fr[i] += key[i] >= thr;
+            }
+            int64_t cum = 0;
+            for (int64_t i = 0; i < k; i++) {
+                fc[spos + i] = ((uint32_t)cum << 16) | (uint32_t)(fr[i] - 1);
+                val[spos + i] = (int32_t)(lo[m] + off[i]);
+                for (int64_t z = 0; z < fr[i]; z++) lut[lpos + cum + z] = (uint16_t)i;
+                cum += fr[i];
+            }
+            lpos += T;
+            spos += k;
+        }
+        Py_END_ALLOW_THREADS
+    }
+    if (!e.failed) res = PyTuple_Pack(6, bo[0], bo[1], bo[2], bo[3], bo[4], bo[5]);
+    for (int i = 0; i < 6; i++) Py_XDECREF(bo[i]);
+    free(w); free(fr); free(off); free(key); free(heap); free(hist);
+    release_views(v, nv);
+    if (e.failed) return raise_err(&e);
+    return res;
+}
+
+/* The compact tables of rans_tables() as used by the decode loops. */
+typedef struct {
+    const uint16_t *lut;
+    const uint32_t *fc;
+    const int32_t *val;
+    const int64_t *lbase, *sbase;
+    const uint8_t *mprec;
+    int64_t lut_len, nsym, nmodels;
+    Py_buffer v[6];
+    int nv;
+} RTab;
+
+static void rtab_release(RTab *t)
+{
+    release_views(t->v, t->nv);
+    t->nv = 0;
+}
+
+static int rtab_load(RTab *t, PyObject *tables)
+{
+    PyObject *o[6];
+    t->nv = 0;
+    if (!PyArg_ParseTuple(tables, "OOOOOO;rANS tables", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5]))
+        return -1;
+    for (; t->nv < 6; t->nv++)
+        if (getbuf(o[t->nv], &t->v[t->nv], 1, 'x', 0, "rANS tables") < 0) {
+            rtab_release(t);
+            return -1;
+        }
+    t->lut = t->v[0].buf;
+    t->fc = t->v[1].buf;
+    t->val = t->v[2].buf;
+    t->lbase = t->v[3].buf;
+    t->sbase = t->v[4].buf;
+    t->mprec = t->v[5].buf;
+    t->lut_len = t->v[0].len / 2;
+    t->nsym = t->v[1].len / 4;
+    t->nmodels = t->v[5].len;
+    if (t->v[2].len / 4 != t->nsym || t->v[3].len / 8 != t->nmodels || t->v[4].len / 8 != t->nmodels) {
+        PyErr_SetString(PyExc_ValueError, "rANS tables: inconsistent sizes");
+        rtab_release(t);
+        return -1;
+    }
+    return 0;
+}
+
+/* Decoder state of one payload: lane states (int64, the RansDecoder's array), the words. */
+typedef struct {
+    int64_t *st;
+    int64_t lanes, lane;
+    const uint8_t *words;
+    int64_t nwords, w;
+} RState;
+
+/* One decode step (ENTROPY.md 4.3) with model m; the value in *out.  0 or -1 (error set). */
+static inline int rans_step(const RTab *t, RState *s, int64_t m, int64_t *out, Err *e)
+{
+    if (m < 0 || m >= t->nmodels) return fail(e, "rANS: model id outside the model set");
+    const unsigned n = t->mprec[m];
+    if (n == PREC_EMPTY) return fail(e, "rANS: symbol refers to an empty model");
+    uint64_t x = (uint64_t)s->st[s->lane];
+    const uint64_t slot = x & (((uint64_t)1 << n) - 1);
+    const int64_t li = t->lbase[m] + (int64_t)slot;
+    if (li < 0 || li >= t->lut_len) return fail(e, "rANS: decoding table index out of range");
+    const int64_t g = t->sbase[m] + t->lut[li];
+    if (g < 0 || g >= t->nsym) return fail(e, "rANS: decoding table entry out of range");
+    const uint32_t ent = t->fc[g];
+    x = (uint64_t)((ent & 0xFFFF) + 1) * (x >> n) + slot - (ent >> 16);
+    const uint64_t need = x < 65536u;      /* branch-free renormalisation, as in bin_decode */
+    if (s->w >= s->nwords) {
+        if (need) return fail(e, "rANS: payload truncated (word stream exhausted)");
+    } else {
+        const uint64_t wv = rd_u16(s->words + 2 * s->w);
+        x = (x << (need << 4)) | (wv & (0 - need));
+        s->w += (int64_t)need;
+    }
+    s->st[s->lane] = (int64_t)x;
+    if (++s->lane == s->lanes) s->lane = 0;
+    *out = t->val[g];
+    return 0;
+}
+
+PyDoc_STRVAR(rans_decode_doc,
+"rans_decode(mids, out, states, words, wpos, pos, tables) -> wpos\n\n"
+"Decode len(mids) symbols (ENTROPY.md 4.3) of an interleaved rANS payload with the tables of\n"
+"rans_tables(): symbol j (global index pos + j) on lane (pos + j) %% L, L = len(states)\n"
+"(int64, updated in place); `words` = the payload's 16-bit words (LE bytes), wpos = words\n"
+"consumed so far.  Writes the decoded values (int64) to `out`; returns the new wpos.  Raises\n"
+"GszFormatError on a bad model id or an exhausted word stream.");
+
+static PyObject *py_rans_decode(PyObject *self, PyObject *args)
+{
+    PyObject *o_mids, *o_out, *o_st, *o_words, *tables;
+    long long wpos, pos;
+    if (!PyArg_ParseTuple(args, "OOOOLLO", &o_mids, &o_out, &o_st, &o_words, &wpos, &pos, &tables))
+        return NULL;
+    RTab t;
+    if (rtab_load(&t, tables) < 0) return NULL;
+    PyObject *objs[4] = {o_mids, o_out, o_st, o_words};
+    const int wr[4] = {0, 1, 1, 0};
+    const Py_ssize_t isz[4] = {8, 8, 8, 1};
+    Py_buffer v[4];
+    int nv = 0;
+    for (; nv < 4; nv++)
+        if (getbuf(objs[nv], &v[nv], isz[nv], 'x', wr[nv], "rans_decode argument") < 0) {
+            release_views(v, nv);
+            rtab_release(&t);
+            return NULL;
+        }
+    const int64_t count = v[0].len / 8;
+    RState s = {v[2].buf, v[2].len / 8, 0, v[3].buf, v[3].len / 2, wpos};
+    Err e = {0};
+    if (v[1].len / 8 != count || s.lanes < 1 || wpos < 0 || wpos > s.nwords || pos < 0)
+        fail(&e, "rans_decode: inconsistent arguments");
+    if (!e.failed && count) {
+        const int64_t *mids = v[0].buf;
+        int64_t *out = v[1].buf;
+        s.lane = pos % s.lanes;
+        Py_BEGIN_ALLOW_THREADS
+        for (int64_t j = 0; j < count; j++)
+            if (rans_step(&t, &s, mids[j], out + j, &e) < 0) break;
         Py_END_ALLOW_THREADS
     }
     release_views(v, nv);
+    rtab_release(&t);
     if (e.failed) return raise_err(&e);
-    return PyLong_FromLongLong(wpos);
+    return PyLong_FromLongLong(s.w);
+}
+
+typedef struct { int bad_k, bad_q, overrun; } BlockOut;
+
+/* One block of a channel set: `len` symbols, all with one model (its LUT and present values
+ * already offset to the model; klimit = how many present values follow).  Written branch-free
+ * (renormalisation by arithmetic select); specialised on `deq` by the two wrappers below.
+ * Problems are collected in *bo and reported after the block. */
+static inline __attribute__((always_inline)) void
+decode_block_body(const uint16_t *restrict lut, const uint32_t *restrict fc,
+                  const int32_t *restrict val, int64_t klimit, unsigned n, RState *s, int64_t len,
+                  double *restrict fout, int64_t *restrict iout, double step, double l0,
+                  int64_t qm, const int deq, BlockOut *bo)
+{
+    static const uint8_t zero_word[2] = {0, 0};
+    const uint64_t mask = ((uint64_t)1 << n) - 1;
+    int64_t *restrict st = s->st;
+    const int64_t lanes = s->lanes, nwords = s->nwords;
+    const uint8_t *restrict words = nwords ? s->words : zero_word;
+    const int64_t wlast = nwords ? nwords - 1 : 0;
+    int64_t lane = s->lane, w = s->w;
+    int bad_k = 0, bad_q = 0, over = 0;
+    for (int64_t j = 0; j < len; j++) {
+        uint64_t x = (uint64_t)st[lane];
+        const uint64_t slot = x & mask;
+        const int64_t kk = lut[slot];
+        bad_k |= kk >= klimit;
+        const int64_t ki = kk < klimit ? kk : 0;
+        const uint32_t ent = fc[ki];
+        x = (uint64_t)((ent & 0xFFFF) + 1) * (x >> n) + slot - (ent >> 16);
+        /* renormalise: read the next word (clamped inside the stream) and take it or not */
+        const uint64_t need = x < 65536u;
+        const uint64_t wv = rd_u16(words + 2 * (w < wlast ? w : wlast));
+        x = (x << (need << 4)) | (wv & (0 - need));
+        over |= (int)(need & (uint64_t)(w >= nwords));
+        w += (int64_t)need;
+        st[lane] = (int64_t)x;
+        lane = lane + 1 == lanes ? 0 : lane + 1;
+        const int64_t value = val[ki];
+        if (deq) {
+            bad_q |= (value < 0) | (value > qm);
+            const double prod = step * (double)value;
+            fout[j] = prod + l0;
+        } else {
+            iout[j] = value;
+        }
+    }
+    s->lane = lane;
+    s->w = w;
+    bo->bad_k |= bad_k;
+    bo->bad_q |= bad_q;
+    bo->overrun |= over;
+}
+
+static __attribute__((noinline)) void
+decode_block_deq(const uint16_t *lut, const uint32_t *fc, const int32_t *val, int64_t klimit,
+                 unsigned n, RState *s, int64_t len, double *fout, double step, double l0,
+                 int64_t qm, BlockOut *bo)
+{
+    decode_block_body(lut, fc, val, klimit, n, s, len, fout, NULL, step, l0, qm, 1, bo);
+}
+
+static __attribute__((noinline)) void
+decode_block_raw(const uint16_t *lut, const uint32_t *fc, const int32_t *val, int64_t klimit,
+                 unsigned n, RState *s, int64_t len, int64_t *iout, BlockOut *bo)
+{
+    decode_block_body(lut, fc, val, klimit, n, s, len, NULL, iout, 0.0, 0.0, 0, 0, bo);
+}
+
+PyDoc_STRVAR(rans_decode_blocks_doc,
+"rans_decode_blocks(states, words, wpos, pos, tables, model_table, C, L, B, out,\n"
+"                   steps=None, lo=None, qmax=None) -> wpos\n\n"
+"Decode the C*L symbols of a quantised channel set (GSZ.md §5): symbol c*L + i uses model\n"
+"model_table[c*B + b] (int64), b the block of element i under split_lengths(L, B).  Without\n"
+"steps: the values go to `out` (int64 [C*L]).  With steps, lo (float64 [C*B]) and qmax (int64\n"
+"[C*B], 2^q - 1): `out` (float64 [C*L]) receives lo + step * k (TRANSFORMS.md §3, the same two\n"
+"roundings as gsz.decoder.quant.dequantize_groups), and a symbol outside 0..qmax is an error.");
+
+static PyObject *py_rans_decode_blocks(PyObject *self, PyObject *args)
+{
+    PyObject *o_st, *o_words, *tables, *o_tab, *o_out, *o_steps = Py_None, *o_lo = Py_None,
+             *o_qmax = Py_None;
+    long long wpos, pos, C, L, B;
+    if (!PyArg_ParseTuple(args, "OOLLOOLLLO|OOO", &o_st, &o_words, &wpos, &pos, &tables, &o_tab,
+                          &C, &L, &B, &o_out, &o_steps, &o_lo, &o_qmax))
+        return NULL;
+    const int deq = o_steps != Py_None;
+    RTab t;
+    if (rtab_load(&t, tables) < 0) return NULL;
+    PyObject *objs[7] = {o_st, o_words, o_tab, o_out, o_steps, o_lo, o_qmax};
+    const int wr[7] = {1, 0, 0, 1, 0, 0, 0};
+    const Py_ssize_t isz[7] = {8, 1, 8, 8, 8, 8, 8};
+    const char kind[7] = {'x', 'x', 'i', deq ? 'f' : 'i', 'f', 'f', 'i'};
+    Py_buffer v[7];
+    int nv = 0;
+    for (; nv < (deq ? 7 : 4); nv++)
+        if (getbuf(objs[nv], &v[nv], isz[nv], kind[nv], wr[nv], "rans_decode_blocks argument") < 0) {
+            release_views(v, nv);
+            rtab_release(&t);
+            return NULL;
+        }
+    RState s = {v[0].buf, v[0].len / 8, 0, v[1].buf, v[1].len / 2, wpos};
+    Err e = {0};
+    if (C < 1 || L < 0 || B < 1 || C > 255 || B > 65535 || v[2].len / 8 != C * B
+        || v[3].len / 8 != C * L || s.lanes < 1 || wpos < 0 || wpos > s.nwords || pos < 0
+        || (deq && (v[4].len / 8 != C * B || v[5].len / 8 != C * B || v[6].len / 8 != C * B)))
+        fail(&e, "rans_decode_blocks: inconsistent arguments");
+    if (!e.failed && C * L > 0) {
+        const int64_t *tab = v[2].buf;
+        const double *steps = deq ? v[4].buf : NULL, *lo = deq ? v[5].buf : NULL;
+        const int64_t *qmax = deq ? v[6].buf : NULL;
+        int64_t *iout = deq ? NULL : v[3].buf;
+        double *fout = deq ? v[3].buf : NULL;
+        const int64_t base = L / B, extra = L % B;
+        s.lane = pos % s.lanes;
+        Py_BEGIN_ALLOW_THREADS
+        for (int64_t c = 0; c < C && !e.failed; c++) {
+            int64_t i = 0;
+            for (int64_t b = 0; b < B && !e.failed; b++) {
+                /* split_lengths: the first L mod B blocks hold one element more */
+                const int64_t len = base + (b < extra);
+                const int64_t g = c * B + b, m = tab[g];
+                i += len;
+                if (len == 0) continue;
+                /* one model for the whole block: check it once, then a tight loop */
+                if (m < 0 || m >= t.nmodels) { fail(&e, "rANS: model id outside the model set"); break; }
+                const unsigned n = t.mprec[m];
+                if (n == PREC_EMPTY) { fail(&e, "rANS: symbol refers to an empty model"); break; }
+                const uint64_t mask = ((uint64_t)1 << n) - 1;
+                const int64_t lb = t.lbase[m], sb = t.sbase[m];
+                if (lb < 0 || lb + (int64_t)mask >= t.lut_len || sb < 0 || sb >= t.nsym) {
+                    fail(&e, "rANS: decoding table index out of range");
+                    break;
+                }
+                BlockOut bo = {0, 0, 0};
+                if (deq)
+                    decode_block_deq(t.lut + lb, t.fc + sb, t.val + sb, t.nsym - sb, n, &s, len,
+                                     fout + c * L + i - len, steps[g], lo[g], qmax[g], &bo);
+                else
+                    decode_block_raw(t.lut + lb, t.fc + sb, t.val + sb, t.nsym - sb, n, &s, len,
+                                     iout + c * L + i - len, &bo);
+                if (bo.overrun) { fail(&e, "rANS: payload truncated (word stream exhausted)"); break; }
+                if (!e.failed && bo.bad_k) fail(&e, "rANS: decoding table entry out of range");
+                const int64_t bad_q = bo.bad_q;
+                if (!e.failed && bad_q)
+                    fail(&e, "quantisation symbol outside 0..2^q - 1 of its group");
+            }
+        }
+        Py_END_ALLOW_THREADS
+    }
+    release_views(v, nv);
+    rtab_release(&t);
+    if (e.failed) return raise_err(&e);
+    return PyLong_FromLongLong(s.w);
 }
 
 /* ================================================================== inverse RAHT (TRANSFORMS.md §2) */
@@ -1006,6 +1515,228 @@ static PyObject *py_raht_inverse(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* ================================================================== attribute assembly */
+PyDoc_STRVAR(attr_split_doc,
+"attr_split(v, opacity, dc, half)\n\n"
+"From the inverse RAHT output v (float64 [M, 7]: opacity, roll, pitch, yaw, f_dc_0..2) write\n"
+"opacity (float32 [M]), dc (float32 [M, 3]) and the half angles (float64 [3, M], non-finite\n"
+"angles replaced by 0 first) -- the steps of gsz.decoder.attributes / rotation around cos/sin.");
+
+static PyObject *py_attr_split(PyObject *self, PyObject *args)
+{
+    PyObject *o[4];
+    if (!PyArg_ParseTuple(args, "OOOO", &o[0], &o[1], &o[2], &o[3])) return NULL;
+    const Py_ssize_t isz[4] = {8, 4, 4, 8};
+    Py_buffer v[4];
+    int nv = 0;
+    for (; nv < 4; nv++)
+        if (getbuf(o[nv], &v[nv], isz[nv], 'f', nv > 0, "attr_split argument") < 0) {
+            release_views(v, nv);
+            return NULL;
+        }
+    const int64_t M = v[1].len / 4;
+    int ok = v[0].len / 8 == 7 * M && v[2].len / 4 == 3 * M && v[3].len / 8 == 3 * M;
+    if (ok) {
+        const double *src = v[0].buf;
+        float *op = v[1].buf, *dc = v[2].buf;
+        double *half = v[3].buf;
+        Py_BEGIN_ALLOW_THREADS
+        for (int64_t i = 0; i < M; i++) {
+            const double *r = src + 7 * i;
+            op[i] = (float)r[0];
+            for (int a = 0; a < 3; a++) {
+                const double x = r[1 + a];
+                half[a * M + i] = 0.5 * (isfinite(x) ? x : 0.0);
+                dc[3 * i + a] = (float)r[4 + a];
+            }
+        }
+        Py_END_ALLOW_THREADS
+    }
+    release_views(v, nv);
+    if (!ok) {
+        PyErr_SetString(PyExc_ValueError, "attr_split: inconsistent shapes");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(quat_from_trig_doc,
+"quat_from_trig(c, s, q)\n\n"
+"Quaternions (w, x, y, z) as float32 [M, 4] from c = cos and s = sin of the half angles\n"
+"(float64 [3, M]: roll, pitch, yaw): TRANSFORMS.md §1, products left to right, one rounding\n"
+"per operation, sign flipped when w < 0, then rounded to float32.");
+
+static PyObject *py_quat_from_trig(PyObject *self, PyObject *args)
+{
+    PyObject *o[3];
+    if (!PyArg_ParseTuple(args, "OOO", &o[0], &o[1], &o[2])) return NULL;
+    const Py_ssize_t isz[3] = {8, 8, 4};
+    Py_buffer v[3];
+    int nv = 0;
+    for (; nv < 3; nv++)
+        if (getbuf(o[nv], &v[nv], isz[nv], 'f', nv == 2, "quat_from_trig argument") < 0) {
+            release_views(v, nv);
+            return NULL;
+        }
+    const int64_t M = v[2].len / 16;
+    int ok = v[0].len / 8 == 3 * M && v[1].len / 8 == 3 * M;
+    if (ok) {
+        const double *c = v[0].buf, *s = v[1].buf;
+        float *q = v[2].buf;
+        Py_BEGIN_ALLOW_THREADS
+        for (int64_t i = 0; i < M; i++) {
+            const double cr = c[i], cp = c[M + i], cy = c[2 * M + i];
+            const double sr = s[i], sp = s[M + i], sy = s[2 * M + i];
+            const double a = cr * cp, b = sr * sp, d = sr * cp, f = cr * sp;
+            const double t0 = a * cy, t1 = b * sy, t2 = d * cy, t3 = f * sy;
+            const double t4 = f * cy, t5 = d * sy, t6 = a * sy, t7 = b * cy;
+            double w = t0 + t1, x = t2 - t3, y = t4 + t5, z = t6 - t7;
+            if (w < 0) { w = -w; x = -x; y = -y; z = -z; }
+            q[4 * i] = (float)w;
+            q[4 * i + 1] = (float)x;
+            q[4 * i + 2] = (float)y;
+            q[4 * i + 3] = (float)z;
+        }
+        Py_END_ALLOW_THREADS
+    }
+    release_views(v, nv);
+    if (!ok) {
+        PyErr_SetString(PyExc_ValueError, "quat_from_trig: inconsistent shapes");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+static inline uint64_t compact3(uint64_t v)
+{
+    v &= 0x1249249249249249ULL;
+    v = (v | (v >> 2)) & 0x10C30C30C30C30C3ULL;
+    v = (v | (v >> 4)) & 0x100F00F00F00F00FULL;
+    v = (v | (v >> 8)) & 0x1F0000FF0000FFULL;
+    v = (v | (v >> 16)) & 0x1F00000000FFFFULL;
+    v = (v | (v >> 32)) & 0x1FFFFFULL;
+    return v;
+}
+
+PyDoc_STRVAR(voxel_positions_doc,
+"voxel_positions(codes, depth, ox, oy, oz, side, out)\n\n"
+"Decoded centres (GSZ.md §6) of the voxels with Morton codes `codes` (uint64 [M]):\n"
+"origin + (ijk + 0.5) * (side / 2^depth) in float64, rounded to float32 into out [M, 3].");
+
+static PyObject *py_voxel_positions(PyObject *self, PyObject *args)
+{
+    PyObject *o_codes, *o_out;
+    int depth;
+    double org[3], side;
+    if (!PyArg_ParseTuple(args, "OiddddO", &o_codes, &depth, &org[0], &org[1], &org[2], &side, &o_out))
+        return NULL;
+    Py_buffer vc, vo;
+    if (getbuf(o_codes, &vc, 8, 'x', 0, "codes") < 0) return NULL;
+    if (getbuf(o_out, &vo, 4, 'f', 1, "out") < 0) { PyBuffer_Release(&vc); return NULL; }
+    const int64_t M = vc.len / 8;
+    const int ok = vo.len / 4 == 3 * M && depth >= 1 && depth <= 21;
+    if (ok) {
+        const uint64_t *c = vc.buf;
+        float *out = vo.buf;
+        const double pitch = side / (double)((int64_t)1 << depth);
+        Py_BEGIN_ALLOW_THREADS
+        for (int64_t i = 0; i < M; i++) {
+            const uint64_t ijk[3] = {compact3(c[i] >> 2), compact3(c[i] >> 1), compact3(c[i])};
+            for (int a = 0; a < 3; a++) {
+                const double t = ((double)ijk[a] + 0.5) * pitch;
+                out[3 * i + a] = (float)(org[a] + t);
+            }
+        }
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&vc);
+    PyBuffer_Release(&vo);
+    if (!ok) {
+        PyErr_SetString(PyExc_ValueError, "voxel_positions: inconsistent arguments");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(sh_assemble_doc,
+"sh_assemble(flags, kept, idx, codebook, out)\n\n"
+"SH rest vectors (GSZ.md §8) as float32 out [M, D]: Gaussian i takes the next kept vector\n"
+"(kept: float64 [D, P], channel-major) when flags[i] == 1 (flags: int64 [M], or None when\n"
+"P = 0), else codeword idx[next] of codebook (float64 [D, K]).  A flag other than 0/1, a\n"
+"kept count other than P or an index >= K raises GszFormatError.");
+
+static PyObject *py_sh_assemble(PyObject *self, PyObject *args)
+{
+    PyObject *o[5];
+    if (!PyArg_ParseTuple(args, "OOOOO", &o[0], &o[1], &o[2], &o[3], &o[4])) return NULL;
+    const int has_flags = o[0] != Py_None;
+    const Py_ssize_t isz[5] = {8, 8, 8, 8, 4};
+    const char kind[5] = {'i', 'f', 'i', 'f', 'f'};
+    Py_buffer v[5];
+    int nv = 0;
+    for (; nv < 5; nv++) {
+        if (nv == 0 && !has_flags) { memset(&v[0], 0, sizeof v[0]); continue; }
+        if (getbuf(o[nv], &v[nv], isz[nv], kind[nv], nv == 4, "sh_assemble argument") < 0) {
+            for (int i = has_flags ? 0 : 1; i < nv; i++) PyBuffer_Release(&v[i]);
+            return NULL;
+        }
+    }
+    const int64_t nidx = v[2].len / 8;
+    const int64_t M = has_flags ? v[0].len / 8 : nidx;
+    Err e = {0};
+    int64_t D = M ? (v[4].len / 4) / M : 0;
+    if (M == 0 || v[4].len / 4 != D * M || D < 1 || v[1].len / 8 % D || v[3].len / 8 % D)
+        fail(&e, "sh_assemble: inconsistent shapes");
+    if (!e.failed) {
+        const int64_t P = v[1].len / 8 / D, K = v[3].len / 8 / D;
+        const int64_t *flags = has_flags ? v[0].buf : NULL, *idx = v[2].buf;
+        const double *kept = v[1].buf, *cb = v[3].buf;
+        float *out = v[4].buf;
+        Py_BEGIN_ALLOW_THREADS
+        int64_t kp = 0, ip = 0;
+        for (int64_t i = 0; i < M; i++) {
+            float *dst = out + i * D;
+            const int64_t f = flags ? flags[i] : 0;
+            if (f == 1) {
+                if (kp >= P) { fail(&e, "SHVQ chunk: more kept flags set than kept vectors"); break; }
+                for (int64_t d = 0; d < D; d++) dst[d] = (float)kept[d * P + kp];
+                kp++;
+            } else if (f == 0) {
+                if (ip >= nidx) { fail(&e, "SHVQ chunk: fewer codeword indices than Gaussians"); break; }
+                const int64_t j = idx[ip++];
+                if (j < 0 || j >= K) { fail(&e, "SHVQ chunk: codeword index out of range"); break; }
+                for (int64_t d = 0; d < D; d++) dst[d] = (float)cb[d * K + j];
+            } else {
+                fail(&e, "SHVQ chunk: kept flag outside 0/1");
+                break;
+            }
+        }
+        if (!e.failed && (kp != P || ip != nidx)) fail(&e, "SHVQ chunk: kept flags do not match the kept count");
+        Py_END_ALLOW_THREADS
+    }
+    for (int i = has_flags ? 0 : 1; i < 5; i++) PyBuffer_Release(&v[i]);
+    if (e.failed) return raise_err(&e);
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(all_finite_doc,
+"all_finite(a) -> bool\n\nTrue when every element of the float32 buffer `a` is finite.");
+
+static PyObject *py_all_finite(PyObject *self, PyObject *arg)
+{
+    Py_buffer v;
+    if (getbuf(arg, &v, 4, 'f', 0, "all_finite argument") < 0) return NULL;
+    const uint32_t *p = v.buf;
+    const int64_t n = v.len / 4;
+    uint32_t bad = 0;
+    Py_BEGIN_ALLOW_THREADS
+    /* exponent all ones = inf or nan; branch-free so the loop vectorises */
+    for (int64_t i = 0; i < n; i++) bad |= ((p[i] & 0x7F800000u) == 0x7F800000u);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&v);
+    return PyBool_FromLong(!bad);
+}
+
 /* ================================================================== module */
 static PyMethodDef methods[] = {
     {"octree_decode", py_octree_decode, METH_VARARGS, octree_decode_doc},
@@ -1013,6 +1744,13 @@ static PyMethodDef methods[] = {
     {"bank_encode", py_bank_encode, METH_VARARGS, bank_encode_doc},
     {"rans_decode", py_rans_decode, METH_VARARGS, rans_decode_doc},
     {"raht_inverse", py_raht_inverse, METH_VARARGS, raht_inverse_doc},
+    {"rans_tables", py_rans_tables, METH_VARARGS, rans_tables_doc},
+    {"rans_decode_blocks", py_rans_decode_blocks, METH_VARARGS, rans_decode_blocks_doc},
+    {"attr_split", py_attr_split, METH_VARARGS, attr_split_doc},
+    {"quat_from_trig", py_quat_from_trig, METH_VARARGS, quat_from_trig_doc},
+    {"voxel_positions", py_voxel_positions, METH_VARARGS, voxel_positions_doc},
+    {"sh_assemble", py_sh_assemble, METH_VARARGS, sh_assemble_doc},
+    {"all_finite", py_all_finite, METH_O, all_finite_doc},
     {NULL, NULL, 0, NULL},
 };
 

@@ -16,11 +16,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import native
 from .bytesio import Reader
 from .groups import read_channel_set
 from .layout import DIRECT_CHANNELS, RAHT_CHANNELS, ROTATION_EULER_ZYX
-from .raht import RahtTree, raht_inverse
-from .rotation import euler_to_quaternion
+from .raht import RahtTree, build_raht_tree, raht_inverse
+from .rotation import euler_to_quaternion, half_angle_trig
 
 
 @dataclass
@@ -41,8 +42,9 @@ def attributes_from_channels(raht_values: np.ndarray, direct: np.ndarray) -> Att
         scales=np.ascontiguousarray(direct.T, dtype=np.float32))
 
 
-def read_attributes(data, tree: RahtTree) -> Attributes:
-    m = tree.num_points
+def parse_attributes(data, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Entropy-decode an ATTR chunk of ``m`` points (no geometry needed yet): returns the RAHT
+    DC float64 [R], AC float64 [R, m - 1] (stream order) and direct channels float64 [3, m]."""
     r = Reader(data, "ATTR chunk")
     mode = r.u8()
     r.check(mode == ROTATION_EULER_ZYX, f"unknown rotation mode {mode}")
@@ -56,4 +58,34 @@ def read_attributes(data, tree: RahtTree) -> Attributes:
     r.check(direct.shape == (len(DIRECT_CHANNELS), m),
             f"direct channel set has shape {direct.shape}, expected ({len(DIRECT_CHANNELS)}, {m})")
     r.expect_end()
+    return dc, ac, direct
+
+
+def attributes_from_coefficients(dc: np.ndarray, ac: np.ndarray, direct: np.ndarray,
+                                 codes: np.ndarray, depth: int) -> Attributes:
+    """Inverse RAHT over the voxels with Morton codes ``codes`` (ascending) and the mapping to
+    Gaussian fields.  With the native accelerator: the tree, the inverse transform and the
+    float32 conversions in C, cos/sin still NumPy's on the same arrays (bit-identical)."""
+    if not native.enabled():
+        tree = build_raht_tree(codes, depth)
+        return attributes_from_channels(raht_inverse(dc, ac.T, tree), direct)
+    nat = native.module()
+    m = int(codes.shape[0])
+    v = np.empty((m, len(RAHT_CHANNELS)), np.float64)
+    nat.raht_inverse(np.ascontiguousarray(codes, dtype=np.uint64), int(depth),
+                     np.ascontiguousarray(dc, dtype=np.float64),
+                     np.ascontiguousarray(ac, dtype=np.float64), v)
+    opacities = np.empty(m, np.float32)
+    sh_dc = np.empty((m, 3), np.float32)
+    half = np.empty((3, m), np.float64)
+    nat.attr_split(v, opacities, sh_dc, half)
+    c, s = half_angle_trig(half)
+    rotations = np.empty((m, 4), np.float32)
+    nat.quat_from_trig(c, s, rotations)
+    return Attributes(opacities=opacities, rotations=rotations, sh_dc=sh_dc,
+                      scales=np.ascontiguousarray(direct.T, dtype=np.float32))
+
+
+def read_attributes(data, tree: RahtTree) -> Attributes:
+    dc, ac, direct = parse_attributes(data, tree.num_points)
     return attributes_from_channels(raht_inverse(dc, ac.T, tree), direct)

@@ -8,18 +8,19 @@ from __future__ import annotations
 import json
 import os
 import struct
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
-from .attributes import read_attributes
+from . import native
+from .attributes import attributes_from_coefficients, parse_attributes
 from .cloud import GaussianCloud
 from .container import DEFAULT_MAX_GAUSSIANS, LAYER_SHIFT, Chunk, Container, read_container
 from .errors import GszError, GszFormatError, GszTruncatedError
-from .geometry import read_geometry
+from .geometry import read_geometry_header
 from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHVQ, KNOWN_CHUNKS
-from .morton import morton_encode
-from .raht import build_raht_tree
 from .sh import read_sh
 
 #: Chunk type names for reports.
@@ -130,26 +131,65 @@ class LayerState:
     codebook: np.ndarray | None = None      # layer 0's SH codebook [D, K_cb]
 
 
+#: Layers with at least this many Gaussians decode their geometry on a worker thread while the
+#: attribute and SH streams decode on the calling one (native path; below it the hand-off costs
+#: more than it saves).
+OVERLAP_MIN_POINTS = 4096
+_pool = None
+_pool_lock = threading.Lock()
+
+
+def _worker():
+    """The decoder's one worker thread (geometry runs there, the attributes here)."""
+    global _pool
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gsz-decode")
+        return _pool
+
+
+def _decode_codes(gh):
+    with np.errstate(over="ignore", invalid="ignore"):   # errstate is per thread
+        return gh.decode_codes()
+
+
 def decode_layer(chunks: dict, header, state: LayerState) -> GaussianCloud:
-    """Decode one layer from its chunk payloads {type: bytes-like}; updates ``state``."""
+    """Decode one layer from its chunk payloads {type: bytes-like}; updates ``state``.
+
+    The geometry and the attribute/SH entropy decoding are independent until the inverse RAHT
+    (which needs the voxels' Morton codes): with the native accelerator they run on two threads
+    (the C loops release the GIL).  Errors are raised in the sequential order: a corrupt
+    geometry is reported before a corrupt attribute chunk."""
     room = header.num_gaussians - state.decoded_points
     if room <= 0:
         raise GszFormatError(f"layers hold more Gaussians than the header's {header.num_gaussians}")
-    geom = read_geometry(chunks[CHUNK_GEOM], max_points=room)
-    m = len(geom.ijk)
-    tree = build_raht_tree(morton_encode(geom.ijk), geom.depth)
-    attrs = read_attributes(chunks[CHUNK_ATTR], tree)
-    if header.sh_degree > 0:
-        sh_rest, state.codebook = read_sh(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook)
-    else:
-        sh_rest = np.zeros((m, 0, 3), np.float32)
-    cloud = GaussianCloud(positions=geom.positions, scales=attrs.scales, rotations=attrs.rotations,
-                          opacities=attrs.opacities, sh_dc=attrs.sh_dc, sh_rest=sh_rest,
-                          sh_degree=header.sh_degree)
+    gh = read_geometry_header(chunks[CHUNK_GEOM], max_points=room)
+    m = gh.num_points
+    pending = _worker().submit(_decode_codes, gh) \
+        if native.enabled() and m >= OVERLAP_MIN_POINTS else None
+    try:
+        codes = gh.decode_codes() if pending is None else None
+        dc, ac, direct = parse_attributes(chunks[CHUNK_ATTR], m)
+        if header.sh_degree > 0:
+            sh_rest, codebook = read_sh(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook)
+        else:
+            sh_rest, codebook = np.zeros((m, 0, 3), np.float32), state.codebook
+    except BaseException:
+        if pending is not None and pending.exception() is not None:
+            raise pending.exception() from None        # the geometry's error comes first
+        raise
+    if pending is not None:
+        codes = pending.result()
+    state.codebook = codebook
+    attrs = attributes_from_coefficients(dc, ac, direct, codes, gh.depth)
+    cloud = GaussianCloud(positions=gh.positions(codes), scales=attrs.scales,
+                          rotations=attrs.rotations, opacities=attrs.opacities,
+                          sh_dc=attrs.sh_dc, sh_rest=sh_rest, sh_degree=header.sh_degree)
     # Well-formed streams always decode to finite float32 values; hostile parameters (huge
     # min/max, DC) can overflow float32, which is rejected rather than returned.
+    finite = native.module().all_finite if native.enabled() else (lambda a: np.isfinite(a).all())
     for name in ("positions", "scales", "rotations", "opacities", "sh_dc", "sh_rest"):
-        if not np.isfinite(getattr(cloud, name)).all():
+        if not finite(getattr(cloud, name)):
             raise GszFormatError(f"decoded {name} contain non-finite values (corrupt parameters)")
     state.decoded_points += m
     return cloud

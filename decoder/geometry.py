@@ -18,9 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import native
 from .bytesio import Reader
-from .morton import MAX_DEPTH
-from .octree import decode_octree
+from .morton import MAX_DEPTH, morton_decode
+from .octree import decode_octree_codes
 
 
 @dataclass
@@ -29,10 +30,36 @@ class Geometry:
     origin: np.ndarray     # [3] float64
     side: float
     depth: int
+    codes: np.ndarray | None = None   # [M] uint64 Morton codes of ijk (ascending), when known
 
     @property
     def positions(self) -> np.ndarray:
         return voxel_centres(self.ijk, self.origin, self.side, self.depth).astype(np.float32)
+
+
+@dataclass
+class GeometryHeader:
+    """The GEOM chunk's fields before its octree payload is decoded."""
+    depth: int
+    origin: np.ndarray     # [3] float64
+    side: float
+    num_points: int
+    payload: memoryview
+
+    def decode_codes(self) -> np.ndarray:
+        """Morton codes (uint64 [M], ascending) of the voxels (OCTREE.md)."""
+        return decode_octree_codes(self.payload, self.depth, self.num_points)
+
+    def positions(self, codes: np.ndarray) -> np.ndarray:
+        """Decoded float32 centres [M, 3] of the voxels with Morton codes ``codes``."""
+        if native.enabled():
+            out = np.empty((codes.shape[0], 3), np.float32)
+            native.module().voxel_positions(np.ascontiguousarray(codes, dtype=np.uint64),
+                                            self.depth, *(float(v) for v in self.origin),
+                                            float(self.side), out)
+            return out
+        return voxel_centres(morton_decode(codes), self.origin, self.side,
+                             self.depth).astype(np.float32)
 
 
 def voxel_centres(ijk: np.ndarray, origin, side: float, depth: int) -> np.ndarray:
@@ -41,7 +68,7 @@ def voxel_centres(ijk: np.ndarray, origin, side: float, depth: int) -> np.ndarra
     return np.asarray(origin, np.float64) + (np.asarray(ijk, np.float64) + 0.5) * pitch
 
 
-def read_geometry(data, *, max_points: int) -> Geometry:
+def read_geometry_header(data, *, max_points: int) -> GeometryHeader:
     r = Reader(data, "GEOM chunk")
     depth = r.u8()
     r.check(1 <= depth <= MAX_DEPTH, f"octree depth {depth} outside 1..{MAX_DEPTH}")
@@ -51,5 +78,12 @@ def read_geometry(data, *, max_points: int) -> Geometry:
             "non-finite grid origin or non-positive side")
     m = r.u64()
     r.check(1 <= m <= max_points, f"voxel count {m} outside 1..{max_points}")
-    ijk = decode_octree(r.bytes(r.remaining), depth, m)
-    return Geometry(ijk=ijk, origin=origin, side=side, depth=depth)
+    return GeometryHeader(depth=depth, origin=origin, side=side, num_points=m,
+                          payload=r.bytes(r.remaining))
+
+
+def read_geometry(data, *, max_points: int) -> Geometry:
+    h = read_geometry_header(data, max_points=max_points)
+    codes = h.decode_codes()
+    return Geometry(ijk=morton_decode(codes), origin=h.origin, side=h.side, depth=h.depth,
+                    codes=codes)

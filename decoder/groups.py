@@ -20,10 +20,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import native
 from .bytesio import Reader
-from .quant import dequantize_groups, split_lengths, validate_group_params
-from .rans import decode_stream
 from .errors import GszFormatError
+from .quant import dequantize_groups, split_lengths, step_sizes, validate_group_params
+from .rans import RansDecoder, decode_stream, read_model_set
 
 
 MODEL_PER_GROUP = 0
@@ -62,9 +63,30 @@ def read_channel_set(r: Reader, *, max_length: int) -> np.ndarray:
     maxs = r.array(np.float32, c * b).reshape(c, b)
     validate_group_params(mins, maxs, bits)
     blob = r.blob()
+    if native.enabled():
+        return _decode_native(blob, c, length, b, bits, mins, maxs, mode)
     mids, _ = group_model_ids(c, length, b, bits, mode)
     symbols = decode_stream(blob, mids).reshape(c, length)
     return dequantize_groups(symbols, mins, maxs, bits, split_lengths(length, b))
+
+
+def _decode_native(blob, c: int, length: int, b: int, bits, mins, maxs, mode: int) -> np.ndarray:
+    """read_channel_set's decode and dequantisation in one C pass (no per-symbol model-id or
+    symbol arrays); same model ids, checks and float64 arithmetic as the NumPy path."""
+    models, pos = read_model_set(blob, 0)
+    dec = RansDecoder(memoryview(blob)[pos:], c * length, models)
+    bits = np.asarray(bits, dtype=np.int64)
+    if mode == MODEL_PER_GROUP:
+        table = np.arange(c * b, dtype=np.int64)
+    else:
+        table = (np.arange(c, dtype=np.int64)[:, None] * 16 + bits - 1).ravel()
+    steps = np.ascontiguousarray(step_sizes(mins, maxs, bits), dtype=np.float64).ravel()
+    lo = np.asarray(mins, dtype=np.float32).astype(np.float64).ravel()
+    qmax = ((np.int64(1) << bits) - 1).ravel()
+    out = np.empty((c, length), dtype=np.float64)
+    dec.decode_blocks(table, c, length, b, out, steps, lo, qmax)
+    dec.finish()
+    return out
 
 
 def blocks_for(length: int, requested: int) -> int:

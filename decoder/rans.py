@@ -203,6 +203,7 @@ class ModelSet:
     bins: tuple = ()
     levels: tuple = ()
     _tables: dict | None = field(default=None, repr=False, compare=False)
+    _ntables: tuple | None = field(default=None, repr=False, compare=False)
 
     @property
     def num_models(self) -> int:
@@ -284,6 +285,23 @@ class ModelSet:
                             sym_count=sym_count, lut_base=lut_base, packed_lut=packed_lut,
                             total=total, mask=total - 1)
         return self._tables
+
+    def native_tables(self, max_lut_entries: int) -> tuple:
+        """Build (once) the compact decoding tables of the C decoder (``_native.rans_tables``:
+        same frequencies as :meth:`build`); ``max_lut_entries`` as there."""
+        lut_total = self.lut_entries()
+        if lut_total > max_lut_entries:
+            raise GszFormatError(f"rANS: model set needs {lut_total} LUT entries, "
+                                 f"more than the {max_lut_entries} this stream allows")
+        if self._ntables is None:
+            c64 = (lambda a: np.ascontiguousarray(a, dtype=np.int64))
+            cat = (lambda xs: c64(np.concatenate(xs)) if len(xs) else np.zeros(0, np.int64))
+            self._ntables = native.module().rans_tables(
+                c64(self.types), c64(self.lo), c64(self.span), c64(self.prec), c64(self.group),
+                c64(self.binshift), c64(self.centre), c64(self.r_left), c64(self.r_right),
+                c64([b.size for b in self.bins]), cat(self.bins), cat(self.levels),
+                int(max_lut_entries))
+        return self._ntables
 
     def validate(self) -> None:
         """Static constraints of ENTROPY.md section 3 (raises GszFormatError)."""
@@ -462,7 +480,11 @@ class RansDecoder:
         self._pos = 0            # index of the next symbol
         self._wpos = 0           # index of the next word
         self._models = models
-        self._t = models.build(lut_budget(n))
+        self._native = native.enabled()
+        if self._native:
+            self._nt = models.native_tables(lut_budget(n))
+        else:
+            self._t = models.build(lut_budget(n))
 
     @property
     def _words(self) -> np.ndarray:
@@ -487,14 +509,13 @@ class RansDecoder:
         if self._pos + count > self._n:
             raise GszFormatError(f"rANS: asked for {self._pos + count} symbols, "
                                  f"stream has {self._n}")
-        if native.enabled():
-            # C row loop: same decode step, same checks (model range, empty models, words)
+        if self._native:
+            # the C loop: same decode step and the same checks (model range, empty models,
+            # word stream), one symbol at a time
             out = np.empty(count, dtype=np.int64)
-            t = self._t
-            self._wpos = native.module().rans_decode(
-                np.ascontiguousarray(mids), out, self._states, self._word_bytes, self._wpos,
-                self._pos, t["packed_lut"], t["lut_base"], t["mask"], self._models.prec,
-                t["value"])
+            self._wpos = native.module().rans_decode(np.ascontiguousarray(mids), out, self._states,
+                                                     self._word_bytes, self._wpos, self._pos,
+                                                     self._nt)
             self._pos += count
             return out
         m_count = self._models.num_models
@@ -512,6 +533,24 @@ class RansDecoder:
             j = end
         np.right_shift(out, 33, out=out)
         return self._t["value"][out]
+
+    def decode_blocks(self, table: np.ndarray, channels: int, length: int, blocks: int,
+                      out: np.ndarray, steps=None, lo=None, qmax=None) -> None:
+        """Native only: the next ``channels * length`` symbols of a channel set, symbol
+        c*length + i with model ``table[c*blocks + block(i)]`` (``quant.split_lengths``), into
+        ``out`` (int64 values; or, with ``steps``/``lo``/``qmax``, float64 ``lo + step * k``
+        after checking 0 <= k <= qmax per group)."""
+        count = channels * length
+        if self._pos + count > self._n:
+            raise GszFormatError(f"rANS: asked for {self._pos + count} symbols, "
+                                 f"stream has {self._n}")
+        c64 = (lambda a: np.ascontiguousarray(a, dtype=np.int64))
+        args = () if steps is None else (np.ascontiguousarray(steps, dtype=np.float64),
+                                         np.ascontiguousarray(lo, dtype=np.float64), c64(qmax))
+        self._wpos = native.module().rans_decode_blocks(
+            self._states, self._word_bytes, self._wpos, self._pos, self._nt, c64(table),
+            int(channels), int(length), int(blocks), out, *args)
+        self._pos += count
 
     def _decode_chunk(self, mids: np.ndarray, out: np.ndarray) -> None:
         """Decode len(mids) symbols; writes their packed LUT entries to ``out``."""
@@ -564,6 +603,20 @@ class RansDecoder:
             raise GszFormatError(f"rANS: {self._nwords - self._wpos} words left unread")
         if np.any(self._states != STATE_LOW):
             raise GszFormatError("rANS: final states differ from 2**16 (corrupt payload)")
+
+
+def decode_stream_single(blob: bytes | memoryview, count: int) -> np.ndarray:
+    """decode_stream of ``count`` symbols that all use model 0 (the SHVQ flag and index
+    streams), without a model-id array on the native path."""
+    if not native.enabled():
+        return decode_stream(blob, np.zeros(count, dtype=np.int64))
+    models, pos = read_model_set(blob, 0)
+    dec = RansDecoder(memoryview(blob)[pos:], count, models)
+    out = np.empty(count, dtype=np.int64)
+    if count:
+        dec.decode_blocks(np.zeros(1, np.int64), 1, count, 1, out)
+    dec.finish()
+    return out
 
 
 def decode_stream(blob: bytes | memoryview, model_ids: np.ndarray) -> np.ndarray:

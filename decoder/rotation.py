@@ -86,6 +86,16 @@ def quaternion_to_euler(q: np.ndarray) -> np.ndarray:
     return np.stack([roll, pitch, yaw], axis=-1)
 
 
+def half_angle_trig(half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """cos and sin of the half angles ``half`` [3, ...] (roll, pitch, yaw first).
+
+    The one place the decoder calls libm: the angles are made contiguous first, so the NumPy
+    reference and the native path (``gsz.decoder.attributes``) evaluate cos/sin on identical
+    arrays and get identical bits."""
+    h = np.ascontiguousarray(half, dtype=np.float64)
+    return np.cos(h), np.sin(h)
+
+
 def euler_to_quaternion(euler: np.ndarray) -> np.ndarray:
     """Unit quaternions (w, x, y, z) of Euler angles (roll, pitch, yaw) -- normative decoder step.
 
@@ -98,10 +108,9 @@ def euler_to_quaternion(euler: np.ndarray) -> np.ndarray:
     if e.shape[-1:] != (3,):
         raise CloudValidationError(f"Euler angles must have shape [..., 3], got {e.shape}")
     e = np.where(np.isfinite(e), e, 0.0)
-    half = 0.5 * e
-    cr, sr = np.cos(half[..., 0]), np.sin(half[..., 0])
-    cp, sp = np.cos(half[..., 1]), np.sin(half[..., 1])
-    cy, sy = np.cos(half[..., 2]), np.sin(half[..., 2])
+    c, s = half_angle_trig(np.moveaxis(0.5 * e, -1, 0))
+    cr, cp, cy = c
+    sr, sp, sy = s
     q = np.stack([
         cr * cp * cy + sr * sp * sy,
         sr * cp * cy - cr * sp * sy,

@@ -24,7 +24,8 @@ import numpy as np
 from .bytesio import Reader
 from .cloud import sh_rest_count
 from .groups import read_channel_set
-from .rans import decode_stream
+from . import native
+from .rans import decode_stream_single
 
 MAX_CODEBOOK = 1 << 16
 
@@ -56,19 +57,38 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
         r.check(codebook is not None or p == m,
                 "codeword indices but no SH codebook in this or an earlier layer")
         kcb = 0 if codebook is None else codebook.shape[1]
+    if native.enabled():
+        return _assemble_native(r, m, k, d, p, kcb, codebook), codebook
     out = np.empty((m, d), np.float32)
     kept_mask = np.zeros(m, bool)
     if p:
         kept = read_channel_set(r, max_length=p)
         r.check(kept.shape == (d, p), f"kept SH set has shape {kept.shape}, expected ({d}, {p})")
-        flags = decode_stream(r.blob(), np.zeros(m, np.int64))
+        flags = decode_stream_single(r.blob(), m)
         r.check(bool(np.all((flags == 0) | (flags == 1))), "kept flag outside 0/1")
         kept_mask = flags.astype(bool)
         r.check(int(kept_mask.sum()) == p, f"{int(kept_mask.sum())} kept flags set, header says {p}")
         out[kept_mask] = kept.T
-    idx = decode_stream(r.blob(), np.zeros(m - p, np.int64))
+    idx = decode_stream_single(r.blob(), m - p)
     r.check(idx.size == 0 or (idx.min() >= 0 and idx.max() < kcb), "codeword index out of range")
     if idx.size:
         out[~kept_mask] = codebook.T[idx]
     r.expect_end()
     return out.reshape(m, k, 3), codebook
+
+
+def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebook):
+    """read_sh's kept vectors, flags and indices, assembled in one C pass (same checks)."""
+    flags = None
+    kept = np.zeros((d, 0), np.float64)
+    if p:
+        kept = read_channel_set(r, max_length=p)
+        r.check(kept.shape == (d, p), f"kept SH set has shape {kept.shape}, expected ({d}, {p})")
+        flags = decode_stream_single(r.blob(), m)
+    idx = decode_stream_single(r.blob(), m - p)
+    r.expect_end()
+    cb = np.zeros((d, 0), np.float64) if codebook is None else codebook
+    out = np.empty((m, d), np.float32)
+    native.module().sh_assemble(flags, np.ascontiguousarray(kept, dtype=np.float64), idx,
+                                np.ascontiguousarray(cb, dtype=np.float64), out)
+    return out.reshape(m, k, 3)
