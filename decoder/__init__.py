@@ -1,6 +1,8 @@
 """gsz.decoder: the numpy-only core (data model, PLY I/O, .gsz bitstream reader).
 
-Importing this package never imports torch.
+Importing this package never imports torch.  ``native_available()`` says whether the optional C
+accelerator (``decoder/_native.c``, bit-identical output) is built and enabled; ``GSZ_NATIVE=0``
+in the environment forces the NumPy reference path; ``decoder_path()`` is "native" or "numpy".
 """
 from .cloud import GaussianCloud, sh_rest_count
 from .errors import (CameraFormatError, CloudValidationError, GszError, GszFormatError, GszTruncatedError,
@@ -11,6 +13,8 @@ from .ply import read_ply, write_ply
 __all__ = ["GaussianCloud", "sh_rest_count", "GszError", "GszFormatError", "PlyFormatError",
            "CloudValidationError", "CameraFormatError", "GszTruncatedError", "GszTruncatedWarning", "read_ply", "write_ply"]
 from .decode import decode, inspect  # noqa: E402
+from .native import active_path as decoder_path, native_available  # noqa: E402
 from .stream import StreamDecoder, StreamResult, StreamUpdate, iter_layers  # noqa: E402
 
-__all__ += ["decode", "inspect", "StreamDecoder", "StreamResult", "StreamUpdate", "iter_layers"]
+__all__ += ["decode", "inspect", "StreamDecoder", "StreamResult", "StreamUpdate", "iter_layers",
+            "native_available", "decoder_path"]

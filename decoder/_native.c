@@ -25,6 +25,9 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#if defined(__linux__)
+#include <sys/mman.h>
+#endif
 
 /* Bumped whenever a signature changes, so a stale build is ignored (decoder/native.py). */
 #define GSZ_NATIVE_ABI 1
@@ -89,6 +92,23 @@ static int getbuf(PyObject *o, Py_buffer *v, Py_ssize_t itemsize, char kind, int
         return -1;
     }
     return 0;
+}
+
+/* malloc for large work buffers (free() releases it).  On Linux, blocks of 4 MB and more are
+ * 2 MB aligned and marked for transparent huge pages: the traversal's tables are written once
+ * and streamed over, and on the project's VM faulting them in 4 kB pages cost ~20 % of the
+ * geometry decode (0.185 s -> 0.152 s on the flowers scene). */
+static void *big_alloc(size_t size)
+{
+#if defined(__linux__) && defined(MADV_HUGEPAGE)
+    if (size >= ((size_t)4 << 20)) {
+        void *q = NULL;
+        if (posix_memalign(&q, (size_t)2 << 20, size) != 0) return NULL;
+        madvise(q, size, MADV_HUGEPAGE);        /* advisory: failure changes nothing */
+        return q;
+    }
+#endif
+    return malloc(size ? size : 1);
 }
 
 static inline uint32_t rd_u32(const uint8_t *p)
@@ -251,7 +271,7 @@ static int ensure(void **p, size_t *cap, size_t need, Err *e)
 {
     if (need <= *cap) return 0;
     free(*p);
-    *p = malloc(need);
+    *p = big_alloc(need);
     if (!*p) { *cap = 0; return fail_nomem(e); }
     *cap = need;
     return 0;
@@ -1435,10 +1455,10 @@ static PyObject *py_raht_inverse(PyObject *self, PyObject *args)
     int64_t *wt = NULL, *lvl_start = NULL;
     Pair *pairs = NULL;
     if (!e.failed) {
-        code = malloc((size_t)n * sizeof *code);
-        slot = malloc((size_t)n * sizeof *slot);
-        wt = malloc((size_t)n * sizeof *wt);
-        pairs = malloc((size_t)(n > 1 ? n - 1 : 1) * sizeof *pairs);
+        code = big_alloc((size_t)n * sizeof *code);
+        slot = big_alloc((size_t)n * sizeof *slot);
+        wt = big_alloc((size_t)n * sizeof *wt);
+        pairs = big_alloc((size_t)(n > 1 ? n - 1 : 1) * sizeof *pairs);
         lvl_start = malloc((size_t)(3 * depth + 2) * sizeof *lvl_start);
         if (!code || !slot || !wt || !pairs || !lvl_start) fail_nomem(&e);
     }

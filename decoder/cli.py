@@ -51,14 +51,16 @@ def decode_main(argv=None) -> int:
         return _fail("gsz-decode", e)
     except OSError as e:
         return _fail("gsz-decode", e)
+    from .native import active_path
     summary = {"input": a.input, "output": a.output, "num_gaussians": len(cloud), "truncated": truncated,
                "sh_degree": cloud.sh_degree, "decode_seconds": round(dt, 4),
-               "gaussians_per_second": round(len(cloud) / dt) if dt > 0 else None}
+               "gaussians_per_second": round(len(cloud) / dt) if dt > 0 else None,
+               "decoder": active_path()}
     if a.json:
         print(json.dumps(summary))
     else:
-        print(f"decoded {len(cloud)} Gaussians (SH degree {cloud.sh_degree}) in {dt:.3f} s -> {a.output}",
-              file=sys.stderr)
+        print(f"decoded {len(cloud)} Gaussians (SH degree {cloud.sh_degree}) in {dt:.3f} s "
+              f"({active_path()} decoder) -> {a.output}", file=sys.stderr)
     return 0
 
 
@@ -72,8 +74,10 @@ def info_main(argv=None) -> int:
         info = inspect(a.input)
     except GszError as e:
         return _fail("gsz-info", e)
+    from .native import active_path, unavailable_reason
+    decoder = {"path": active_path(), "native_unavailable": unavailable_reason() or None}
     if a.json:
-        print(json.dumps(info, indent=1))
+        print(json.dumps({**info, "decoder": decoder}, indent=1))
         return 0
     frames = {0: "unspecified", 1: "RDF (x right, y down, z forward)", 2: "RUB (x right, y up, z back)"}
     print(f"file        {info['file']}")
@@ -93,6 +97,8 @@ def info_main(argv=None) -> int:
         for r in info["layers"]:
             print(f"{r['layer']:<6} {r['gaussians']:>12,} {r['cumulative_gaussians']:>12,} {r['offset']:>10,} "
                   f"{r['bytes']:>12,} {r['decodable_at']:>10,} B {100 * r['decodable_at'] / info['bytes']:5.1f}%")
+    print(f"decoder     {decoder['path']}" + (f" ({decoder['native_unavailable']})"
+                                                  if decoder["native_unavailable"] else ""))
     opts = info.get("meta", {}).get("options")
     if opts:
         print("encoder     " + " ".join(f"{k}={v}" for k, v in sorted(opts.items())))

@@ -312,7 +312,12 @@ def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
     codes = np.zeros(1, dtype=np.uint64)
     nbr = np.full((27, 1), -1, dtype=np.int64)
     nbr[SELF, 0] = 0
+    # fine contexts that may exceed COUNT_LIMIT after a level: those used in it and those still
+    # above the limit after the previous halving (scanning all 2.8 M pairs per level cost more
+    # than the traversal itself on small files)
+    carry = np.zeros(0, dtype=np.int64)
     for level in range(depth):
+        used = [carry]
         n = codes.shape[0]
         occ = np.zeros(n, dtype=np.int64)
         lb = min(NUM_LEVEL_BUCKETS - 1, depth - 1 - level)
@@ -337,8 +342,9 @@ def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
                 occ[idx] |= b << k
                 np.add.at(cc_n, cc + b, _ONE32)      # (a typed scalar: numpy's fast path)
                 np.add.at(ff_n, ff + b, _ONE32)
+                used.append(ff >> 1)
         _halve(cc_n)
-        _halve(ff_n)
+        carry = _halve_some(ff_n, np.unique(np.concatenate(used)))
         # children in Morton order: node-major, child index ascending
         child_bits = (occ[:, None] >> np.arange(8)) & 1
         total = int(child_bits.sum())
@@ -361,6 +367,19 @@ def _halve(counts: np.ndarray) -> None:
     over = np.flatnonzero((counts[0::2] + counts[1::2]) > COUNT_LIMIT)
     if over.size:
         pairs[over] = (pairs[over] + 1) >> 1
+
+
+def _halve_some(counts: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """:func:`_halve` restricted to the count pairs ``pairs`` (unique ids) -- every other pair
+    is known to be within the limit; returns the pairs still above COUNT_LIMIT afterwards."""
+    z, o = counts[2 * pairs], counts[2 * pairs + 1]
+    over = (z + o) > COUNT_LIMIT
+    if not over.any():
+        return pairs[:0]
+    p = pairs[over]
+    z, o = (z[over] + 1) >> 1, (o[over] + 1) >> 1
+    counts[2 * p], counts[2 * p + 1] = z, o
+    return p[(z + o) > COUNT_LIMIT]
 
 
 # ---------------------------------------------------------------- payload

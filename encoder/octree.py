@@ -3,15 +3,19 @@
 The payload format and the context model are defined by ``gsz.decoder.octree`` (and
 ``format_spec/OCTREE.md``); this module only computes the true occupancy bytes of every level,
 runs :func:`gsz.decoder.octree.walk_octree` with them as the bit source -- so the model ids are
-by construction the ones the decoder will compute -- and entropy-codes the recorded bits.
+by construction the ones the decoder will compute -- and entropy-codes the recorded bits.  With
+the native accelerator (``gsz.decoder.native``) the same traversal and the binary rANS coder run
+in C; the payload bytes are identical (tests/test_native.py).
 """
 from __future__ import annotations
 
 import numpy as np
 
+from gsz.decoder import native
 from gsz.decoder.errors import CloudValidationError
 from gsz.decoder.morton import MAX_DEPTH, morton_decode, morton_encode
-from gsz.decoder.octree import (SCHEME_ADAPTIVE_BITWISE, bank_model_set, walk_octree)
+from gsz.decoder.octree import (SCHEME_ADAPTIVE_BITWISE, bank_model_set, bank_precision,
+                                walk_octree)
 from gsz.encoder.rans import encode_symbols, varint_bytes
 
 
@@ -68,6 +72,9 @@ def octree_symbols(ijk: np.ndarray, depth: int):
             raise CloudValidationError(f"encode_octree needs unique voxels: {dup.size} duplicate "
                                        f"coordinate(s), e.g. {first}; merge duplicates first")
     occ = occupancy_levels(codes, depth) if codes.size else []
+    if native.enabled() and codes.size <= native.module().MAX_POINTS:
+        bits, mods = _native_symbols(codes, occ, int(depth))
+        return codes, bits.astype(np.int64), mods.astype(np.int64)
     syms, mods = [], []
 
     def true_bits(level, k, idx, model):
@@ -83,6 +90,19 @@ def octree_symbols(ijk: np.ndarray, depth: int):
     return codes, cat(syms), cat(mods)
 
 
+def _native_symbols(codes: np.ndarray, occ: list, depth: int) -> tuple[np.ndarray, np.ndarray]:
+    """The traversal with known occupancy in C (``_native.octree_encode``): the same decisions
+    and bank model ids as walk_octree with the true_bits source, as uint8 arrays."""
+    # the model ids do not depend on the bank precision; any precision's tables will do
+    tables = native.octree_tables(bank_precision(0))
+    known = np.concatenate(occ).astype(np.uint8) if occ else np.zeros(0, np.uint8)
+    sizes = np.array([o.size for o in occ], dtype=np.int64)
+    bits, mods, leaves = native.module().octree_encode(tables, depth, int(codes.size), known, sizes)
+    if not np.array_equal(np.frombuffer(leaves, dtype="<u8"), codes):
+        raise AssertionError("octree traversal did not reproduce the input voxels")
+    return np.frombuffer(bits, dtype=np.uint8), np.frombuffer(mods, dtype=np.uint8)
+
+
 def encode_octree(ijk: np.ndarray, depth: int) -> bytes:
     """Geometry payload of unique voxels (``format_spec/OCTREE.md``).
 
@@ -92,7 +112,13 @@ def encode_octree(ijk: np.ndarray, depth: int) -> bytes:
     Raises CloudValidationError (a GszError and ValueError) on duplicates, out-of-range
     coordinates, a bad shape or a bad depth.
     """
-    _, syms, mods = octree_symbols(ijk, depth)
+    codes, syms, mods = octree_symbols(ijk, depth)
     n = int(syms.size)
-    body = encode_symbols(syms, mods, bank_model_set(n), lanes=choose_lanes(n))
+    if native.enabled():
+        # binary rANS in C: the bytes encode_symbols writes for the bank (ENTROPY.md 6)
+        tables = native.octree_tables(bank_precision(n))
+        body = native.module().bank_encode(syms.astype(np.uint8), mods.astype(np.uint8),
+                                           tables[5], tables[6], choose_lanes(n))
+    else:
+        body = encode_symbols(syms, mods, bank_model_set(n), lanes=choose_lanes(n))
     return bytes([SCHEME_ADAPTIVE_BITWISE]) + varint_bytes([n]) + body

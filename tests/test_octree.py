@@ -11,6 +11,17 @@ from gsz.encoder.octree import encode_octree, occupancy_levels
 from conftest import SAMPLE_SH3, shared_scene
 
 
+@pytest.fixture(autouse=True, params=["native", "numpy"])
+def decoder_path(request):
+    """Every test runs on the C accelerator and on the NumPy reference (same expectations)."""
+    from gsz.decoder import native
+    if request.param == "native" and not native.native_available():
+        pytest.skip("native accelerator not built")
+    old = native.set_enabled(request.param == "native")
+    yield request.param
+    native.set_enabled(old)
+
+
 def voxelise(positions: np.ndarray, depth: int) -> np.ndarray:
     """The geometry anchor's voxelisation (shared/reference/geometry-anchor.md): bounding cube of
     the centres (per-axis min, side = largest extent), floor, clip, unique."""

@@ -1,0 +1,412 @@
+"""The optional C accelerator (decoder/_native.c) against the NumPy reference: identical clouds
+and identical encoder bytes, the same accept/reject decision on hostile input, the GSZ_NATIVE=0
+switch and a working package when the extension is missing."""
+import json
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import textwrap
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import gsz
+from gsz.decoder import GszFormatError, decode, native
+from gsz.decoder.container import read_container
+from gsz.decoder.morton import morton_encode
+from gsz.decoder.octree import decode_octree, decode_octree_codes
+from gsz.decoder.rans import decode_stream, read_model_set
+from gsz.encoder.octree import encode_octree, octree_symbols
+from gsz.encoder.rans import encode_stream
+from codec_util import encoded, sample
+from conftest import ROOT, SHARED, shared_scene
+from test_codec_errors import _fix_crcs
+
+VEC = ROOT / "format_spec" / "vectors"
+FIELDS = ("positions", "scales", "rotations", "opacities", "sh_dc", "sh_rest")
+
+needs_native = pytest.mark.skipif(not native.native_available(),
+                                  reason="native accelerator not built (" + native.unavailable_reason() + ")")
+
+
+def _compiler_available() -> bool:
+    cc = (sysconfig.get_config_var("CC") or "").split()
+    return bool(cc) and shutil.which(cc[0]) is not None
+
+
+def test_extension_is_built_where_a_compiler_exists():
+    """pip install compiles the extension whenever a C compiler is present (setup.py marks it
+    optional only for machines without one)."""
+    if os.environ.get("GSZ_NATIVE", "1").strip() == "0":
+        pytest.skip("GSZ_NATIVE=0 in the environment")
+    if not _compiler_available():
+        pytest.skip("no C compiler: the NumPy path is expected")
+    assert native.native_available(), native.unavailable_reason()
+    assert gsz.decoder.native_available() and gsz.decoder.decoder_path() == "native"
+
+
+def both(fn):
+    """(native result, numpy result) of fn(); each is ('ok', value) or ('error', exception)."""
+    out = []
+    for use_native in (True, False):
+        old = native.set_enabled(use_native)
+        try:
+            out.append(("ok", fn()))
+        except GszFormatError as e:
+            out.append(("error", e))
+        finally:
+            native.set_enabled(old)
+    return out
+
+
+def assert_same_cloud(a, b):
+    assert len(a) == len(b) and a.sh_degree == b.sh_degree
+    for f in FIELDS:
+        x, y = getattr(a, f), getattr(b, f)
+        assert x.dtype == y.dtype == np.float32 and x.shape == y.shape, f
+        assert np.array_equal(x.view(np.uint32), y.view(np.uint32)), f   # bit for bit
+
+
+def assert_same_decode(data):
+    (ka, a), (kb, b) = both(lambda: decode(data))
+    assert ka == kb, (ka, a, kb, b)
+    if ka == "ok":
+        assert_same_cloud(a, b)
+    return ka
+
+
+# ------------------------------------------------------------------ identical clouds
+@needs_native
+@pytest.mark.parametrize("name", sorted(p.stem for p in VEC.glob("*.gsz")))
+def test_vectors_identical(name):
+    data = (VEC / f"{name}.gsz").read_bytes()
+    assert assert_same_decode(data) == "ok"
+    exp = json.loads((VEC / f"{name}.json").read_text())
+    assert len(decode(data)) == exp["num_gaussians"]
+
+
+@needs_native
+@pytest.mark.parametrize("name,n,kw", [
+    ("sh0", None, dict(bits=12)),
+    ("sh3", None, dict(bits=10)),
+    ("sh3", 3000, dict(bits=8, layers=3)),
+    ("sh0", 5000, dict(bits=6, blocks=7)),
+])
+def test_committed_samples_identical(name, n, kw):
+    assert assert_same_decode(encoded(name, n, **kw).data) == "ok"
+
+
+SHARED_SCENES = ["houseplant_sh0.ply", "measuring_jug_sh3.ply", "flowers_daffodils_sh2.ply",
+                 "plaza_taebak_crop_sh0.ply", "showroom_lacadiere_crop_sh0.ply",
+                 "tiny_graphdeco_iter7000_sh3.ply"]
+
+
+def _voxels(cloud, depth):
+    p = cloud.positions.astype(np.float64)
+    lo = p.min(axis=0)
+    side = float((p.max(axis=0) - lo).max())
+    q = np.floor((p - lo) / side * (1 << depth))
+    return np.unique(np.clip(q, 0, (1 << depth) - 1).astype(np.int64), axis=0)
+
+
+@needs_native
+@pytest.mark.shared
+@pytest.mark.slow
+@pytest.mark.parametrize("scene", SHARED_SCENES)
+def test_shared_scene_geometry_identical(scene):
+    """The whole scene's octree at the operating depth (11; the smaller scenes also one level
+    deeper): identical payload bytes from both encoders, identical voxels from both decoders."""
+    cloud = gsz.read_ply(shared_scene(scene))
+    for depth in ((11,) if len(cloud) > 200_000 else (11, 12)):
+        ijk = _voxels(cloud, depth)
+        (ka, pa), (kb, pb) = both(lambda: encode_octree(ijk, depth))
+        assert ka == kb == "ok" and pa == pb
+        (ka, ca), (kb, cb) = both(lambda: decode_octree_codes(pa, depth, len(ijk)))
+        assert ka == kb == "ok" and np.array_equal(ca, cb)
+        assert np.array_equal(ca, np.sort(morton_encode(ijk)))
+
+
+@needs_native
+@pytest.mark.shared
+@pytest.mark.slow
+@pytest.mark.parametrize("scene", SHARED_SCENES)
+def test_shared_scene_file_identical(scene):
+    """A whole .gsz of a real scene (up to 60k of its Gaussians, 12 bits): identical clouds."""
+    from gsz.encoder.pipeline import EncodeOptions, encode
+    from codec_util import FAST
+    cloud = gsz.read_ply(shared_scene(scene))
+    if len(cloud) > 60_000:
+        cloud = cloud.subset(np.sort(np.random.default_rng(3).choice(len(cloud), 60_000, replace=False)))
+    data = encode(cloud, EncodeOptions(**{**FAST, "bits": 12})).data
+    assert assert_same_decode(data) == "ok"
+
+
+# ------------------------------------------------------------------ hostile input
+@needs_native
+def test_fuzzed_files_same_outcome():
+    """>= 300 corrupted variants (CRCs fixed up so the payload parsers see them): both paths
+    reject with GszFormatError, or both decode to the identical cloud."""
+    rng = np.random.default_rng(20)
+    bases = [encoded("sh3", 250, bits=8, codebook=32).data,
+             encoded("sh0", 1500, bits=7, layers=2).data]
+    outcomes = {"ok": 0, "error": 0}
+    for i in range(360):
+        src = bases[i % len(bases)]
+        c = read_container(src)
+        spans = [(ch.offset, ch.offset + len(ch.data)) for ch in c.chunks if ch.type != b"META"]
+        a, b = spans[int(rng.integers(len(spans)))]
+        buf = bytearray(src)
+        kind = rng.random()
+        if kind < 0.7:      # overwrite a few bytes, biased towards the counts at a chunk's start
+            for _ in range(int(rng.integers(1, 4))):
+                pos = a + int(rng.integers(min(b - a, 48))) if rng.random() < 0.5 else int(rng.integers(a, b))
+                buf[pos] = int(rng.integers(256))
+        elif kind < 0.85:   # flip one bit anywhere in the payload
+            pos = int(rng.integers(a, b))
+            buf[pos] ^= 1 << int(rng.integers(8))
+        else:               # a chunk truncated or grown (its table length fixed up as well)
+            delta = -int(rng.integers(1, min(64, b - a))) if rng.random() < 0.7 else int(rng.integers(1, 16))
+            idx = [k for k, ch in enumerate(c.chunks) if ch.offset == a][0]
+            buf = buf[:b + min(delta, 0)] + (bytes(rng.integers(0, 256, max(delta, 0), dtype=np.uint8))) + buf[b:]
+            import struct
+            from gsz.decoder.container import HEADER_SIZE, CHUNK_ENTRY_SIZE
+            e = HEADER_SIZE + CHUNK_ENTRY_SIZE * idx
+            struct.pack_into("<Q", buf, e + 8, len(c.chunks[idx].data) + delta)
+        outcomes[assert_same_decode(_fix_crcs(buf))] += 1
+    assert sum(outcomes.values()) == 360 and outcomes["error"] > 50 and outcomes["ok"] > 0, outcomes
+
+
+@needs_native
+def test_truncated_octree_payloads_same_outcome():
+    ijk = _voxels(sample("sh3", 4000), 10)
+    payload = encode_octree(ijk, 10)
+    for cut in sorted(set(np.linspace(0, len(payload) - 1, 80).astype(int))):
+        res = both(lambda: decode_octree(payload[:cut], 10, len(ijk)))
+        assert res[0][0] == res[1][0] == "error"
+    rng = np.random.default_rng(4)
+    for _ in range(60):
+        bad = bytearray(payload)
+        bad[int(rng.integers(1, len(bad)))] = int(rng.integers(256))
+        (ka, a), (kb, b) = both(lambda: decode_octree(bytes(bad), 10, len(ijk)))
+        assert ka == kb, (a, b)
+        if ka == "ok":
+            assert np.array_equal(a, b)
+
+
+@needs_native
+def test_hostile_declared_count_allocates_nothing_large():
+    """A one-voxel payload declaring 10^8 voxels at depth 21: rejected after the traversal,
+    which only ever holds the nodes actually decoded."""
+    import resource
+    payload = encode_octree(np.array([[5, 6, 7]]), 21)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    with pytest.raises(GszFormatError, match="points"):
+        decode_octree(payload, 21, 10 ** 8)
+    grown_mb = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024
+    assert grown_mb < 200, grown_mb
+
+
+# ------------------------------------------------------------------ rANS streams and tables
+def _model_sets():
+    rng = np.random.default_rng(9)
+    out = []
+    for seed, (n, m, scale) in enumerate([(20_000, 5, 2.0), (50_000, 40, 30.0), (5_000, 3, 900.0),
+                                           (30_000, 2, 6000.0), (400, 7, 0.2)]):
+        mids = rng.integers(0, m, n)
+        sym = np.round(rng.laplace(0, scale * rng.uniform(0.2, 1.0, m)[mids])).astype(np.int64)
+        sym[mids == 0] = 17                     # a SINGLE model
+        out.append((sym, mids, m + 1))          # model m stays EMPTY
+    return out
+
+
+@needs_native
+@pytest.mark.parametrize("case", range(5))
+def test_rans_streams_and_tables_identical(case):
+    sym, mids, m = _model_sets()[case]
+    blob = encode_stream(sym, mids, m)
+    (ka, a), (kb, b) = both(lambda: decode_stream(blob, mids))
+    assert ka == kb == "ok" and np.array_equal(a, b) and np.array_equal(a, sym)
+    models, _ = read_model_set(blob, 0)
+    ref = models.build()
+    lut, fc, val, lut_base, sym_base, mprec = models.native_tables(1 << 40)
+    fc = np.frombuffer(fc, np.uint32).astype(np.int64)
+    np.testing.assert_array_equal((fc & 0xFFFF) + 1, ref["freq"])
+    np.testing.assert_array_equal(fc >> 16, ref["cum"])
+    np.testing.assert_array_equal(np.frombuffer(val, np.int32), ref["value"])
+    np.testing.assert_array_equal(np.frombuffer(lut_base, np.int64), ref["lut_base"])
+    # every slot of the native LUT names the value the NumPy LUT names
+    g = np.frombuffer(sym_base, np.int64)[np.repeat(np.arange(models.num_models), ref["total"])] \
+        + np.frombuffer(lut, np.uint16)
+    np.testing.assert_array_equal(g, ref["packed_lut"] >> 33)
+
+
+@needs_native
+def test_laplace_and_wide_models_identical():
+    """LAPLACE models (float64 product chains), spans up to 65536 and every precision: the C
+    normalisation (radix select of the remainders) equals the NumPy one."""
+    from gsz.decoder.rans import ModelSet
+    rng = np.random.default_rng(1)
+    for _ in range(12):
+        m = 6
+        types = rng.choice([1, 2, 3], m)
+        span = np.where(types == 1, 0, rng.integers(1, 3000, m))
+        span[0] = 65535 if types[0] != 1 else 0
+        prec = np.where(types == 1, 0, np.maximum(16, 0))
+        bins, levels, binshift, group = [], [], np.zeros(m, np.int64), np.zeros(m, np.int64)
+        centre = np.where(types == 3, rng.integers(0, span + 1), 0)
+        rl = np.where(types == 3, rng.integers(0, 256, m), 0)
+        rr = np.where(types == 3, rng.integers(0, 256, m), 0)
+        for i in np.flatnonzero(types == 2):
+            h = int(rng.integers(0, 6))
+            binshift[i], group[i] = h, int(rng.integers(0, 4))
+            nb = (int(span[i]) >> h) + 1
+            keep = np.flatnonzero(rng.random(nb) < 0.6)
+            b = np.unique(np.concatenate([[0, nb - 1], keep])).astype(np.int64)
+            bins.append(b)
+            levels.append(rng.integers(1, (25 << int(group[i])) + 1, b.size).astype(np.int64))
+        ms = ModelSet(types=types.astype(np.int64), lo=rng.integers(-1000, 1000, m).astype(np.int64),
+                      span=span.astype(np.int64), prec=prec.astype(np.int64), group=group,
+                      centre=centre.astype(np.int64), r_left=rl.astype(np.int64),
+                      r_right=rr.astype(np.int64), binshift=binshift, bins=tuple(bins),
+                      levels=tuple(levels))
+        ms.validate()
+        ref = ms.build()
+        _, fc, val, *_ = ms.native_tables(1 << 40)
+        fc = np.frombuffer(fc, np.uint32).astype(np.int64)
+        np.testing.assert_array_equal((fc & 0xFFFF) + 1, ref["freq"])
+        np.testing.assert_array_equal(np.frombuffer(val, np.int32), ref["value"])
+
+
+@needs_native
+def test_rans_hostile_streams_same_outcome():
+    sym, mids, m = _model_sets()[1]
+    blob = encode_stream(sym, mids, m)
+    rng = np.random.default_rng(5)
+    for cut in sorted(set(np.linspace(0, len(blob) - 1, 40).astype(int))):
+        res = both(lambda: decode_stream(blob[:cut], mids))
+        assert res[0][0] == res[1][0] == "error"
+    for _ in range(80):
+        bad = bytearray(blob)
+        bad[int(rng.integers(len(bad)))] ^= 1 << int(rng.integers(8))
+        (ka, a), (kb, b) = both(lambda: decode_stream(bytes(bad), mids))
+        assert ka == kb, (a, b)
+        if ka == "ok":
+            assert np.array_equal(a, b)
+    bad_mids = mids.copy()
+    bad_mids[7] = m + 5                          # a model id outside the set
+    assert [k for k, _ in both(lambda: decode_stream(blob, bad_mids))] == ["error", "error"]
+    empty_mids = mids.copy()
+    empty_mids[3] = m - 1                        # the EMPTY model
+    assert [k for k, _ in both(lambda: decode_stream(blob, empty_mids))] == ["error", "error"]
+
+
+# ------------------------------------------------------------------ encoder: identical bytes
+@needs_native
+def test_octree_encoder_identical_bits_models_and_payload():
+    rng = np.random.default_rng(2)
+    cases = [(_voxels(sample("sh0"), d), d) for d in (8, 11, 13)]
+    cases += [(np.array([[3, 1, 2]]), 2), (np.array([[0, 0, 0]]), 1),
+              (np.stack(np.meshgrid(*[np.arange(4)] * 3, indexing="ij"), -1).reshape(-1, 3), 2),
+              (np.unique(rng.integers(0, 1 << 21, size=(500, 3)), axis=0), 21),
+              (np.zeros((0, 3), np.int64), 4)]
+    for ijk, depth in cases:
+        (ka, a), (kb, b) = both(lambda: octree_symbols(ijk, depth))
+        assert ka == kb == "ok"
+        for x, y in zip(a, b):
+            assert x.dtype == y.dtype and np.array_equal(x, y)
+        (ka, pa), (kb, pb) = both(lambda: encode_octree(ijk, depth))
+        assert pa == pb, depth
+
+
+@needs_native
+def test_whole_file_encode_identical():
+    from gsz.encoder.pipeline import EncodeOptions, encode
+    from codec_util import FAST
+    cloud = sample("sh3", 2500)
+    (ka, a), (kb, b) = both(lambda: encode(cloud, EncodeOptions(**{**FAST, "bits": 9})).data)
+    assert ka == kb == "ok" and a == b
+
+
+# ------------------------------------------------------------------ switches and fallbacks
+def _run(code: str, env_extra: dict) -> str:
+    env = {**os.environ, **env_extra}
+    out = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True,
+                         text=True, env=env, cwd=str(ROOT / "tests"))
+    assert out.returncode == 0, out.stderr
+    return out.stdout.strip()
+
+
+def test_gsz_native_0_really_uses_numpy():
+    vec = str(VEC / "sh1_jug_150.gsz")
+    out = _run(f"""
+        import sys
+        import gsz.decoder as d
+        c = d.decode({vec!r})
+        print(d.decoder_path(), d.native_available(), 'gsz.decoder._native' in sys.modules, len(c))
+    """, {"GSZ_NATIVE": "0"})
+    assert out == "numpy False False 135", out
+
+
+def test_package_works_without_the_extension():
+    """As on a machine without a C compiler: importing gsz.decoder._native fails; the package
+    imports, decodes a test vector to its documented hashes and reports the NumPy path."""
+    vec = str(VEC / "sh3_jug_300.gsz")
+    exp = str(VEC / "sh3_jug_300.json")
+    out = _run(f"""
+        import hashlib, json, sys
+        import importlib.abc
+        class Block(importlib.abc.MetaPathFinder):
+            def find_spec(self, name, path=None, target=None):
+                if name == 'gsz.decoder._native':
+                    raise ImportError('blocked: no C compiler on this machine')
+        sys.meta_path.insert(0, Block())
+        import numpy as np
+        import gsz.decoder as d
+        c = d.decode({vec!r})
+        e = json.load(open({exp!r}))
+        ok = all(hashlib.sha256(np.ascontiguousarray(getattr(c, f), '<f4').tobytes()).hexdigest()
+                 == v['sha256'] for f, v in e['fields'].items())
+        print(d.decoder_path(), d.native_available(), ok, 'not built' in d.native.unavailable_reason())
+    """, {"GSZ_NATIVE": "1"})
+    assert out == "numpy False True True", out
+
+
+@needs_native
+def test_concurrent_decodes_are_independent():
+    data = encoded("sh3", 3000, bits=8, layers=3).data
+    ref = decode(data)
+    results, errors = [], []
+
+    def work():
+        try:
+            for _ in range(3):
+                results.append(decode(data))
+        except Exception as e:  # pragma: no cover - reported below
+            errors.append(e)
+    threads = [threading.Thread(target=work) for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors and len(results) == 9
+    for r in results:
+        assert_same_cloud(r, ref)
+
+
+def test_info_and_decode_cli_report_the_path(tmp_path):
+    vec = str(VEC / "sh1_jug_150.gsz")
+    from gsz.decoder.cli import decode_main, info_main
+    import contextlib
+    import io
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert info_main([vec, "--json"]) == 0
+    assert json.loads(buf.getvalue())["decoder"]["path"] == native.active_path()
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert decode_main([vec, "-o", str(tmp_path / "o.ply"), "--json"]) == 0
+    assert json.loads(buf.getvalue())["decoder"] == native.active_path()
