@@ -1,0 +1,175 @@
+"""Decode speed: NumPy reference vs the native accelerator, whole file and per stage.
+
+    .venv/bin/python bench/bench_decode.py [--scenes a,b] [--files x.gsz ...] [--repeats 3]
+
+Every shared scene (../shared/data/*.ply) is encoded once with ``gsz-encode --reserve 0.8
+--bits 12`` (cached in bench/.cache/decode/, keyed by the scene's size and mtime; --files adds
+any other .gsz).  For each file and each path (numpy = the reference decoder, what GSZ_NATIVE=0
+gives; native = decoder/_native.c):
+
+* whole ``gsz.decoder.decode(path)``: best wall time of --repeats runs and the process CPU time
+  of that run (both threads; on an idle 2-core machine wall < CPU when geometry and attributes
+  overlap), and Gaussians per second from the wall time;
+* stages, run one after the other (no overlap) and timed by the CPU time of the calling thread,
+  best of --repeats: container parse + CRCs, geometry (octree decode), attribute entropy
+  decoding (RAHT coefficients and scales), SH (codebook, kept vectors, indices), finish (inverse
+  RAHT, rotations, float32 fields, positions, finiteness checks).
+
+Prints a markdown table and writes bench/out/decode.json.  Also prints ``uptime`` before and
+after: other jobs on the machine inflate wall times (compare the CPU columns).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+SHARED = Path(os.environ.get("GSZ_SHARED", ROOT.parent / "shared")) / "data"
+CACHE = ROOT / "bench" / ".cache" / "decode"
+OUT = ROOT / "bench" / "out" / "decode.json"
+ENCODE_ARGS = ["--reserve", "0.8", "--bits", "12"]
+
+
+def uptime() -> str:
+    try:
+        return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    except OSError:
+        return "uptime unavailable"
+
+
+def encoded_file(ply: Path) -> Path:
+    st = ply.stat()
+    out = CACHE / f"{ply.stem}_r08_b12_{st.st_size}_{int(st.st_mtime)}.gsz"
+    if not out.exists():
+        CACHE.mkdir(parents=True, exist_ok=True)
+        exe = Path(sys.executable).with_name("gsz-encode")
+        cmd = [str(exe), str(ply), "-o", str(out) + ".tmp", *ENCODE_ARGS]
+        print("encoding:", " ".join(cmd[1:]), file=sys.stderr, flush=True)
+        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        os.replace(str(out) + ".tmp", out)
+    return out
+
+
+def best_of(fn, repeats: int, clock=time.thread_time):
+    best = None
+    for _ in range(repeats):
+        t = clock()
+        r = fn()
+        dt = clock() - t
+        if best is None or dt < best[0]:
+            best = (dt, r)
+    return best
+
+
+def measure(path: Path, repeats: int) -> dict:
+    import gsz.decoder  # noqa: F401  (registers the submodules)
+    D = sys.modules["gsz.decoder.decode"]
+    from gsz.decoder import native
+    from gsz.decoder.attributes import attributes_from_coefficients, parse_attributes
+    from gsz.decoder.container import read_container
+    from gsz.decoder.geometry import read_geometry_header
+    from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHVQ, KNOWN_CHUNKS
+    from gsz.decoder.sh import read_sh
+
+    data = path.read_bytes()
+    rows = {}
+    for mode in ("numpy", "native"):
+        if mode == "native" and not native.native_available():
+            continue
+        native.set_enabled(mode == "native")
+        D.decode(data)                                        # warm-up (tables, imports)
+        best_wall, best_cpu, n = None, None, 0
+        for _ in range(repeats):
+            t, c = time.perf_counter(), time.process_time()
+            cloud = D.decode(data)
+            wall, cpu = time.perf_counter() - t, time.process_time() - c
+            if best_wall is None or wall < best_wall:
+                best_wall, best_cpu = wall, cpu
+            n = len(cloud)
+        # stages, sequentially, on the calling thread
+        stages = {}
+        stages["container"], c = best_of(lambda: read_container(data, known_types=KNOWN_CHUNKS), repeats)
+        plan = D.plan_layers(c.chunks, c.header.sh_degree)
+        totals = dict(geometry=0.0, attributes=0.0, sh=0.0, finish=0.0)
+        codebook = None
+        for layer in plan:
+            ch = {t: c.chunks[i].data for t, i in layer.items()}
+            gh = read_geometry_header(ch[CHUNK_GEOM], max_points=c.header.num_gaussians)
+            dt, codes = best_of(gh.decode_codes, repeats)
+            totals["geometry"] += dt
+            dt, (dc, ac, direct) = best_of(lambda: parse_attributes(ch[CHUNK_ATTR], gh.num_points), repeats)
+            totals["attributes"] += dt
+            if c.header.sh_degree > 0:
+                dt, (_, cb) = best_of(lambda: read_sh(ch[CHUNK_SHVQ], gh.num_points, c.header.sh_degree,
+                                                      codebook), repeats)
+                totals["sh"] += dt
+                codebook = cb if codebook is None else codebook
+
+            def finish():
+                attrs = attributes_from_coefficients(dc, ac, direct, codes, gh.depth)
+                pos = gh.positions(codes)
+                ok = native.module().all_finite if native.enabled() else (lambda a: np.isfinite(a).all())
+                return all(ok(a) for a in (pos, attrs.scales, attrs.rotations, attrs.opacities, attrs.sh_dc))
+            dt, _ = best_of(finish, repeats)
+            totals["finish"] += dt
+        stages.update(totals)
+        rows[mode] = dict(seconds=best_wall, cpu_seconds=best_cpu, gaussians=n,
+                          gaussians_per_second=n / best_wall, stages=stages)
+    native.set_enabled(True)
+    return dict(file=str(path), bytes=len(data), layers=len(plan), **{"paths": rows})
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenes", default=None, help="comma-separated scene stems (default: every shared scene)")
+    ap.add_argument("--files", nargs="*", default=[], help="extra .gsz files to measure")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--out", default=str(OUT))
+    a = ap.parse_args(argv)
+    files = []
+    if SHARED.exists():
+        plys = sorted(SHARED.glob("*.ply"))
+        if a.scenes:
+            want = set(a.scenes.split(","))
+            plys = [p for p in plys if p.stem in want]
+        files += [encoded_file(p) for p in plys]
+    elif not a.files:
+        print(f"no shared scenes in {SHARED} and no --files given", file=sys.stderr)
+        return 2
+    files += [Path(f) for f in a.files]
+    from gsz.decoder import native
+    before = uptime()
+    print(f"machine: {os.cpu_count()} cores; {before}")
+    print(f"native accelerator: {'available' if native.native_available() else native.unavailable_reason()}")
+    results = []
+    for f in files:
+        results.append(measure(f, a.repeats))
+        print(f"measured {f.name}", file=sys.stderr, flush=True)
+    after = uptime()
+    print(f"after: {after}\n")
+    hdr = ("| file | Gaussians | MB | path | decode s (wall) | CPU s | M Gaussians/s | container | "
+           "geometry | attributes | SH | finish |")
+    print(hdr)
+    print("|" + "---|" * (hdr.count("|") - 1))
+    for r in results:
+        for mode, p in r["paths"].items():
+            s = p["stages"]
+            print(f"| {Path(r['file']).name.split('_r08')[0]} | {p['gaussians']:,} | {r['bytes'] / 1e6:.2f} | "
+                  f"{mode} | {p['seconds']:.3f} | {p['cpu_seconds']:.3f} | {p['gaussians_per_second'] / 1e6:.2f} | "
+                  f"{s['container']:.3f} | {s['geometry']:.3f} | {s['attributes']:.3f} | {s['sh']:.3f} | "
+                  f"{s['finish']:.3f} |")
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(a.out).write_text(json.dumps(dict(command=" ".join([Path(sys.argv[0]).name] + (argv or sys.argv[1:])),
+                                           uptime_before=before, uptime_after=after, results=results), indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
