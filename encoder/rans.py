@@ -839,8 +839,76 @@ def encode_symbols(symbols: np.ndarray, model_ids: np.ndarray, models: ModelSet,
         return _payload(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
                         lanes)
     tabs = _coder_tables(models)
-    g = _value_index(models, tabs, mid, sym - models.lo[mid])
-    return _payload(tabs["freq"][g], tabs["cum"][g], models.prec[mid], lanes)
+    off = sym - models.lo[mid]
+    dense = _dense_cells(models, tabs, n)
+    if dense is None:
+        g = _value_index(models, tabs, mid, off)
+        return _payload(tabs["freq"][g], tabs["cum"][g], models.prec[mid], lanes)
+    # few (model, value) cells next to the symbol count (the octree's model bank): look every
+    # symbol's frequency and cumulative frequency up directly -- four passes over the symbols
+    # instead of _value_index's dozen (its temporaries cost more in page faults than in work)
+    _check_symbols(models, mid, off)
+    cell = dense["start"][mid]
+    cell += off
+    freq = dense["freq"][cell]
+    if not freq.all():
+        raise ValueError("a symbol has zero frequency in its model")
+    return _payload(freq, dense["cum"][cell], models.prec[mid], lanes)
+
+
+#: Largest (model, value) cell table the dense lookup of encode_symbols builds, relative to the
+#: symbol count (and absolute floor): beyond it _value_index's bin search is cheaper.
+_DENSE_LOOKUP_PER_SYMBOL = 1
+_DENSE_LOOKUP_MIN = 1 << 16
+
+
+def _check_symbols(models: ModelSet, mid: np.ndarray, off: np.ndarray) -> None:
+    """_value_index's first two checks (same errors, same precedence)."""
+    if np.any(models.types == EMPTY) and np.any(models.types[mid] == EMPTY):
+        raise ValueError("a symbol refers to an empty model")
+    if np.any(off < 0) or np.any(off > models.span[mid]):
+        raise ValueError("a symbol lies outside its model's range")
+
+
+def _dense_cells(models: ModelSet, tabs: dict, n: int):
+    """Per model a run of cells, one per value lo..lo + span, holding the frequency and the
+    cumulative frequency the coder uses for that value (0 frequency where the value has no
+    entry), or None when the cells would outnumber max(n, _DENSE_LOOKUP_MIN).  Cached in tabs.
+    The entries are those _value_index finds: LAPLACE value v at sym_start + v, SINGLE at
+    sym_start, COARSE at its bin's first entry + the offset inside the bin."""
+    if "dense" in tabs:
+        return tabs["dense"]
+    t = models.types
+    cells = np.where(t == EMPTY, 0, models.span + 1).astype(np.int64)
+    total = int(cells.sum())
+    if total > max(_DENSE_LOOKUP_PER_SYMBOL * n, _DENSE_LOOKUP_MIN):
+        tabs["dense"] = None
+        return None
+    start = np.cumsum(cells) - cells
+    entry = np.full(total, -1, np.int64)
+    rep = np.repeat(np.arange(t.size), cells)
+    off = np.arange(total, dtype=np.int64) - start[rep]
+    lap = t[rep] == LAPLACE
+    entry[lap] = tabs["sym_start"][rep[lap]] + off[lap]
+    sgl = t[rep] == SINGLE
+    entry[sgl] = tabs["sym_start"][rep[sgl]]
+    co = np.flatnonzero(t[rep] == COARSE)
+    if co.size:
+        mc, oc = rep[co], off[co]
+        sh = models.binshift[mc]
+        b = oc >> sh
+        key = (mc << 17) | b
+        bk = tabs["bin_key"]
+        i = np.minimum(np.searchsorted(bk, key), max(bk.size - 1, 0))
+        hit = bk[i] == key if bk.size else np.zeros(co.size, bool)
+        entry[co[hit]] = tabs["bin_first"][i[hit]] + (oc[hit] - (b[hit] << sh[hit]))
+    has = entry >= 0
+    freq = np.zeros(total, np.int64)
+    cum = np.zeros(total, np.int64)
+    freq[has] = tabs["freq"][entry[has]]
+    cum[has] = tabs["cum"][entry[has]]
+    tabs["dense"] = {"start": start, "freq": freq, "cum": cum}
+    return tabs["dense"]
 
 
 def _lanes_for(n: int, h: _Hist, e_freq: np.ndarray, e_shift: np.ndarray) -> int | None:
