@@ -74,6 +74,7 @@ class SearchOptions:
     screen          before encoding a tau below the best so far, render its exact-attribute
                     (pruned + voxelised) cloud and skip the tau when that bound is no better
                     than the best candidate's train PSNR
+    overlap         train the SH codebooks on a worker thread during the set-up
     """
 
     reserves: tuple = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)
@@ -95,6 +96,7 @@ class SearchOptions:
     first_layer: float = DEFAULT_FIRST_LAYER
     layer0_share: float = 0.1
     screen: bool = True
+    overlap: bool = True
     seed: int = 0
 
 
@@ -522,6 +524,37 @@ def _size_bounds(stage: Stage, blocks: int) -> tuple[float, float]:
     return lo, hi
 
 
+def _search_setup(cloud, sopts, taus, stage_for, progress):
+    """The main thread's share of the set-up while the codebooks train: the largest tau's stage
+    (geometry, tables, size bounds), the train-view references and the channel weights."""
+    from .cameras import load_cameras
+    from .metrics import quantize_8bit
+    from .render import render
+    top = stage_for(taus[0])
+    with progress.stage("tables", f"tau {taus[0]}: size bounds"):
+        lo1, hi1 = _size_bounds(top, sopts.blocks)
+    eval_cams = load_cameras(None, cloud, n_train=max(sopts.eval_views, 1), n_test=1,
+                             width=sopts.eval_width).train[:sopts.eval_views]
+    with progress.stage("eval-reference", f"{len(eval_cams)} train views"):
+        # float renders (the first two also serve as the sensitivity's base), 8-bit as
+        # render_views makes them
+        ref_float = [render(cloud, c).image for c in eval_cams]
+        refs = [quantize_8bit(np.asarray(img)) for img in ref_float]
+    weights = None
+    if sopts.weight_channels:
+        with progress.stage("sensitivity", "per-channel rendering weights of Omega"):
+            weights = channel_weights(cloud, eval_cams[:2], seed=sopts.seed, base_images=ref_float[:2])
+    return refs, eval_cams, weights, lo1, hi1, top
+
+
+@dataclass
+class _ShSource:
+    """The SH vectors and importance a codebook is trained on (a Stage's fields)."""
+    sh: np.ndarray
+    importance: np.ndarray
+    num_points: int
+
+
 def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None = None,
                      importance: np.ndarray | None = None, cameras=None,
                      progress: Progress | None = None) -> EncodeResult:
@@ -558,19 +591,45 @@ def _search_threads():
         torch.set_num_threads(old)
 
 
-def _train_psnr(refs, cloud, cameras) -> float:
-    """Mean PSNR over the views (gsz-eval's protocol: 8-bit renders, per-view PSNR, plain
-    mean) -- all the search compares candidates by; SSIM would cost more than the renders."""
+def _train_psnr(refs, cloud, cameras) -> tuple[float, list]:
+    """(mean PSNR over the views, per-view PSNRs) with gsz-eval's protocol (8-bit renders,
+    per-view PSNR, plain mean) -- all the search compares candidates by; SSIM would cost more
+    than the renders."""
     from .evaluate import render_views
     from .metrics import psnr
     imgs = render_views(cloud, cameras)
-    return float(np.mean([psnr(r, i) for r, i in zip(refs, imgs)]))
+    views = [psnr(r, i) for r, i in zip(refs, imgs)]
+    return float(np.mean(views)), views
+
+
+#: Screening stops rendering a tau's exact-attribute bound, and lets the tau through, once the
+#: views rendered so far (at least SCREEN_MIN_VIEWS) beat the best candidate's renders of the
+#: same views by SCREEN_PASS_MARGIN_DB on average (per-view differences: the views' own
+#: difficulty, which spreads their PSNRs over 10+ dB, cancels).  A let-through tau is encoded
+#: and compared as usual, and a tau that screening would skip cannot win anyway, so this only
+#: trades render time against encodes; it never changes which file is chosen.
+SCREEN_MIN_VIEWS = 2
+SCREEN_PASS_MARGIN_DB = 1.5
+
+
+def _screen_psnr(refs, cloud, cameras, best_views) -> tuple[float, int]:
+    """(mean PSNR over the views rendered, 0 when all were rendered, else how many): renders
+    view by view and stops early when the tau clearly passes (see SCREEN_PASS_MARGIN_DB).
+    The views go hardest first (lowest PSNR of the best candidate): there pruning error, which
+    the bound keeps, dominates quantisation error, which it drops, so the bound is tightest."""
+    from .evaluate import render_views
+    from .metrics import psnr
+    order = np.argsort(np.asarray(best_views), kind="stable")
+    vals, diffs = [], []
+    for i in order:
+        vals.append(psnr(refs[i], render_views(cloud, [cameras[i]])[0]))
+        diffs.append(vals[-1] - best_views[i])
+        if SCREEN_MIN_VIEWS <= len(vals) < len(cameras) and float(np.mean(diffs)) > SCREEN_PASS_MARGIN_DB:
+            return float(np.mean(vals)), len(vals)
+    return float(np.mean(vals)), 0
 
 
 def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progress) -> EncodeResult:
-    from .cameras import load_cameras
-    from .evaluate import render_views
-
     sopts = options or SearchOptions()
 
     def bad(msg):
@@ -606,10 +665,38 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
         return stages[(tau, d, fl)]
 
     taus = sorted(set(float(t) for t in sopts.reserves), reverse=True)
-    top = stage_for(taus[0])
-    with progress.stage("tables", f"tau {taus[0]}: size bounds"):
-        lo1, hi1 = _size_bounds(top, sopts.blocks)
-    m1 = top.num_points
+    # The SH codebooks are trained on the largest tau's voxels, which need no geometry coding:
+    # train them on a worker thread (torch releases the GIL in its maths) while this thread
+    # codes that stage, computes its tables and renders the references and sensitivities, so
+    # the second core is used.  Each codebook is a deterministic function of its inputs, so
+    # the overlap changes timing only.
+    _, vox_top = vox_for(taus[0])
+    m1 = len(vox_top.ijk)
+    pool = vq_job = None
+    if cloud.sh_degree > 0:
+        from concurrent.futures import ThreadPoolExecutor
+        k_max = default_codebook_size(m1, sopts.codebook)
+        ks = [k_max] if sopts.codebook is not None else sorted({k_max, max(16, k_max // 4), max(16, k_max // 16)},
+                                                               reverse=True)
+        src = _ShSource(sh=vox_top.cloud.sh_rest.reshape(m1, -1).astype(np.float32),
+                        importance=vox_top.importance, num_points=m1)
+
+        def train_all():
+            out = []
+            for k in ks:
+                with progress.stage("vq", f"codebook {k} on {m1} vectors (worker thread)"):
+                    out.append(train_sh_codebook(src, k, seed=sopts.seed, iters=sopts.vq_iters,
+                                                 progress=progress))
+            return out
+        if sopts.overlap:
+            pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gsz-vq")
+            vq_job = pool.submit(train_all)
+    try:
+        refs, eval_cams, weights, lo1, hi1, top = _search_setup(cloud, sopts, taus, stage_for, progress)
+        codebooks = vq_job.result() if vq_job is not None else (train_all() if cloud.sh_degree > 0 else [])
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
     feasible = []
     for tau in taus:
         f = (math.ceil(tau * len(cloud)) / len(cloud)) / (math.ceil(taus[0] * len(cloud)) / len(cloud))
@@ -623,30 +710,6 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
         pos = np.linspace(0, len(feasible) - 1, sopts.max_candidates).round().astype(int)
         feasible = [feasible[i] for i in sorted(set(pos))]
     progress.log(f"target {target:,} bytes; candidate reserve ratios {feasible}")
-
-    codebooks = []
-    if cloud.sh_degree > 0:
-        k_max = default_codebook_size(m1, sopts.codebook)
-        ks = [k_max] if sopts.codebook is not None else sorted({k_max, max(16, k_max // 4), max(16, k_max // 16)},
-                                                               reverse=True)
-        for k in ks:
-            with progress.stage("vq", f"codebook {k} on {m1} vectors"):
-                codebooks.append(train_sh_codebook(top, k, seed=sopts.seed, iters=sopts.vq_iters,
-                                                   progress=progress))
-
-    eval_cams = load_cameras(None, cloud, n_train=max(sopts.eval_views, 1), n_test=1,
-                             width=sopts.eval_width).train[:sopts.eval_views]
-    from .metrics import quantize_8bit
-    from .render import render
-    with progress.stage("eval-reference", f"{len(eval_cams)} train views"):
-        # float renders (the first two also serve as the sensitivity's base), 8-bit as
-        # render_views makes them
-        ref_float = [render(cloud, c).image for c in eval_cams]
-        refs = [quantize_8bit(np.asarray(img)) for img in ref_float]
-    weights = None
-    if sopts.weight_channels:
-        with progress.stage("sensitivity", "per-channel rendering weights of Omega"):
-            weights = channel_weights(cloud, eval_cams[:2], seed=sopts.seed, base_images=ref_float[:2])
 
     candidates, log = [], []
     evaluated = set()
@@ -664,16 +727,17 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
         best = max(candidates, key=lambda c: (c[0], c[1]))
         if tau >= best[1]:
             return False
-        inferred = False
+        inferred, partial = False, 0
         for s in screened:
             if s["skipped"] and s["reserve"] >= tau:
                 bound, inferred = s["bound_psnr"], True     # an upper bound of tau's own
                 break
         else:
             with progress.stage("screen", f"tau {tau}: exact-attribute bound"):
-                bound = _train_psnr(refs, vox_for(tau)[1].cloud, eval_cams)
-        skip = bound <= best[0]
+                bound, partial = _screen_psnr(refs, vox_for(tau)[1].cloud, eval_cams, best[4]["view_psnr"])
+        skip = bound <= best[0] and not partial         # a partial mean only ever lets through
         screened.append({"reserve": tau, "bound_psnr": bound, "inferred": inferred,
+                         "views": 0 if inferred else (partial or len(eval_cams)),
                          "best_psnr": best[0], "skipped": skip})
         if skip:
             what = "a larger tau's exact attributes reach" if inferred else "exact attributes reach"
@@ -699,7 +763,7 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
             return
         data, out, info = res
         with progress.stage("eval", f"tau {tau}"):
-            p = _train_psnr(refs, out, eval_cams)
+            p, info["view_psnr"] = _train_psnr(refs, out, eval_cams)
         progress.log(f"tau {tau}: {len(data):,} bytes, train PSNR {p:.2f} dB")
         info["depth"], info["first_layer"] = d, fl
         candidates.append((p, tau, data, out, info))
@@ -775,7 +839,7 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
         "calibration": info["rounds"],
         "first_layer": info["first_layer"],
         "candidates": [{"reserve": c[1], "depth": c[4]["depth"], "first_layer": c[4]["first_layer"],
-                        "bytes": len(c[2]), "train_psnr": c[0],
+                        "bytes": len(c[2]), "train_psnr": c[0], "train_view_psnr": c[4]["view_psnr"],
                         "layer0_too_late": id(c) in rejected}
                        for c in sorted(candidates, key=lambda c: -c[1])],
         "screened": screened,
