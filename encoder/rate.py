@@ -195,9 +195,29 @@ def _laplace_payload(vals, cnt, row, nb, blen, kk, prec, tot):
     most frequent value, each side's ratio from its mean distance (rho = 1 - 1 / mean, what
     gsz.encoder.rans._fit_one starts its small search from), the coder's +1-per-value
     normalisation over the whole span.  +inf where LAPLACE is not allowed (span + 1 > 2^n) or
-    the group has fewer than two distinct values."""
+    the group has fewer than two distinct values.
+
+    Only the allowed groups are computed (at high bit-widths the span outgrows the precision
+    in most groups, and the powers below are the costliest part of the rate model); every
+    group's value depends on its own runs only, so the result is the same."""
     if vals.size == 0:
         return np.full(nb, np.inf)
+    first = np.searchsorted(row, np.arange(nb))
+    span = vals[np.append(first[1:], vals.size) - 1]   # lo is 0: the minimum maps to symbol 0
+    ok = (span + 1.0 <= tot) & (kk > 1)
+    if not ok.any():
+        return np.full(nb, np.inf)
+    if ok.all():
+        return _laplace_core(vals, cnt, row, nb, kk, prec, tot)
+    sel = ok[row]
+    new_row = (np.cumsum(ok) - 1)[row[sel]]
+    out = np.full(nb, np.inf)
+    out[ok] = _laplace_core(vals[sel], cnt[sel], new_row, int(ok.sum()), kk[ok], prec[ok], tot[ok])
+    return out
+
+
+def _laplace_core(vals, cnt, row, nb, kk, prec, tot):
+    """_laplace_payload over groups that all have runs (row sorted, every row present)."""
     first = np.searchsorted(row, np.arange(nb))
     maxc = np.maximum.reduceat(cnt, first)
     # centre: the FIRST value with the maximum count (np.argmax in the fitter)
