@@ -443,7 +443,6 @@ def read_model_set(buf: memoryview | bytes, pos: int = 0) -> tuple[ModelSet, int
     if total and (gaps.max() > MAX_SPAN or np.abs(unzigzag(deltas)).max() > MAX_SPAN):
         # no valid model has such a gap or level step; bounding them keeps the sums below exact
         raise GszFormatError("rANS model set: coarse bin gap or level step out of range")
-    cuts = np.cumsum(counts)[:-1]
     if n_co:
         # per-model running sums, all models at once: bins b_i = b_{i-1} + gap_i + 1 from
         # b_{-1} = -1, levels q_i = q_{i-1} + delta_i from q_{-1} = 0 (ENTROPY.md 3.2)
@@ -454,8 +453,11 @@ def read_model_set(buf: memoryview | bytes, pos: int = 0) -> tuple[ModelSet, int
         dz = unzigzag(deltas)
         cq = np.cumsum(dz)
         levels_flat = cq - np.repeat(cq[first] - dz[first], counts)
-        bins = tuple(np.split(bins_flat, cuts))
-        levels = tuple(np.split(levels_flat, cuts))
+        # views of the flat arrays (np.split costs ~10x more per piece)
+        ends = np.cumsum(counts).tolist()
+        starts = first.tolist()
+        bins = tuple(bins_flat[a:b] for a, b in zip(starts, ends))
+        levels = tuple(levels_flat[a:b] for a, b in zip(starts, ends))
     else:
         bins = levels = ()
     ms = ModelSet(types=types, lo=lo, span=span, prec=prec, group=group, binshift=binshift,
