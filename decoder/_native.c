@@ -291,7 +291,7 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
     uint8_t *hi7 = NULL;     /* child 7 of every node (bit-plane 7), merged into occ after it */
     int64_t n = 1, known_off = 0;
     int32_t *cbuf_c = NULL, *cbuf_f = NULL;     /* contexts and models of one chunk */
-    uint8_t *mbuf = NULL;
+    uint8_t *mbuf = NULL, *bbuf = NULL;        /* (and the chunk's decoded bits) */
     uint32_t stamp = 0;
     IdList list = {0}, carry = {0};
     size_t cap_codes = 0, cap_ncodes = 0, cap_nbr = 0, cap_nnbr = 0, cap_occ = 0, cap_coded = 0,
@@ -317,7 +317,8 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
     cbuf_c = malloc((size_t)tb->chunk_max * sizeof *cbuf_c);
     cbuf_f = malloc((size_t)tb->chunk_max * sizeof *cbuf_f);
     mbuf = malloc((size_t)tb->chunk_max);
-    if (!cc || !ff || !codes || !nbr || !cbuf_c || !cbuf_f || !mbuf) { fail_nomem(e); goto done; }
+    bbuf = malloc((size_t)tb->chunk_max);
+    if (!cc || !ff || !codes || !nbr || !cbuf_c || !cbuf_f || !mbuf || !bbuf) { fail_nomem(e); goto done; }
     codes[0] = 0;
     for (int t = 0; t < NUM_T; t++) nbr[t] = 1;      /* n = 1: absent */
     nbr[SELF_T] = 0;
@@ -404,10 +405,40 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
                     mbuf[i - s] = fc->model;
                 }
                 /* the chunk's bits, then the count updates */
+                const int fast = mode == 0 && dec->pos + (end - s) <= dec->nsym
+                                 && dec->wpos + (end - s) <= dec->nwords;
+                if (fast) {
+                    /* enough symbols and words left for the whole chunk (at most one word per
+                     * symbol): the same decode step without the per-symbol checks */
+                    uint64_t *restrict st = dec->st;
+                    const uint8_t *restrict words = dec->words;
+                    const unsigned pn = (unsigned)tb->prec;
+                    const uint64_t ptot = (uint64_t)1 << pn, pmask = ptot - 1;
+                    const int64_t lanes = dec->lanes;
+                    int64_t lane = dec->lane, w = dec->wpos;
+                    for (int64_t i = s; i < end; i++) {
+                        uint64_t x = st[lane];
+                        const uint64_t z = x & pmask, f0 = (uint64_t)tb->freq0[mbuf[i - s]];
+                        const uint64_t bit = z >= f0;
+                        const uint64_t f = bit ? ptot - f0 : f0, c = bit ? f0 : 0;
+                        x = f * (x >> pn) + (z - c);
+                        const uint64_t need = x < 65536u;
+                        x = (x << (need << 4)) | (rd_u16(words + 2 * w) & (0 - need));
+                        w += (int64_t)need;
+                        st[lane] = x;
+                        lane = lane + 1 == lanes ? 0 : lane + 1;
+                        bbuf[i - s] = (uint8_t)bit;
+                    }
+                    dec->lane = lane;
+                    dec->wpos = w;
+                    dec->pos += end - s;
+                }
                 for (int64_t i = s; i < end; i++) {
                     const int64_t node = (k == 7) ? coded[i] : i;
                     int bit;
-                    if (mode == 0) {
+                    if (fast) {
+                        bit = bbuf[i - s];
+                    } else if (mode == 0) {
                         bit = bin_decode(dec, tb, mbuf[i - s], e);
                         if (bit < 0) goto done;
                     } else {
@@ -514,7 +545,7 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
 done:
     free(cc); free(ff); free(codes); free(ncodes); free(nbr); free(nnbr);
     free(occ); free(hi7); free(coded); free(start);
-    free(cbuf_c); free(cbuf_f); free(mbuf); free(list.v); free(carry.v);
+    free(cbuf_c); free(cbuf_f); free(mbuf); free(bbuf); free(list.v); free(carry.v);
     return rc;
 }
 
