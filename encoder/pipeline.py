@@ -270,6 +270,16 @@ def voxelize_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float,
     return kept, vox
 
 
+def stage_source(kept: np.ndarray, vox) -> np.ndarray:
+    """Stage.source: per voxel the input index of its one Gaussian, -1 where several merged."""
+    m = len(vox.ijk)
+    members = np.bincount(vox.index_of_point, minlength=m)
+    source = np.full(m, -1, np.int64)
+    source[vox.index_of_point] = kept
+    source[members != 1] = -1
+    return source
+
+
 def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, *, depth=None,
                   rel_error=None, layers: int = DEFAULT_LAYERS, first_layer: float = DEFAULT_FIRST_LAYER,
                   progress: Progress | None = None, voxelized=None) -> Stage:
@@ -285,10 +295,7 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
     kept, vox = voxelized
     d = vox.depth
     m = len(vox.ijk)
-    members = np.bincount(vox.index_of_point, minlength=m)
-    source = np.full(m, -1, np.int64)
-    source[vox.index_of_point] = kept
-    source[members != 1] = -1
+    source = stage_source(kept, vox)
     layer_of = split_layers(vox.importance, layers, first_layer)
     parts = []
     c = vox.cloud

@@ -34,7 +34,7 @@ from .pipeline import (DEFAULT_FIRST_LAYER, DEFAULT_LAYERS, EncodeOptions, Encod
                        EncodeResult, Stage, assemble, attribute_chunks, check_layer_options,
                        codebook_blocks,
                        compute_train_importance, default_codebook_size, layer_report, prepare_stage,
-                       sh_chunk, train_sh_codebook, voxelize_stage)
+                       sh_chunk, stage_source, train_sh_codebook, voxelize_stage)
 from .progress import Progress
 
 SH_BITS = 8          # codebook and kept SH vectors (the paper's setting)
@@ -298,6 +298,34 @@ class _Assigner:
         self.sh = np.ascontiguousarray(cloud.sh_rest.reshape(n, -1), dtype=np.float32)
         self.known = {}                       # id(codebook) -> (codebook, index [N], known [N])
 
+    def _entry(self, codebook):
+        entry = self.known.get(id(codebook))
+        if entry is None or entry[0] is not codebook:
+            entry = (codebook, np.zeros(self.sh.shape[0], np.int32), np.zeros(self.sh.shape[0], bool))
+            self.known[id(codebook)] = entry
+        return entry
+
+    def _reusable(self, source: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Voxels (ascending) whose vector is bit-identical to their single source Gaussian's."""
+        single = np.flatnonzero(source >= 0)
+        return single[np.all(x[single] == self.sh[source[single]], axis=1)]
+
+    def _known(self, src: np.ndarray, codebook: np.ndarray) -> np.ndarray:
+        """index[src] after assigning those of the Gaussians src not assigned yet."""
+        from .vq import assign
+        _, index, known = self._entry(codebook)
+        need = src[~known[src]]
+        if need.size:
+            index[need] = assign(self.sh[need], codebook)
+            known[need] = True
+        return index[src]
+
+    def prime(self, source: np.ndarray, x: np.ndarray, codebook: np.ndarray) -> None:
+        """Do now what a stage with these ``source`` / ``x`` (Stage.source, Stage.sh) will need
+        (the worker thread that trained the codebook calls it while the main thread codes
+        that stage); the same Gaussians in the same order, so the same indices."""
+        self._known(source[self._reusable(source, x)], codebook)
+
     def __call__(self, stage: Stage, codebook: np.ndarray) -> np.ndarray:
         from .vq import assign
         x = stage.sh
@@ -305,20 +333,8 @@ class _Assigner:
         if stage.source is None or x.shape[1] != self.sh.shape[1]:
             out[:] = assign(x, codebook)
             return out
-        entry = self.known.get(id(codebook))
-        if entry is None or entry[0] is not codebook:
-            entry = (codebook, np.zeros(self.sh.shape[0], np.int32), np.zeros(self.sh.shape[0], bool))
-            self.known[id(codebook)] = entry
-        _, index, known = entry
-        src = stage.source
-        single = np.flatnonzero(src >= 0)
-        same = np.all(x[single] == self.sh[src[single]], axis=1)
-        reuse = single[same]
-        need = src[reuse][~known[src[reuse]]]
-        if need.size:
-            index[need] = assign(self.sh[need], codebook)
-            known[need] = True
-        out[reuse] = index[src[reuse]]
+        reuse = self._reusable(stage.source, x)
+        out[reuse] = self._known(stage.source[reuse], codebook)
         fresh = np.ones(x.shape[0], bool)
         fresh[reuse] = False
         if fresh.any():
@@ -670,9 +686,10 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
     # codes that stage, computes its tables and renders the references and sensitivities, so
     # the second core is used.  Each codebook is a deterministic function of its inputs, so
     # the overlap changes timing only.
-    _, vox_top = vox_for(taus[0])
+    kept_top, vox_top = vox_for(taus[0])
     m1 = len(vox_top.ijk)
     pool = vq_job = None
+    assigner = _Assigner(cloud) if cloud.sh_degree > 0 else None
     if cloud.sh_degree > 0:
         from concurrent.futures import ThreadPoolExecutor
         k_max = default_codebook_size(m1, sopts.codebook)
@@ -681,12 +698,17 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
         src = _ShSource(sh=vox_top.cloud.sh_rest.reshape(m1, -1).astype(np.float32),
                         importance=vox_top.importance, num_points=m1)
 
+        # the largest stage's voxels are the first the SH models need: assign them right after
+        # each codebook is trained (Stage.source as prepare_stage will compute it)
+        source_top = stage_source(kept_top, vox_top)
+
         def train_all():
             out = []
             for k in ks:
-                with progress.stage("vq", f"codebook {k} on {m1} vectors (worker thread)"):
+                with progress.stage("vq", f"codebook {k} on {m1} vectors, and its assignment"):
                     out.append(train_sh_codebook(src, k, seed=sopts.seed, iters=sopts.vq_iters,
                                                  progress=progress))
+                    assigner.prime(source_top, src.sh, out[-1])
             return out
         if sopts.overlap:
             pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gsz-vq")
@@ -714,7 +736,6 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
     candidates, log = [], []
     evaluated = set()
     screened = []
-    assigner = _Assigner(cloud) if codebooks else None
 
     def cannot_win(tau) -> bool:
         """True when even exact attributes at tau render no better than the best candidate so
