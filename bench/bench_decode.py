@@ -13,7 +13,8 @@ gives; native = decoder/_native.c):
 * stages, run one after the other (no overlap) and timed by the CPU time of the calling thread,
   best of --repeats: container parse + CRCs, geometry (octree decode), attribute entropy
   decoding (RAHT coefficients and scales), SH (codebook, kept vectors, indices), finish (inverse
-  RAHT, rotations, float32 fields, positions, finiteness checks).
+  RAHT, rotations, float32 fields, positions, finiteness checks); with --encode also the octree
+  encoder on the decoded voxels (it must reproduce the file's geometry payload byte for byte).
 
 Prints a markdown table and writes bench/out/decode.json.  Also prints ``uptime`` before and
 after: other jobs on the machine inflate wall times (compare the CPU columns).
@@ -68,7 +69,7 @@ def best_of(fn, repeats: int, clock=time.thread_time):
     return best
 
 
-def measure(path: Path, repeats: int) -> dict:
+def measure(path: Path, repeats: int, encode_too: bool = False) -> dict:
     import gsz.decoder  # noqa: F401  (registers the submodules)
     D = sys.modules["gsz.decoder.decode"]
     from gsz.decoder import native
@@ -119,6 +120,13 @@ def measure(path: Path, repeats: int) -> dict:
                 return all(ok(a) for a in (pos, attrs.scales, attrs.rotations, attrs.opacities, attrs.sh_dc))
             dt, _ = best_of(finish, repeats)
             totals["finish"] += dt
+            if encode_too:
+                from gsz.decoder.morton import morton_decode
+                from gsz.encoder.octree import encode_octree
+                ijk = morton_decode(codes)
+                dt, payload = best_of(lambda: encode_octree(ijk, gh.depth), repeats)
+                assert payload == bytes(gh.payload), "octree encoder does not reproduce the file"
+                totals["octree_encode"] = totals.get("octree_encode", 0.0) + dt
         stages.update(totals)
         rows[mode] = dict(seconds=best_wall, cpu_seconds=best_cpu, gaussians=n,
                           gaussians_per_second=n / best_wall, stages=stages)
@@ -131,6 +139,8 @@ def main(argv=None) -> int:
     ap.add_argument("--scenes", default=None, help="comma-separated scene stems (default: every shared scene)")
     ap.add_argument("--files", nargs="*", default=[], help="extra .gsz files to measure")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--encode", action="store_true",
+                    help="also time the octree encoder on the decoded voxels (identical bytes checked)")
     ap.add_argument("--out", default=str(OUT))
     a = ap.parse_args(argv)
     files = []
@@ -150,12 +160,12 @@ def main(argv=None) -> int:
     print(f"native accelerator: {'available' if native.native_available() else native.unavailable_reason()}")
     results = []
     for f in files:
-        results.append(measure(f, a.repeats))
+        results.append(measure(f, a.repeats, a.encode))
         print(f"measured {f.name}", file=sys.stderr, flush=True)
     after = uptime()
     print(f"after: {after}\n")
     hdr = ("| file | Gaussians | MB | path | decode s (wall) | CPU s | M Gaussians/s | container | "
-           "geometry | attributes | SH | finish |")
+           "geometry | attributes | SH | finish |" + (" octree encode |" if a.encode else ""))
     print(hdr)
     print("|" + "---|" * (hdr.count("|") - 1))
     for r in results:
@@ -164,7 +174,7 @@ def main(argv=None) -> int:
             print(f"| {Path(r['file']).name.split('_r08')[0]} | {p['gaussians']:,} | {r['bytes'] / 1e6:.2f} | "
                   f"{mode} | {p['seconds']:.3f} | {p['cpu_seconds']:.3f} | {p['gaussians_per_second'] / 1e6:.2f} | "
                   f"{s['container']:.3f} | {s['geometry']:.3f} | {s['attributes']:.3f} | {s['sh']:.3f} | "
-                  f"{s['finish']:.3f} |")
+                  f"{s['finish']:.3f} |" + (f" {s['octree_encode']:.3f} |" if a.encode else ""))
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(dict(command=" ".join([Path(sys.argv[0]).name] + (argv or sys.argv[1:])),
                                            uptime_before=before, uptime_after=after, results=results), indent=1))
