@@ -139,6 +139,14 @@ _pool = None
 _pool_lock = threading.Lock()
 
 
+def _cores() -> int:
+    """CPUs this process may run on (the overlap needs two)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
 def _worker():
     """The decoder's one worker thread (geometry runs there, the attributes here)."""
     global _pool
@@ -166,7 +174,7 @@ def decode_layer(chunks: dict, header, state: LayerState) -> GaussianCloud:
     gh = read_geometry_header(chunks[CHUNK_GEOM], max_points=room)
     m = gh.num_points
     pending = _worker().submit(_decode_codes, gh) \
-        if native.enabled() and m >= OVERLAP_MIN_POINTS else None
+        if native.enabled() and m >= OVERLAP_MIN_POINTS and _cores() >= 2 else None
     try:
         codes = gh.decode_codes() if pending is None else None
         dc, ac, direct = parse_attributes(chunks[CHUNK_ATTR], m)

@@ -28,8 +28,15 @@ if os.environ.get("GSZ_NATIVE", "1").strip() == "0":
 else:
     try:
         from . import _native as _candidate
-    except ImportError as exc:            # not compiled (no C compiler at install time)
-        _why_not = f"extension not built ({exc})"
+    except ImportError as exc:
+        import importlib.util
+        try:
+            found = importlib.util.find_spec(__name__.rsplit(".", 1)[0] + "._native") is not None
+        except (ImportError, ValueError):
+            found = False
+        # not compiled (no C compiler at install time), or present but unloadable
+        _why_not = (f"extension failed to load ({exc})" if found
+                    else "extension not built (no C compiler when gsz was installed?)")
     else:
         if getattr(_candidate, "ABI", None) == ABI:
             _module = _candidate
