@@ -30,7 +30,7 @@
 #endif
 
 /* Bumped whenever a signature changes, so a stale build is ignored (decoder/native.py). */
-#define GSZ_NATIVE_ABI 1
+#define GSZ_NATIVE_ABI 2
 
 static PyObject *FormatError = NULL;   /* gsz.decoder.errors.GszFormatError */
 
