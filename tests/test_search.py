@@ -115,3 +115,63 @@ def test_budget_above_full_quality_buys_a_deeper_octree(imp_cache):
     at_d0 = max(cand["train_psnr"] for cand in r["candidates"] if cand["depth"] == d0)
     assert r["depth"] > d0 and r["train_psnr"] > at_d0
     assert decode(res.data).equals(res.cloud)
+
+
+def test_screening_and_overlap_never_change_the_file(imp_cache):
+    """Skipping taus whose exact-attribute bound cannot beat the best candidate, and training
+    the codebooks on a worker thread, save time only: the same file comes out without them."""
+    from dataclasses import replace
+    from gsz.encoder.pipeline import EncodeOptions, compute_train_importance
+    c = sample("sh3", 4000)
+    key = ("sh3", 4000)
+    if key not in imp_cache:
+        imp_cache[key] = compute_train_importance(c, EncodeOptions(train_views=4, importance_width=96))
+    opts = replace(FAST, max_candidates=3, refine_steps=2)
+    a = encode_to_budget(c, 60_000, options=opts, importance=imp_cache[key])
+    b = encode_to_budget(c, 60_000, options=replace(opts, screen=False, overlap=False),
+                         importance=imp_cache[key])
+    assert a.data == b.data
+    assert b.report["screened"] == []
+    # a skipped tau's bound is no better than the best candidate then, hence than the winner
+    for s in a.report["screened"]:
+        if s["skipped"]:
+            assert s["bound_psnr"] <= s["best_psnr"] <= a.report["train_psnr"]
+
+
+def test_dc_colour_channels_render_independently():
+    """channel_weights measures the three DC colour channels with one render: image channel k
+    must depend on DC channel k only (bit-exactly)."""
+    from gsz.decoder.cloud import GaussianCloud
+    from gsz.encoder.cameras import load_cameras
+    from gsz.encoder.render import render
+    c = sample("sh3", 2000)
+    cam = load_cameras(None, c, n_train=1, n_test=1, width=96).train[0]
+    rng = np.random.default_rng(1)
+    noise = rng.normal(0, 0.05, (len(c), 3))
+
+    def with_dc(dc):
+        return GaussianCloud(positions=c.positions, scales=c.scales, rotations=c.rotations,
+                             opacities=c.opacities, sh_dc=dc, sh_rest=c.sh_rest, sh_degree=c.sh_degree)
+    both = render(with_dc(c.sh_dc + noise), cam).image
+    for k in range(3):
+        one = c.sh_dc.astype(np.float64).copy()
+        one[:, k] += noise[:, k]
+        img = render(with_dc(one), cam).image
+        assert np.array_equal(img[..., k], both[..., k])
+
+
+def test_assigner_gives_nearest_codewords():
+    """Codeword indices reused across taus are nearest codewords of each voxel's own vector."""
+    from gsz.encoder.pipeline import prepare_stage
+    from gsz.encoder.search import _Assigner
+    from gsz.encoder.vq import assign
+    c = sample("sh3", 3000)
+    imp = np.random.default_rng(0).random(len(c))
+    cb = np.random.default_rng(2).normal(0, 0.3, (64, c.sh_rest[0].size)).astype(np.float32)
+    a = _Assigner(c)
+    for tau in (1.0, 0.7, 0.4):
+        st = prepare_stage(c, imp, tau)
+        idx = a(st, cb)
+        d_got = ((st.sh - cb[idx]) ** 2).sum(1)
+        d_best = ((st.sh - cb[assign(st.sh, cb)]) ** 2).sum(1)
+        assert np.allclose(d_got, d_best, rtol=1e-5, atol=1e-7)
