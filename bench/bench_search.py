@@ -88,6 +88,8 @@ def main(argv=None):
     from gsz.encoder.progress import Progress
     from gsz.encoder.search import BudgetError, encode_to_budget
 
+    from gsz.encoder.render import kernel_available
+    kernel_available()      # build/load the C++ rasteriser before anything is timed
     rows = []
     print(f"uptime: {os.popen('uptime').read().strip()}; native accelerator: {_native()}", flush=True)
     out_dir = Path(a.out).parent
