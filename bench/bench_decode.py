@@ -69,7 +69,7 @@ def best_of(fn, repeats: int, clock=time.thread_time):
     return best
 
 
-def measure(path: Path, repeats: int, encode_too: bool = False) -> dict:
+def measure(path: Path, repeats: int, encode_too: bool = False, paths=("numpy", "native")) -> dict:
     import gsz.decoder  # noqa: F401  (registers the submodules)
     D = sys.modules["gsz.decoder.decode"]
     from gsz.decoder import native
@@ -81,7 +81,7 @@ def measure(path: Path, repeats: int, encode_too: bool = False) -> dict:
 
     data = path.read_bytes()
     rows = {}
-    for mode in ("numpy", "native"):
+    for mode in paths:
         if mode == "native" and not native.native_available():
             continue
         native.set_enabled(mode == "native")
@@ -141,6 +141,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--encode", action="store_true",
                     help="also time the octree encoder on the decoded voxels (identical bytes checked)")
+    ap.add_argument("--paths", default="numpy,native", help="comma-separated: numpy, native")
     ap.add_argument("--out", default=str(OUT))
     a = ap.parse_args(argv)
     files = []
@@ -160,7 +161,7 @@ def main(argv=None) -> int:
     print(f"native accelerator: {'available' if native.native_available() else native.unavailable_reason()}")
     results = []
     for f in files:
-        results.append(measure(f, a.repeats, a.encode))
+        results.append(measure(f, a.repeats, a.encode, tuple(a.paths.split(","))))
         print(f"measured {f.name}", file=sys.stderr, flush=True)
     after = uptime()
     print(f"after: {after}\n")

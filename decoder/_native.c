@@ -30,7 +30,7 @@
 #endif
 
 /* Bumped whenever a signature changes, so a stale build is ignored (decoder/native.py). */
-#define GSZ_NATIVE_ABI 2
+#define GSZ_NATIVE_ABI 3
 
 static PyObject *FormatError = NULL;   /* gsz.decoder.errors.GszFormatError */
 
@@ -1455,167 +1455,339 @@ static PyObject *py_rans_decode_blocks(PyObject *self, PyObject *args)
 }
 
 /* ================================================================== inverse RAHT (TRANSFORMS.md §2) */
-PyDoc_STRVAR(raht_inverse_doc,
-"raht_inverse(codes, depth, dc, ac, out)\n\n"
-"Inverse RAHT of C channels over the N leaves with Morton codes `codes` (uint64, strictly\n"
-"ascending, < 2^(3 depth)): dc float64 [C], ac float64 [C, N-1] (channel-major, stream/level\n"
-"order), out float64 [N, C] (written).  Same tree and the same float64 operations in the same\n"
-"order as gsz.decoder.raht (build_raht_tree + raht_inverse), so the result is bit-identical.");
+/*
+ * The tree (gsz.decoder.raht.build_raht_tree) is built once per geometry by raht_tree() and
+ * applied per channel group by raht_apply(), so that two threads can transform disjoint channel
+ * groups of one tree at the same time.
+ *
+ * Bottom-up construction one octree level (three binary levels) per pass: the nodes of a level
+ * are grouped by parent (code >> 3, consecutive since the codes ascend); inside a group the
+ * children k = code & 7 merge at binary level 3j (k, k ^ 1), 3j + 1 (k >> 1 pairs) and 3j + 2
+ * (k >> 2 pairs), the merged node keeping its left (= lower) slot and the summed weight.  The
+ * pairs of one binary level come out in node order, i.e. ascending slot, exactly the order the
+ * NumPy builder produces level by level; a first pass counts them so every binary level's
+ * pairs are written straight to their place.
+ */
+typedef struct { int32_t left, right; double g1, g2; } RPair;
 
-typedef struct { int32_t left, right; double wl, wr; } Pair;
+typedef struct {
+    int64_t n;            /* leaves */
+    int nlev;             /* non-empty binary levels */
+    int64_t *lvl_start;   /* [nlev + 1]: pairs of non-empty level L (finest first) */
+    RPair *pairs;         /* [n - 1] */
+} RTree;
 
-static PyObject *py_raht_inverse(PyObject *self, PyObject *args)
+#define RAHT_TREE_CAPSULE "gsz.decoder._native.raht_tree"
+
+static void rtree_free(RTree *t)
 {
-    PyObject *o_codes, *o_dc, *o_ac, *o_out;
-    int depth;
-    if (!PyArg_ParseTuple(args, "OiOOO", &o_codes, &depth, &o_dc, &o_ac, &o_out)) return NULL;
-    Py_buffer vc, vdc, vac, vout;
-    if (getbuf(o_codes, &vc, 8, 'x', 0, "codes") < 0) return NULL;
-    if (getbuf(o_dc, &vdc, 8, 'f', 0, "dc") < 0) { PyBuffer_Release(&vc); return NULL; }
-    if (getbuf(o_ac, &vac, 8, 'f', 0, "ac") < 0) { PyBuffer_Release(&vc); PyBuffer_Release(&vdc); return NULL; }
-    if (getbuf(o_out, &vout, 8, 'f', 1, "out") < 0) {
-        PyBuffer_Release(&vc); PyBuffer_Release(&vdc); PyBuffer_Release(&vac); return NULL;
+    if (!t) return;
+    free(t->lvl_start);
+    free(t->pairs);
+    free(t);
+}
+
+static void rtree_capsule_free(PyObject *cap)
+{
+    rtree_free(PyCapsule_GetPointer(cap, RAHT_TREE_CAPSULE));
+}
+
+/* Per occupancy byte o of a parent: its sibling pairs at the three binary levels.  The present
+ * children in k order have ranks 0..popcount(o)-1; a pair at binary level b joins the child
+ * ranges [k, k + 2^b) and [k + 2^b, k + 2^(b+1)) when both hold a child: entry = b | lr << 2
+ * | rr << 5 | re << 8 with the ranks lr (first child of the left range), rr (first of the
+ * right range) and re (one past the right range's last).  RAHT_NP[o]: number of entries,
+ * RAHT_CNT[o]: pairs per binary level (bits 0-7, 8-15, 16-23). */
+static uint16_t RAHT_ENT[256][7];
+static uint8_t RAHT_NP[256];
+static uint32_t RAHT_CNT[256];
+
+static void raht_pairs8_init(void)
+{
+    for (unsigned o = 0; o < 256; o++) {
+        unsigned rank[9];
+        rank[0] = 0;
+        for (int k = 0; k < 8; k++) rank[k + 1] = rank[k] + ((o >> k) & 1u);
+        unsigned np = 0, cnt = 0;
+        for (int b = 0; b < 3; b++) {
+            const int step = 1 << b;
+            for (int k = 0; k < 8; k += 2 * step) {
+                const unsigned lr = rank[k], rr = rank[k + step], re = rank[k + 2 * step];
+                if (rr > lr && re > rr) {
+                    RAHT_ENT[o][np++] = (uint16_t)(b | (lr << 2) | (rr << 5) | (re << 8));
+                    cnt += 1u << (8 * b);
+                }
+            }
+        }
+        RAHT_NP[o] = (uint8_t)np;
+        RAHT_CNT[o] = cnt;
     }
-    const int64_t n = vc.len / 8, nch = vdc.len / 8;
-    Err e = {0};
-    if (n < 1 || n > INT32_MAX || nch < 1 || depth < 1 || depth > 21
-        || vac.len / 8 != nch * (n - 1) || vout.len / 8 != nch * n)
-        fail(&e, "RAHT inverse: inconsistent shapes");
+}
+
+/* butterfly gains of a pair (NumPy: a = sqrt(wl + wr), g1 = sqrt(wl) / a, g2 = sqrt(wr) / a) */
+#define GTAB 16
+typedef struct { double g1, g2; } Gain;
+
+static inline Gain gain_of(int64_t wl, int64_t wr)
+{
+    const double a = sqrt((double)wl + (double)wr);
+    Gain g = {sqrt((double)wl) / a, sqrt((double)wr) / a};
+    return g;
+}
+
+static inline void emit_pair(RPair *p, int32_t l, int32_t r, int64_t wl, int64_t wr,
+                             const Gain *gtab)
+{
+    p->left = l;
+    p->right = r;
+    const Gain g = (wl <= GTAB && wr <= GTAB) ? gtab[(wl - 1) * GTAB + (wr - 1)] : gain_of(wl, wr);
+    p->g1 = g.g1;
+    p->g2 = g.g2;
+}
+
+static int rtree_build(const uint64_t *c0, int64_t n, int depth, RTree **out, Err *e)
+{
+    *out = NULL;
     uint64_t *code = NULL;
-    int32_t *slot = NULL;
-    int64_t *wt = NULL, *lvl_start = NULL;
-    Pair *pairs = NULL;
-    if (!e.failed) {
-        code = big_alloc((size_t)n * sizeof *code);
-        slot = big_alloc((size_t)n * sizeof *slot);
-        wt = big_alloc((size_t)n * sizeof *wt);
-        pairs = big_alloc((size_t)(n > 1 ? n - 1 : 1) * sizeof *pairs);
-        lvl_start = malloc((size_t)(3 * depth + 2) * sizeof *lvl_start);
-        if (!code || !slot || !wt || !pairs || !lvl_start) fail_nomem(&e);
+    int32_t *slot = NULL, *gstart = NULL;
+    int64_t *wt = NULL;
+    uint8_t *gocc = NULL;
+    RTree *t = calloc(1, sizeof *t);
+    if (!t) return fail_nomem(e);
+    t->n = n;
+    code = big_alloc((size_t)n * sizeof *code);
+    slot = big_alloc((size_t)n * sizeof *slot);
+    wt = big_alloc((size_t)n * sizeof *wt);
+    gstart = big_alloc((size_t)(n + 1) * sizeof *gstart);
+    gocc = big_alloc((size_t)n);
+    t->pairs = big_alloc((size_t)(n > 1 ? n - 1 : 1) * sizeof *t->pairs);
+    t->lvl_start = malloc((size_t)(3 * depth + 2) * sizeof *t->lvl_start);
+    if (!code || !slot || !wt || !gstart || !gocc || !t->pairs || !t->lvl_start) {
+        fail_nomem(e);
+        goto fail;
     }
-    if (!e.failed) {
-        const uint64_t *c0 = vc.buf;
+    for (int64_t i = 1; i < n; i++) {
+        if (c0[i] <= c0[i - 1]) { fail(e, "Morton codes must be strictly ascending (sorted, unique)"); goto fail; }
+    }
+    if (c0[n - 1] >> (3 * depth)) { fail(e, "Morton code exceeds 3*depth bits"); goto fail; }
+    Gain gtab[GTAB * GTAB];
+    for (int a = 1; a <= GTAB; a++)
+        for (int b = 1; b <= GTAB; b++) gtab[(a - 1) * GTAB + (b - 1)] = gain_of(a, b);
+    for (int64_t i = 0; i < n; i++) { slot[i] = (int32_t)i; wt[i] = 1; }
+    const uint64_t *cur = c0;        /* the codes of the current level (the input at first) */
+    int64_t len = n, np_ = 0;
+    int nlev = 0;
+    for (int j = 0; j < depth && len > 1; j++) {
+        /* pass 1: the parents (code[g] = their codes, written in place: g <= i), their
+         * occupancy bytes and first child, and the pairs per binary level */
+        int64_t g = 0;
+        uint32_t cnt_lo = 0;
+        int64_t cnt[3] = {0, 0, 0};
+        for (int64_t i = 0; i < len; ) {
+            const uint64_t p = cur[i] >> 3;
+            unsigned o = 1u << (cur[i] & 7u);
+            gstart[g] = (int32_t)i;
+            i++;
+            while (i < len && (cur[i] >> 3) == p) { o |= 1u << (cur[i] & 7u); i++; }
+            code[g] = p;
+            gocc[g] = (uint8_t)o;
+            g++;
+            cnt_lo += RAHT_CNT[o];
+            if ((g & 31) == 0) {     /* flush the packed 8-bit counters before they overflow */
+                cnt[0] += cnt_lo & 0xFF; cnt[1] += (cnt_lo >> 8) & 0xFF; cnt[2] += cnt_lo >> 16;
+                cnt_lo = 0;
+            }
+        }
+        cnt[0] += cnt_lo & 0xFF; cnt[1] += (cnt_lo >> 8) & 0xFF; cnt[2] += cnt_lo >> 16;
+        gstart[g] = (int32_t)len;
+        cur = code;
+        if (np_ + cnt[0] + cnt[1] + cnt[2] > n - 1) { fail(e, "RAHT tree did not reduce to a single root"); goto fail; }
+        RPair *dst[3];
+        {
+            int64_t at = np_;
+            for (int b = 0; b < 3; b++) {
+                dst[b] = t->pairs + at;
+                if (cnt[b]) t->lvl_start[nlev++] = at;
+                at += cnt[b];
+            }
+        }
+        /* pass 2: the pairs of every parent, then its slot (first child's) and weight (sum),
+         * in place (parent q <= its first child) */
+        for (int64_t q = 0; q < g; q++) {
+            const int64_t i0 = gstart[q], i1 = gstart[q + 1];
+            const unsigned o = gocc[q];
+            const int32_t s0 = slot[i0];
+            if (i1 - i0 == 1) {          /* a single child: no pair, passes up unchanged */
+                slot[q] = s0;
+                wt[q] = wt[i0];
+                continue;
+            }
+            int64_t W[9];                /* prefix sums of the children's weights */
+            W[0] = 0;
+            for (int64_t r = 0; r < i1 - i0; r++) W[r + 1] = W[r] + wt[i0 + r];
+            const int np8 = RAHT_NP[o];
+            for (int x = 0; x < np8; x++) {
+                const unsigned en = RAHT_ENT[o][x];
+                const unsigned b = en & 3u, lr = (en >> 2) & 7u, rr = (en >> 5) & 7u, re = en >> 8;
+                emit_pair(dst[b]++, slot[i0 + lr], slot[i0 + rr], W[rr] - W[lr], W[re] - W[rr], gtab);
+            }
+            slot[q] = s0;
+            wt[q] = W[i1 - i0];
+        }
+        np_ += cnt[0] + cnt[1] + cnt[2];
+        len = g;
+    }
+    t->lvl_start[nlev] = np_;
+    t->nlev = nlev;
+    if (len != 1 || np_ != n - 1) { fail(e, "RAHT tree did not reduce to a single root"); goto fail; }
+    free(code); free(slot); free(wt); free(gstart); free(gocc);
+    *out = t;
+    return 0;
+fail:
+    free(code); free(slot); free(wt); free(gstart); free(gocc);
+    rtree_free(t);
+    return -1;
+}
+
+PyDoc_STRVAR(raht_tree_doc,
+"raht_tree(codes, depth) -> tree\n\n"
+"The RAHT tree (TRANSFORMS.md §2) of the N leaves with Morton codes `codes` (uint64, strictly\n"
+"ascending, < 2^(3 depth)), as an opaque object for raht_apply(): the same sibling pairs in the\n"
+"same order as gsz.decoder.raht.build_raht_tree, with the butterfly gains computed as there.");
+
+static PyObject *py_raht_tree(PyObject *self, PyObject *args)
+{
+    PyObject *o_codes;
+    int depth;
+    if (!PyArg_ParseTuple(args, "Oi", &o_codes, &depth)) return NULL;
+    Py_buffer vc;
+    if (getbuf(o_codes, &vc, 8, 'x', 0, "codes") < 0) return NULL;
+    const int64_t n = vc.len / 8;
+    Err e = {0};
+    RTree *t = NULL;
+    if (n < 1 || n > INT32_MAX || depth < 1 || depth > 21) {
+        fail(&e, "RAHT inverse: inconsistent shapes");
+    } else {
+        Py_BEGIN_ALLOW_THREADS
+        rtree_build(vc.buf, n, depth, &t, &e);
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&vc);
+    if (e.failed) return raise_err(&e);
+    PyObject *cap = PyCapsule_New(t, RAHT_TREE_CAPSULE, rtree_capsule_free);
+    if (!cap) rtree_free(t);
+    return cap;
+}
+
+PyDoc_STRVAR(raht_apply_doc,
+"raht_apply(tree, dc, ac, c0, c1, out, half=False)\n\n"
+"Inverse RAHT of channels c0..c1-1 over a raht_tree(): dc float64 [C], ac float64 [C, N-1]\n"
+"(channel-major, stream/level order), out float64 [c1 - c0, N] (written, channel-major).  Same\n"
+"float64 operations in the same order as gsz.decoder.raht.raht_inverse (bit-identical).  With\n"
+"half: every output value x is then replaced by 0.5 * x (0 when x is not finite), the half\n"
+"angles of gsz.decoder.rotation.euler_to_quaternion.");
+
+static PyObject *py_raht_apply(PyObject *self, PyObject *args)
+{
+    PyObject *o_tree, *o_dc, *o_ac, *o_out;
+    long long c0, c1;
+    int half = 0;
+    if (!PyArg_ParseTuple(args, "OOOLLO|p", &o_tree, &o_dc, &o_ac, &c0, &c1, &o_out, &half))
+        return NULL;
+    RTree *t = PyCapsule_GetPointer(o_tree, RAHT_TREE_CAPSULE);
+    if (!t) return NULL;
+    Py_buffer vdc, vac, vout;
+    if (getbuf(o_dc, &vdc, 8, 'f', 0, "dc") < 0) return NULL;
+    if (getbuf(o_ac, &vac, 8, 'f', 0, "ac") < 0) { PyBuffer_Release(&vdc); return NULL; }
+    if (getbuf(o_out, &vout, 8, 'f', 1, "out") < 0) { PyBuffer_Release(&vdc); PyBuffer_Release(&vac); return NULL; }
+    const int64_t n = t->n, nch = vdc.len / 8, k = c1 - c0;
+    int ok = nch >= 1 && c0 >= 0 && c1 <= nch && k >= 1 && vac.len / 8 == nch * (n - 1)
+             && vout.len / 8 == k * n;
+    if (ok) {
         const double *dc = vdc.buf, *ac = vac.buf;
         double *v = vout.buf;
         Py_BEGIN_ALLOW_THREADS
-        for (int64_t i = 0; i < n; i++) {
-            if (i && c0[i] <= c0[i - 1]) { fail(&e, "Morton codes must be strictly ascending (sorted, unique)"); break; }
-            code[i] = c0[i];
-            slot[i] = (int32_t)i;
-            wt[i] = 1;
-        }
-        if (!e.failed && (c0[n - 1] >> (3 * depth)))
-            fail(&e, "Morton code exceeds 3*depth bits");
-        /* bottom-up: the sibling pairs of every level, finest first */
-        int64_t len = n, np_ = 0;
-        int nlev = 0;
-        for (int level = 0; !e.failed && level < 3 * depth && len > 1; level++) {
-            const int64_t first = np_;
-            int64_t o = 0;
-            for (int64_t i = 0; i < len; ) {
-                if (i + 1 < len && (code[i] >> 1) == (code[i + 1] >> 1)) {
-                    pairs[np_].left = slot[i];
-                    pairs[np_].right = slot[i + 1];
-                    pairs[np_].wl = (double)wt[i];
-                    pairs[np_].wr = (double)wt[i + 1];
-                    np_++;
-                    code[o] = code[i] >> 1;
-                    slot[o] = slot[i];
-                    wt[o] = wt[i] + wt[i + 1];
-                    i += 2;
-                } else {
-                    code[o] = code[i] >> 1;
-                    slot[o] = slot[i];
-                    wt[o] = wt[i];
-                    i += 1;
-                }
-                o++;
-            }
-            if (np_ > first) lvl_start[nlev++] = first;
-            len = o;
-        }
-        lvl_start[nlev] = np_;
-        if (!e.failed && (len != 1 || np_ != n - 1)) fail(&e, "RAHT tree did not reduce to a single root");
-        if (!e.failed) {
-            for (int64_t c = 0; c < nch; c++) v[c] = dc[c];
-            /* top-down, coarsest level first; AC coefficients of a level are contiguous in the
-             * stream (coarsest level first, ascending slot within a level) */
+        for (int64_t c = 0; c < k; c++) v[c * n] = dc[c0 + c];
+        /* top-down, coarsest level first; the AC coefficients of a level are contiguous in the
+         * stream (coarsest level first, ascending slot within a level) */
+        for (int64_t c = 0; c < k; c++) {
+            double *restrict vc = v + c * n;
+            const double *restrict acc = ac + (c0 + c) * (n - 1);
             int64_t acpos = 0;
-            for (int L = nlev - 1; L >= 0; L--) {
-                const int64_t a = lvl_start[L], b = lvl_start[L + 1];
-                for (int64_t p = a; p < b; p++, acpos++) {
-                    const Pair *pr = &pairs[p];
-                    const double s = sqrt(pr->wl + pr->wr);
-                    const double g1 = sqrt(pr->wl) / s, g2 = sqrt(pr->wr) / s;
-                    double *lo = v + (int64_t)pr->left * nch, *hi = v + (int64_t)pr->right * nch;
-                    for (int64_t c = 0; c < nch; c++) {
-                        const double low = lo[c], high = ac[c * (n - 1) + acpos];
-                        const double t1 = g1 * low, t2 = g2 * high;
-                        const double t3 = g2 * low, t4 = g1 * high;
-                        lo[c] = t1 - t2;
-                        hi[c] = t3 + t4;
-                    }
+            for (int L = t->nlev - 1; L >= 0; L--) {
+                const RPair *pr = t->pairs + t->lvl_start[L], *pe = t->pairs + t->lvl_start[L + 1];
+                for (; pr < pe; pr++, acpos++) {
+                    const double low = vc[pr->left], high = acc[acpos];
+                    const double t1 = pr->g1 * low, t2 = pr->g2 * high;
+                    const double t3 = pr->g2 * low, t4 = pr->g1 * high;
+                    vc[pr->left] = t1 - t2;
+                    vc[pr->right] = t3 + t4;
                 }
             }
         }
+        if (half)
+            for (int64_t i = 0; i < k * n; i++) v[i] = 0.5 * (isfinite(v[i]) ? v[i] : 0.0);
         Py_END_ALLOW_THREADS
     }
-    free(code); free(slot); free(wt); free(pairs); free(lvl_start);
-    PyBuffer_Release(&vc); PyBuffer_Release(&vdc); PyBuffer_Release(&vac); PyBuffer_Release(&vout);
-    if (e.failed) return raise_err(&e);
-    Py_RETURN_NONE;
-}
-
-/* ================================================================== attribute assembly */
-PyDoc_STRVAR(attr_split_doc,
-"attr_split(v, opacity, dc, half)\n\n"
-"From the inverse RAHT output v (float64 [M, 7]: opacity, roll, pitch, yaw, f_dc_0..2) write\n"
-"opacity (float32 [M]), dc (float32 [M, 3]) and the half angles (float64 [3, M], non-finite\n"
-"angles replaced by 0 first) -- the steps of gsz.decoder.attributes / rotation around cos/sin.");
-
-static PyObject *py_attr_split(PyObject *self, PyObject *args)
-{
-    PyObject *o[4];
-    if (!PyArg_ParseTuple(args, "OOOO", &o[0], &o[1], &o[2], &o[3])) return NULL;
-    const Py_ssize_t isz[4] = {8, 4, 4, 8};
-    Py_buffer v[4];
-    int nv = 0;
-    for (; nv < 4; nv++)
-        if (getbuf(o[nv], &v[nv], isz[nv], 'f', nv > 0, "attr_split argument") < 0) {
-            release_views(v, nv);
-            return NULL;
-        }
-    const int64_t M = v[1].len / 4;
-    int ok = v[0].len / 8 == 7 * M && v[2].len / 4 == 3 * M && v[3].len / 8 == 3 * M;
-    if (ok) {
-        const double *src = v[0].buf;
-        float *op = v[1].buf, *dc = v[2].buf;
-        double *half = v[3].buf;
-        Py_BEGIN_ALLOW_THREADS
-        for (int64_t i = 0; i < M; i++) {
-            const double *r = src + 7 * i;
-            op[i] = (float)r[0];
-            for (int a = 0; a < 3; a++) {
-                const double x = r[1 + a];
-                half[a * M + i] = 0.5 * (isfinite(x) ? x : 0.0);
-                dc[3 * i + a] = (float)r[4 + a];
-            }
-        }
-        Py_END_ALLOW_THREADS
-    }
-    release_views(v, nv);
+    PyBuffer_Release(&vdc); PyBuffer_Release(&vac); PyBuffer_Release(&vout);
     if (!ok) {
-        PyErr_SetString(PyExc_ValueError, "attr_split: inconsistent shapes");
+        PyErr_SetString(PyExc_ValueError, "raht_apply: inconsistent shapes");
         return NULL;
     }
     Py_RETURN_NONE;
 }
 
+/* ================================================================== attribute assembly */
+PyDoc_STRVAR(planes_to_f32_doc,
+"planes_to_f32(src, p0, p1, out) -> bool\n\n"
+"out[i, k] = float32(src[p0 + k, i]) for the planes p0..p1-1 of src (float64 [P, M],\n"
+"channel-major) into out (float32 [M, p1 - p0]), NumPy's astype rounding; returns True when\n"
+"every value written is finite.");
+
+static PyObject *py_planes_to_f32(PyObject *self, PyObject *args)
+{
+    PyObject *o_src, *o_out;
+    long long p0, p1;
+    if (!PyArg_ParseTuple(args, "OLLO", &o_src, &p0, &p1, &o_out)) return NULL;
+    Py_buffer vs, vo;
+    if (getbuf(o_src, &vs, 8, 'f', 0, "src") < 0) return NULL;
+    if (getbuf(o_out, &vo, 4, 'f', 1, "out") < 0) { PyBuffer_Release(&vs); return NULL; }
+    const int64_t k = p1 - p0, M = k > 0 ? (vo.len / 4) / k : 0;
+    const int ok = k >= 1 && p0 >= 0 && vo.len / 4 == k * M && M > 0 && (vs.len / 8) % M == 0
+                   && p1 <= (vs.len / 8) / M;
+    uint32_t bad = 0;
+    if (ok) {
+        const double *src = (const double *)vs.buf + p0 * M;
+        float *out = vo.buf;
+        Py_BEGIN_ALLOW_THREADS
+        for (int64_t c = 0; c < k; c++) {
+            const double *s = src + c * M;
+            float *o = out + c;
+            for (int64_t i = 0; i < M; i++) {
+                const float f = (float)s[i];
+                uint32_t u;
+                memcpy(&u, &f, 4);
+                bad |= (u & 0x7F800000u) == 0x7F800000u;
+                o[i * k] = f;
+            }
+        }
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&vs);
+    PyBuffer_Release(&vo);
+    if (!ok) {
+        PyErr_SetString(PyExc_ValueError, "planes_to_f32: inconsistent shapes");
+        return NULL;
+    }
+    return PyBool_FromLong(!bad);
+}
+
 PyDoc_STRVAR(quat_from_trig_doc,
-"quat_from_trig(c, s, q)\n\n"
+"quat_from_trig(c, s, q) -> bool\n\n"
 "Quaternions (w, x, y, z) as float32 [M, 4] from c = cos and s = sin of the half angles\n"
 "(float64 [3, M]: roll, pitch, yaw): TRANSFORMS.md §1, products left to right, one rounding\n"
-"per operation, sign flipped when w < 0, then rounded to float32.");
+"per operation, sign flipped when w < 0, then rounded to float32.  Returns True when every\n"
+"component is finite.");
 
 static PyObject *py_quat_from_trig(PyObject *self, PyObject *args)
 {
@@ -1631,10 +1803,12 @@ static PyObject *py_quat_from_trig(PyObject *self, PyObject *args)
         }
     const int64_t M = v[2].len / 16;
     int ok = v[0].len / 8 == 3 * M && v[1].len / 8 == 3 * M;
+    int bad = 0;
     if (ok) {
         const double *c = v[0].buf, *s = v[1].buf;
         float *q = v[2].buf;
         Py_BEGIN_ALLOW_THREADS
+        /* |w|, |x|, |y|, |z| <= 1 for finite c, s; a non-finite input makes them non-finite */
         for (int64_t i = 0; i < M; i++) {
             const double cr = c[i], cp = c[M + i], cy = c[2 * M + i];
             const double sr = s[i], sp = s[M + i], sy = s[2 * M + i];
@@ -1647,6 +1821,8 @@ static PyObject *py_quat_from_trig(PyObject *self, PyObject *args)
             q[4 * i + 1] = (float)x;
             q[4 * i + 2] = (float)y;
             q[4 * i + 3] = (float)z;
+            bad |= !(isfinite(q[4 * i]) && isfinite(q[4 * i + 1]) && isfinite(q[4 * i + 2])
+                     && isfinite(q[4 * i + 3]));
         }
         Py_END_ALLOW_THREADS
     }
@@ -1655,7 +1831,7 @@ static PyObject *py_quat_from_trig(PyObject *self, PyObject *args)
         PyErr_SetString(PyExc_ValueError, "quat_from_trig: inconsistent shapes");
         return NULL;
     }
-    Py_RETURN_NONE;
+    return PyBool_FromLong(!bad);
 }
 
 static inline uint64_t compact3(uint64_t v)
@@ -1670,9 +1846,10 @@ static inline uint64_t compact3(uint64_t v)
 }
 
 PyDoc_STRVAR(voxel_positions_doc,
-"voxel_positions(codes, depth, ox, oy, oz, side, out)\n\n"
+"voxel_positions(codes, depth, ox, oy, oz, side, out) -> bool\n\n"
 "Decoded centres (GSZ.md §6) of the voxels with Morton codes `codes` (uint64 [M]):\n"
-"origin + (ijk + 0.5) * (side / 2^depth) in float64, rounded to float32 into out [M, 3].");
+"origin + (ijk + 0.5) * (side / 2^depth) in float64, rounded to float32 into out [M, 3].\n"
+"Returns True when every coordinate is finite.");
 
 static PyObject *py_voxel_positions(PyObject *self, PyObject *args)
 {
@@ -1686,6 +1863,7 @@ static PyObject *py_voxel_positions(PyObject *self, PyObject *args)
     if (getbuf(o_out, &vo, 4, 'f', 1, "out") < 0) { PyBuffer_Release(&vc); return NULL; }
     const int64_t M = vc.len / 8;
     const int ok = vo.len / 4 == 3 * M && depth >= 1 && depth <= 21;
+    uint32_t bad = 0;
     if (ok) {
         const uint64_t *c = vc.buf;
         float *out = vo.buf;
@@ -1695,7 +1873,11 @@ static PyObject *py_voxel_positions(PyObject *self, PyObject *args)
             const uint64_t ijk[3] = {compact3(c[i] >> 2), compact3(c[i] >> 1), compact3(c[i])};
             for (int a = 0; a < 3; a++) {
                 const double t = ((double)ijk[a] + 0.5) * pitch;
-                out[3 * i + a] = (float)(org[a] + t);
+                const float f = (float)(org[a] + t);
+                uint32_t u;
+                memcpy(&u, &f, 4);
+                bad |= (u & 0x7F800000u) == 0x7F800000u;
+                out[3 * i + a] = f;
             }
         }
         Py_END_ALLOW_THREADS
@@ -1706,7 +1888,7 @@ static PyObject *py_voxel_positions(PyObject *self, PyObject *args)
         PyErr_SetString(PyExc_ValueError, "voxel_positions: inconsistent arguments");
         return NULL;
     }
-    Py_RETURN_NONE;
+    return PyBool_FromLong(!bad);
 }
 
 PyDoc_STRVAR(sh_assemble_doc,
@@ -1794,10 +1976,11 @@ static PyMethodDef methods[] = {
     {"octree_encode", py_octree_encode, METH_VARARGS, octree_encode_doc},
     {"bank_encode", py_bank_encode, METH_VARARGS, bank_encode_doc},
     {"rans_decode", py_rans_decode, METH_VARARGS, rans_decode_doc},
-    {"raht_inverse", py_raht_inverse, METH_VARARGS, raht_inverse_doc},
+    {"raht_tree", py_raht_tree, METH_VARARGS, raht_tree_doc},
+    {"raht_apply", py_raht_apply, METH_VARARGS, raht_apply_doc},
     {"rans_tables", py_rans_tables, METH_VARARGS, rans_tables_doc},
     {"rans_decode_blocks", py_rans_decode_blocks, METH_VARARGS, rans_decode_blocks_doc},
-    {"attr_split", py_attr_split, METH_VARARGS, attr_split_doc},
+    {"planes_to_f32", py_planes_to_f32, METH_VARARGS, planes_to_f32_doc},
     {"quat_from_trig", py_quat_from_trig, METH_VARARGS, quat_from_trig_doc},
     {"voxel_positions", py_voxel_positions, METH_VARARGS, voxel_positions_doc},
     {"sh_assemble", py_sh_assemble, METH_VARARGS, sh_assemble_doc},
@@ -1818,6 +2001,7 @@ PyMODINIT_FUNC PyInit__native(void)
     FormatError = PyObject_GetAttrString(errors, "GszFormatError");
     Py_DECREF(errors);
     if (!FormatError) return NULL;
+    raht_pairs8_init();
     PyObject *m = PyModule_Create(&moddef);
     if (!m) return NULL;
     if (PyModule_AddIntConstant(m, "ABI", GSZ_NATIVE_ABI) < 0

@@ -69,21 +69,62 @@ def attributes_from_coefficients(dc: np.ndarray, ac: np.ndarray, direct: np.ndar
     if not native.enabled():
         tree = build_raht_tree(codes, depth)
         return attributes_from_channels(raht_inverse(dc, ac.T, tree), direct)
+    tree = native_tree(codes, depth)
+    half = native_half_angles(tree, dc, ac)
+    opacities, sh_dc, _ = native_opacity_dc(tree, dc, ac)
+    c, s = half_angle_trig(half)
+    rotations, _ = native_rotations(c, s)
+    scales, _ = native_scales(direct)
+    return Attributes(opacities=opacities, rotations=rotations, sh_dc=sh_dc, scales=scales)
+
+
+# ---- native stages (decode.decode_layer runs them on two threads) ---------------------------
+# RAHT channel layout: 0 opacity, 1..3 roll/pitch/yaw, 4..6 f_dc_0..2 (RAHT_CHANNELS).
+def native_tree(codes: np.ndarray, depth: int):
+    """The C RAHT tree of the voxels with Morton codes ``codes`` (opaque, for the stages below)."""
+    return native.module().raht_tree(np.ascontiguousarray(codes, dtype=np.uint64), int(depth))
+
+
+def native_half_angles(tree, dc: np.ndarray, ac: np.ndarray) -> np.ndarray:
+    """Inverse RAHT of the three angle channels -> their half angles float64 [3, M] (non-finite
+    angles replaced by 0, as euler_to_quaternion does), in a fresh array (cos/sin then run on
+    the same kind of array as on the NumPy path)."""
+    half = np.empty((3, tree_points(ac)), np.float64)
+    native.module().raht_apply(tree, dc, ac, 1, 4, half, True)
+    return half
+
+
+def native_opacity_dc(tree, dc: np.ndarray, ac: np.ndarray):
+    """Inverse RAHT of the opacity and DC colour channels -> (opacities float32 [M], sh_dc
+    float32 [M, 3], all finite?)."""
     nat = native.module()
-    m = int(codes.shape[0])
-    v = np.empty((m, len(RAHT_CHANNELS)), np.float64)
-    nat.raht_inverse(np.ascontiguousarray(codes, dtype=np.uint64), int(depth),
-                     np.ascontiguousarray(dc, dtype=np.float64),
-                     np.ascontiguousarray(ac, dtype=np.float64), v)
+    m = tree_points(ac)
+    v = np.empty((4, m), np.float64)
+    nat.raht_apply(tree, dc, ac, 0, 1, v[:1], False)
+    nat.raht_apply(tree, dc, ac, 4, 7, v[1:], False)
     opacities = np.empty(m, np.float32)
     sh_dc = np.empty((m, 3), np.float32)
-    half = np.empty((3, m), np.float64)
-    nat.attr_split(v, opacities, sh_dc, half)
-    c, s = half_angle_trig(half)
-    rotations = np.empty((m, 4), np.float32)
-    nat.quat_from_trig(c, s, rotations)
-    return Attributes(opacities=opacities, rotations=rotations, sh_dc=sh_dc,
-                      scales=np.ascontiguousarray(direct.T, dtype=np.float32))
+    ok = nat.planes_to_f32(v, 0, 1, opacities)
+    ok = nat.planes_to_f32(v, 1, 4, sh_dc) and ok
+    return opacities, sh_dc, ok
+
+
+def native_rotations(c: np.ndarray, s: np.ndarray):
+    """Quaternions float32 [M, 4] from cos/sin of the half angles, and whether all are finite."""
+    rotations = np.empty((c.shape[1], 4), np.float32)
+    ok = native.module().quat_from_trig(c, s, rotations)
+    return rotations, ok
+
+
+def native_scales(direct: np.ndarray):
+    """The log-scales float32 [M, 3] from the direct channels float64 [3, M], all finite?"""
+    scales = np.empty((direct.shape[1], 3), np.float32)
+    ok = native.module().planes_to_f32(np.ascontiguousarray(direct, dtype=np.float64), 0, 3, scales)
+    return scales, ok
+
+
+def tree_points(ac: np.ndarray) -> int:
+    return int(ac.shape[1]) + 1
 
 
 def read_attributes(data, tree: RahtTree) -> Attributes:

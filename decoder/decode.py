@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import native
-from .attributes import attributes_from_coefficients, parse_attributes
+from .attributes import (attributes_from_coefficients, native_half_angles, native_opacity_dc,
+                         native_rotations, native_scales, native_tree, parse_attributes)
 from .cloud import GaussianCloud
 from .container import DEFAULT_MAX_GAUSSIANS, LAYER_SHIFT, Chunk, Container, read_container
 from .errors import GszError, GszFormatError, GszTruncatedError
@@ -161,46 +162,140 @@ def _decode_codes(gh):
         return gh.decode_codes()
 
 
+FIELDS = ("positions", "scales", "rotations", "opacities", "sh_dc", "sh_rest")
+
+
+def _check_finite(ok: dict) -> None:
+    """Well-formed streams always decode to finite float32 values; hostile parameters (huge
+    min/max, DC) can overflow float32, which is rejected rather than returned.  ``ok``: field ->
+    all finite?; the first failing field in FIELDS order is reported."""
+    for name in FIELDS:
+        if not ok[name]:
+            raise GszFormatError(f"decoded {name} contain non-finite values (corrupt parameters)")
+
+
+def _read_attributes_and_sh(chunks: dict, header, state: LayerState, m: int):
+    dc, ac, direct = parse_attributes(chunks[CHUNK_ATTR], m)
+    if header.sh_degree > 0:
+        sh_rest, codebook = read_sh(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook)
+    else:
+        sh_rest, codebook = np.zeros((m, 0, 3), np.float32), state.codebook
+    return dc, ac, direct, sh_rest, codebook
+
+
 def decode_layer(chunks: dict, header, state: LayerState) -> GaussianCloud:
     """Decode one layer from its chunk payloads {type: bytes-like}; updates ``state``.
 
     The geometry and the attribute/SH entropy decoding are independent until the inverse RAHT
     (which needs the voxels' Morton codes): with the native accelerator they run on two threads
-    (the C loops release the GIL).  Errors are raised in the sequential order: a corrupt
-    geometry is reported before a corrupt attribute chunk."""
+    (the C loops release the GIL, see :func:`_decode_layer_overlapped`).  Errors are raised in
+    the sequential order: a corrupt geometry is reported before a corrupt attribute chunk."""
     room = header.num_gaussians - state.decoded_points
     if room <= 0:
         raise GszFormatError(f"layers hold more Gaussians than the header's {header.num_gaussians}")
     gh = read_geometry_header(chunks[CHUNK_GEOM], max_points=room)
     m = gh.num_points
-    pending = _worker().submit(_decode_codes, gh) \
-        if native.enabled() and m >= OVERLAP_MIN_POINTS and _cores() >= 2 else None
-    try:
-        codes = gh.decode_codes() if pending is None else None
-        dc, ac, direct = parse_attributes(chunks[CHUNK_ATTR], m)
-        if header.sh_degree > 0:
-            sh_rest, codebook = read_sh(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook)
-        else:
-            sh_rest, codebook = np.zeros((m, 0, 3), np.float32), state.codebook
-    except BaseException:
-        if pending is not None and pending.exception() is not None:
-            raise pending.exception() from None        # the geometry's error comes first
-        raise
-    if pending is not None:
-        codes = pending.result()
-    state.codebook = codebook
-    attrs = attributes_from_coefficients(dc, ac, direct, codes, gh.depth)
-    cloud = GaussianCloud(positions=gh.positions(codes), scales=attrs.scales,
-                          rotations=attrs.rotations, opacities=attrs.opacities,
-                          sh_dc=attrs.sh_dc, sh_rest=sh_rest, sh_degree=header.sh_degree)
-    # Well-formed streams always decode to finite float32 values; hostile parameters (huge
-    # min/max, DC) can overflow float32, which is rejected rather than returned.
-    finite = native.module().all_finite if native.enabled() else (lambda a: np.isfinite(a).all())
-    for name in ("positions", "scales", "rotations", "opacities", "sh_dc", "sh_rest"):
-        if not finite(getattr(cloud, name)):
-            raise GszFormatError(f"decoded {name} contain non-finite values (corrupt parameters)")
+    if native.enabled() and m >= OVERLAP_MIN_POINTS and _cores() >= 2:
+        cloud = _decode_layer_overlapped(chunks, header, state, gh)
+    else:
+        codes = gh.decode_codes()
+        dc, ac, direct, sh_rest, codebook = _read_attributes_and_sh(chunks, header, state, m)
+        state.codebook = codebook
+        attrs = attributes_from_coefficients(dc, ac, direct, codes, gh.depth)
+        cloud = GaussianCloud(positions=gh.positions(codes), scales=attrs.scales,
+                              rotations=attrs.rotations, opacities=attrs.opacities,
+                              sh_dc=attrs.sh_dc, sh_rest=sh_rest, sh_degree=header.sh_degree)
+        finite = native.module().all_finite if native.enabled() else (lambda a: np.isfinite(a).all())
+        _check_finite({name: finite(getattr(cloud, name)) for name in FIELDS})
     state.decoded_points += m
     return cloud
+
+
+class _GeometryJob:
+    """The worker's part of one layer before the join: the octree (then ``codes_ready`` is
+    set) and the RAHT tree of its voxels."""
+
+    def __init__(self, gh):
+        self.gh = gh
+        self.codes = None
+        self.codes_ready = threading.Event()
+
+    def __call__(self):
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):   # errstate is per thread
+                self.codes = self.gh.decode_codes()
+        finally:
+            self.codes_ready.set()
+        return native_tree(self.codes, self.gh.depth)
+
+
+class _ColourJob:
+    """The worker's part after the join: opacity and DC colour through the inverse RAHT, then
+    sin of the half angles once the calling thread has published them (``half``)."""
+
+    def __init__(self, tree, dc, ac):
+        self.tree, self.dc, self.ac = tree, dc, ac
+        self.half = None
+        self.half_ready = threading.Event()
+
+    def __call__(self):
+        opacities, sh_dc, ok = native_opacity_dc(self.tree, self.dc, self.ac)
+        self.half_ready.wait()
+        if self.half is None:          # the calling thread failed: nothing left to do here
+            return opacities, sh_dc, ok, None
+        with np.errstate(over="ignore", invalid="ignore"):
+            s = np.sin(self.half)      # the whole array, as half_angle_trig (NumPy's sin)
+        return opacities, sh_dc, ok, s
+
+
+def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> GaussianCloud:
+    """decode_layer on two threads (native path), the same arrays bit for bit:
+
+    worker                              calling thread
+    octree -> codes                     attributes, SH, scales (+ finiteness)
+    RAHT tree                           positions (+ finiteness), once the codes are there
+    RAHT opacity + DC, float32          RAHT angles -> half angles, cos (NumPy's)
+    sin (NumPy's) of the half angles    quaternions
+
+    Errors keep the sequential order: geometry, attributes, SH, then the first non-finite
+    field in FIELDS order."""
+    m = gh.num_points
+    pool = _worker()
+    job = _GeometryJob(gh)
+    pending = pool.submit(job)
+    try:
+        dc, ac, direct, sh_rest, codebook = _read_attributes_and_sh(chunks, header, state, m)
+    except BaseException:
+        if pending.exception() is not None:
+            raise pending.exception() from None        # the geometry's error comes first
+        raise
+    nat = native.module()
+    scales, ok_scales = native_scales(direct)
+    ok_sh = nat.all_finite(sh_rest)
+    job.codes_ready.wait()
+    if job.codes is None:
+        pending.result()                               # raises the geometry's error
+    positions, ok_pos = gh.native_positions(job.codes)
+    tree = pending.result()
+    colour = _ColourJob(tree, dc, ac)
+    pending = pool.submit(colour)
+    try:
+        half = native_half_angles(tree, dc, ac)
+        colour.half = half
+    finally:
+        colour.half_ready.set()                        # never leave the worker waiting
+    c = np.cos(half)
+    opacities, sh_dc, ok_colour, s = pending.result()
+    rotations, ok_rot = native_rotations(c, s)
+    state.codebook = codebook
+    ok = dict(positions=ok_pos, scales=ok_scales, rotations=ok_rot, opacities=ok_colour,
+              sh_dc=ok_colour, sh_rest=ok_sh)
+    if not ok_colour:      # which of the two (the first in FIELDS order is reported)
+        ok["opacities"], ok["sh_dc"] = nat.all_finite(opacities), nat.all_finite(sh_dc)
+    _check_finite(ok)
+    return GaussianCloud(positions=positions, scales=scales, rotations=rotations,
+                         opacities=opacities, sh_dc=sh_dc, sh_rest=sh_rest,
+                         sh_degree=header.sh_degree)
 
 
 def concat_clouds(parts: list) -> GaussianCloud:

@@ -53,13 +53,17 @@ class GeometryHeader:
     def positions(self, codes: np.ndarray) -> np.ndarray:
         """Decoded float32 centres [M, 3] of the voxels with Morton codes ``codes``."""
         if native.enabled():
-            out = np.empty((codes.shape[0], 3), np.float32)
-            native.module().voxel_positions(np.ascontiguousarray(codes, dtype=np.uint64),
-                                            self.depth, *(float(v) for v in self.origin),
-                                            float(self.side), out)
-            return out
+            return self.native_positions(codes)[0]
         return voxel_centres(morton_decode(codes), self.origin, self.side,
                              self.depth).astype(np.float32)
+
+    def native_positions(self, codes: np.ndarray) -> tuple[np.ndarray, bool]:
+        """:meth:`positions` in C, and whether every coordinate is finite (native only)."""
+        out = np.empty((codes.shape[0], 3), np.float32)
+        ok = native.module().voxel_positions(np.ascontiguousarray(codes, dtype=np.uint64),
+                                             self.depth, *(float(v) for v in self.origin),
+                                             float(self.side), out)
+        return out, ok
 
 
 def voxel_centres(ijk: np.ndarray, origin, side: float, depth: int) -> np.ndarray:
