@@ -370,10 +370,12 @@ def train_sh_codebook(stage: Stage, size: int, *, seed: int = 0, iters=None,
     return train_codebook(stage.sh, w, min(int(size), stage.num_points), seed=seed, progress=bar, **kw)
 
 
-def codebook_blocks(entries: int, blocks: int) -> int:
-    """Blocks per component of the SH codebook in the size search: one per 128 codewords (at
-    most ``blocks``).  Codewords of one component span a similar range, while every block costs
-    9 bytes of metadata per component (45 x 80 x 9 = 32 kB for a degree-3 codebook at 80)."""
+def sh_set_blocks(entries: int, blocks: int) -> int:
+    """Blocks per component of an SH vector set -- the codebook, or one layer's kept exact
+    vectors: one per 128 vectors (at most ``blocks``).  The vectors' components span similar
+    ranges whatever their order, while every block costs 9 bytes of metadata per component
+    (45 x 80 x 9 = 32 kB for a degree-3 set at 80 blocks; tiny_graphdeco's 71 kept vectors in
+    71 one-vector blocks cost 28.9 kB, 72 bits per coefficient, at 12 bits)."""
     return max(1, min(int(blocks), int(entries) // 128))
 
 
@@ -382,7 +384,8 @@ def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks
     """SHVQ payloads (one per layer), the SH the decoder will reconstruct ([M, K, 3] float32,
     output order), and stats.
 
-    ``cb_blocks``: blocks of the codebook ChannelSet (default ``blocks``).
+    ``cb_blocks``: blocks of the codebook ChannelSet (default :func:`sh_set_blocks`); the kept
+    vectors of each layer get :func:`sh_set_blocks` of their count.
     ``index``: [M] nearest codeword of every voxel's vector when the caller has it (the size
     search assigns once per stage and codebook), else computed here.
     The ``keep`` most important Gaussians keep their exact vectors (quantised at sh_bits like
@@ -404,13 +407,14 @@ def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks
         idx_all[rest] = idx
     else:
         cb = np.zeros((1, d), np.float32)
-    cb_bytes, cb_rec = write_channel_set(cb.T, sh_bits, blocks if cb_blocks is None else cb_blocks)
+    cb_bytes, cb_rec = write_channel_set(cb.T, sh_bits,
+                                         sh_set_blocks(cb.shape[0], blocks) if cb_blocks is None else cb_blocks)
     out = np.empty((m, d), np.float32)
     out[rest] = cb_rec.T[idx_all[rest]]
     stats = {"kept": keep, "codebook_size": int(cb.shape[0]), "codebook_bytes": len(cb_bytes),
              "kept_bytes": 0, "index_bytes": 0}
     kept_counts = [int(kept[l.index].sum()) for l in stage.layers]
-    kept_blocks = scaled_blocks(blocks, kept_counts)
+    kept_blocks = [sh_set_blocks(p, blocks) for p in kept_counts]
     cb_layer = next((li for li, l in enumerate(stage.layers) if kept_counts[li] < l.num_points), 0)
     payloads = []
     for li, layer in enumerate(stage.layers):

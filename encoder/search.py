@@ -32,13 +32,20 @@ from gsz.decoder.groups import blocks_for
 
 from .pipeline import (DEFAULT_FIRST_LAYER, DEFAULT_LAYERS, EncodeOptions, EncodeOptionsError,
                        EncodeResult, Stage, assemble, attribute_chunks, check_layer_options,
-                       codebook_blocks,
+                       sh_set_blocks,
                        compute_train_importance, default_codebook_size, layer_report, prepare_stage,
                        sh_chunk, stage_source, train_sh_codebook, voxelize_stage)
 from .progress import Progress
 
 SH_BITS = 8          # codebook and kept SH vectors (the paper's setting)
+#: The depth walk tries a deeper octree first when the best allocation's mean bit-width is at
+#: least this (attributes near their useful precision: position error is what is left), and a
+#: shallower one first otherwise.
+DEPTH_DEEPER_FIRST_BITS = 8.0
 KEEP_FRACTIONS = (0.0, 0.0025, 0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.32)
+#: Keep fractions tried only when the largest of KEEP_FRACTIONS wins (budgets near or above the
+#: scene's quality ceiling): their statistics cover every vector and cost ~3x more to compute.
+KEEP_FRACTIONS_HIGH = (0.64, 1.0)
 
 
 class BudgetError(GszError, ValueError):
@@ -58,8 +65,10 @@ class SearchOptions:
     reserves        tau grid, descending
     max_candidates  taus spread over the feasible range, encoded and compared by train PSNR
     refine_steps    rounds of also trying the grid neighbours of the best tau so far
-    max_extra_depth octree levels beyond the position-error default tried (one at a time, at
-                    the best tau) while the best file stays below the budget at full quality
+    depth_steps     octree levels away from the position-error default the search may go
+                    (either way); after the tau search at the default depth it walks the depth
+                    from the best candidate while train PSNR improves, then refines tau there
+    max_extra_depth cap on levels deeper than the default (the budget-saturated case)
     weight_channels weight Omega per channel by measured rendering sensitivity (channel_weights)
     tolerance       accepted shortfall below the target (fraction)
     max_rounds      calibration rounds per tau
@@ -79,6 +88,7 @@ class SearchOptions:
 
     reserves: tuple = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)
     max_candidates: int = 3
+    depth_steps: int = 3
     max_extra_depth: int = 3
     refine_steps: int = 3
     weight_channels: bool = True
@@ -262,19 +272,30 @@ class _ShPlan:
 class _ShStageStats:
     """What the SH estimates need from a stage whatever the codebook: importance order, the
     error and rate of the kept (exact, SH_BITS) vectors for every keep-count up to the largest
-    on the KEEP_FRACTIONS grid.  Computed once per stage and shared by its codebooks."""
+    on the KEEP_FRACTIONS grid (:meth:`extend` covers every vector, for KEEP_FRACTIONS_HIGH).
+    Computed once per stage and shared by its codebooks."""
 
     def __init__(self, stage: Stage, blocks: int):
+        x = stage.sh
+        self.stage, self.blocks = stage, blocks
+        self.order = np.lexsort((np.arange(x.shape[0]), -stage.importance))   # importance rank
+        self._compute(max(1, int(round(KEEP_FRACTIONS[-1] * x.shape[0]))))
+
+    def extend(self) -> None:
+        """Statistics for every keep-count up to all vectors (idempotent)."""
+        m = self.stage.sh.shape[0]
+        if len(self.cum_keep) <= m:
+            self._compute(max(1, m))
+
+    def _compute(self, p_max: int) -> None:
         from gsz.decoder.quant import dequantize_groups, split_lengths
         from gsz.kernels.quantize import quantize_groups
 
         from .rate import rate_matrix
-        x = stage.sh
-        m, d = x.shape
-        self.order = np.lexsort((np.arange(m), -stage.importance))        # importance rank
-        p_max = max(1, int(round(KEEP_FRACTIONS[-1] * m)))
+        x = self.stage.sh
+        d, blocks = x.shape[1], self.blocks
         top = x[self.order[:p_max]]
-        bk = blocks_for(p_max, blocks)
+        bk = blocks_for(p_max, sh_set_blocks(p_max, blocks))
         sym, mn, mx = quantize_groups(top.T, bk, np.full((d, bk), SH_BITS))
         top_q = dequantize_groups(sym, mn, mx, np.full((d, bk), SH_BITS), split_lengths(p_max, bk)).T
         err_keep = ((top.astype(np.float64) - top_q) ** 2).sum(1)
@@ -359,15 +380,14 @@ class _ShModel:
         m, d = x.shape
         cb, idx = compact(codebook, index)
         self.codebook = cb
-        b = blocks_for(cb.shape[0], codebook_blocks(cb.shape[0], blocks))
+        b = blocks_for(cb.shape[0], sh_set_blocks(cb.shape[0], blocks))
         self.cb_blocks = b
         sym, mn, mx = quantize_groups(cb.T, b, np.full((d, b), SH_BITS))
         cb_q = dequantize_groups(sym, mn, mx, np.full((d, b), SH_BITS), split_lengths(cb.shape[0], b)).T
         err_vq = ((x.astype(np.float64) - cb_q[idx]) ** 2).sum(1)
         self.order = base.order
         self.cum_vq = np.concatenate([[0.0], np.cumsum(err_vq[base.order])])
-        self.cum_keep = base.cum_keep
-        self.bits_per_kept = base.bits_per_kept
+        self.base = base
         counts = np.bincount(idx, minlength=cb.shape[0]).astype(np.float64)
         p = counts[counts > 0] / m
         self.index_bits = float(-(p * np.log2(p)).sum())
@@ -375,17 +395,23 @@ class _ShModel:
                                + 9 * d * b + 32)
         self.m, self.d = m, d
 
-    def keeps(self):
-        return sorted({min(self.m, int(round(f * self.m))) for f in KEEP_FRACTIONS})
+    def keeps(self, min_keep: int = 0, fractions=KEEP_FRACTIONS):
+        """Keep-counts to try: the ``fractions`` grid at or above ``min_keep``, and min_keep."""
+        lo = min(self.m, int(min_keep))
+        return sorted({lo} | {k for k in (min(self.m, int(round(f * self.m))) for f in fractions)
+                              if k >= lo})
 
     def estimate(self, keep: int) -> tuple[float, float]:
         m = self.m
         q = keep / m
         h2 = 0.0 if q in (0.0, 1.0) else -(q * math.log2(q) + (1 - q) * math.log2(1 - q))
-        nbytes = (self.codebook_bytes + (keep * self.bits_per_kept + (m - keep) * self.index_bits
-                  + (m * h2 if keep else 0)) / 8 + (9 * self.d * blocks_for(keep, self.blocks) if keep else 0)
+        base = self.base
+        if keep >= len(base.cum_keep):
+            base.extend()
+        nbytes = (self.codebook_bytes + (keep * base.bits_per_kept + (m - keep) * self.index_bits
+                  + (m * h2 if keep else 0)) / 8 + (9 * self.d * sh_set_blocks(keep, self.blocks) if keep else 0)
                   + 64 * len(self.stage.layers))
-        loss = (self.cum_vq[-1] - self.cum_vq[keep]) + self.cum_keep[min(keep, len(self.cum_keep) - 1)]
+        loss = (self.cum_vq[-1] - self.cum_vq[keep]) + base.cum_keep[min(keep, len(base.cum_keep) - 1)]
         return nbytes, loss
 
     def encode(self, keep: int) -> _ShPlan:
@@ -417,9 +443,10 @@ def _solve(loss, rate, budget_bits, solver):
 
 
 def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
-                progress: Progress, log: list, weights: dict | None = None):
+                progress: Progress, log: list, weights: dict | None = None, min_keep: int = 0):
     """Allocate + calibrate one tau.  Returns the best (data, cloud, info) at or below target, or
-    None when the budget is unreachable at this tau."""
+    None when the budget is unreachable at this tau.  ``min_keep``: keep at least this many
+    exact SH vectors (the most important ones)."""
     from .bit_allocation import InfeasibleBudgetError
 
     with progress.stage("tables", f"tau {stage.reserve}: loss + rate matrices"):
@@ -433,8 +460,10 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list
     if sh_models:
         with progress.stage("sh-plan", "codebook size and keep-count vs bit allocation"):
             best = None
-            for model in sh_models:
-                for keep in model.keeps():
+
+            def consider(model, keeps):
+                nonlocal best
+                for keep in keeps:
                     sh_bytes, sh_loss = model.estimate(keep)
                     budget_bits = 8.0 * (target - base_fixed - sh_bytes)
                     try:
@@ -445,8 +474,14 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list
                     total = float(loss[np.arange(len(pick)), pick].sum()) + w_sh * sh_loss
                     if best is None or total < best[0]:
                         best = (total, model, keep)
+            for model in sh_models:
+                consider(model, model.keeps(min_keep))
+            # the largest regular keep-count won: the budget may afford still more exact vectors
+            if best is not None and best[2] == max(best[1].keeps(min_keep)) and best[2] < best[1].m:
+                model = best[1]
+                consider(model, [k for k in model.keeps(min_keep, KEEP_FRACTIONS_HIGH) if k > best[2]])
             # estimates say nothing fits: try the cheapest SH anyway, calibration decides
-            sh_plan = (sh_models[-1].encode(0) if best is None else best[1].encode(best[2]))
+            sh_plan = (sh_models[-1].encode(min_keep) if best is None else best[1].encode(best[2]))
             progress.log(f"tau {stage.reserve}: keep {sh_plan.keep} exact SH vectors "
                          f"(SH chunks {sum(map(len, sh_plan.chunk)):,} B)")
     fixed = base_fixed - _group_meta_bytes(shapes) + (sum(map(len, sh_plan.chunk)) if sh_plan else 0)
@@ -625,15 +660,35 @@ def _search_threads():
         torch.set_num_threads(old)
 
 
-def _train_psnr(refs, cloud, cameras) -> tuple[float, list]:
-    """(mean PSNR over the views, per-view PSNRs) with gsz-eval's protocol (8-bit renders,
-    per-view PSNR, plain mean) -- all the search compares candidates by; SSIM would cost more
-    than the renders."""
+#: A candidate's train views are rendered hardest first (lowest PSNR of the best candidate so
+#: far); once at least EVAL_MIN_VIEWS of them trail the best's renders of the same views by more
+#: than EVAL_DROP_MARGIN_DB on average, the candidate is dropped without rendering the rest (the
+#: remaining, easier views would have to make up that deficit).  This mostly saves the renders of
+#: the depth walk's losing steps.
+EVAL_MIN_VIEWS = 3
+EVAL_DROP_MARGIN_DB = 1.0
+
+
+def _train_psnr(refs, cloud, cameras, best_views=None) -> tuple[float, list, int]:
+    """(mean PSNR over the views rendered, per-view PSNRs (None where not rendered), 0 when every
+    view was rendered else how many were) with gsz-eval's protocol (8-bit renders, per-view PSNR,
+    plain mean) -- all the search compares candidates by; SSIM would cost more than the renders.
+    With ``best_views`` (the best candidate's per-view PSNRs) the candidate may be dropped early,
+    see EVAL_DROP_MARGIN_DB."""
     from .evaluate import render_views
     from .metrics import psnr
-    imgs = render_views(cloud, cameras)
-    views = [psnr(r, i) for r, i in zip(refs, imgs)]
-    return float(np.mean(views)), views
+    if best_views is None:
+        imgs = render_views(cloud, cameras)
+        views = [psnr(r, i) for r, i in zip(refs, imgs)]
+        return float(np.mean(views)), views, 0
+    views = [None] * len(cameras)
+    diffs = []
+    for i in np.argsort(np.asarray(best_views), kind="stable"):
+        views[i] = psnr(refs[i], render_views(cloud, [cameras[i]])[0])
+        diffs.append(views[i] - best_views[i])
+        if EVAL_MIN_VIEWS <= len(diffs) < len(cameras) and float(np.mean(diffs)) < -EVAL_DROP_MARGIN_DB:
+            return float(np.mean([v for v in views if v is not None])), views, len(diffs)
+    return float(np.mean(views)), views, 0
 
 
 #: Screening stops rendering a tau's exact-attribute bound, and lets the tau through, once the
@@ -754,39 +809,42 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
     candidates, log = [], []
     evaluated = set()
     screened = []
+    dropped = []
 
-    def cannot_win(tau) -> bool:
-        """True when even exact attributes at tau render no better than the best candidate so
-        far (train views): then no allocation at tau can win and its encode is skipped.
-        Checked only below the best tau (fewer Gaussians: the bound falls with tau, and above
-        the best it would almost never prune); monotone in tau, so a tau below one that failed
-        fails without a render."""
+    def cannot_win(tau, d) -> bool:
+        """True when even exact attributes at (tau, depth d) render no better than the best
+        candidate so far (train views): then no allocation there can win and its encode is
+        skipped.  Checked only below the best tau or shallower than the best depth (fewer
+        Gaussians / coarser positions: the bound falls, and above the best it would almost
+        never prune); monotone in tau at one depth, so a tau below one that failed at the same
+        depth fails without a render."""
         if not sopts.screen or not candidates:
             return False
         best = max(candidates, key=lambda c: (c[0], c[1]))
-        if tau >= best[1]:
+        if tau >= best[1] and d >= best[4]["depth"]:
             return False
         inferred, partial = False, 0
         for s in screened:
-            if s["skipped"] and s["reserve"] >= tau:
+            if s["skipped"] and s["reserve"] >= tau and s["depth"] == d:
                 bound, inferred = s["bound_psnr"], True     # an upper bound of tau's own
                 break
         else:
-            with progress.stage("screen", f"tau {tau}: exact-attribute bound"):
-                bound, partial = _screen_psnr(refs, vox_for(tau)[1].cloud, eval_cams, best[4]["view_psnr"])
+            with progress.stage("screen", f"tau {tau}, depth {d}: exact-attribute bound"):
+                bound, partial = _screen_psnr(refs, vox_for(tau, d)[1].cloud, eval_cams,
+                                              best[4]["view_psnr"])
         skip = bound <= best[0] and not partial         # a partial mean only ever lets through
-        screened.append({"reserve": tau, "bound_psnr": bound, "inferred": inferred,
+        screened.append({"reserve": tau, "depth": d, "bound_psnr": bound, "inferred": inferred,
                          "views": 0 if inferred else (partial or len(eval_cams)),
                          "best_psnr": best[0], "skipped": skip})
         if skip:
             what = "a larger tau's exact attributes reach" if inferred else "exact attributes reach"
-            progress.log(f"tau {tau}: {what} only {bound:.2f} dB <= {best[0]:.2f} dB "
-                         f"(tau {best[1]}): skipped")
+            progress.log(f"tau {tau}, depth {d}: {what} only {bound:.2f} dB <= {best[0]:.2f} dB "
+                         f"(tau {best[1]}, depth {best[4]['depth']}): skipped")
         return skip
 
-    def try_tau(tau, d=depth, fl=sopts.first_layer):
-        evaluated.add(tau)
-        if d == depth and fl == sopts.first_layer and cannot_win(tau):
+    def try_tau(tau, d=depth, fl=sopts.first_layer, min_keep=0):
+        evaluated.add((tau, d))
+        if fl == sopts.first_layer and not min_keep and cannot_win(tau, d):
             return
         stage = stage_for(tau, d, fl)
         sh_models = []
@@ -796,56 +854,99 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
         for cb in codebooks:
             with progress.stage("sh-model", f"tau {tau}, codebook {len(cb)}"):
                 sh_models.append(_ShModel(stage, cb, sopts.blocks, base, assigner(stage, cb)))
-        res = _encode_tau(stage, target, sopts, sh_models, progress, log, weights)
+        res = _encode_tau(stage, target, sopts, sh_models, progress, log, weights, min_keep=min_keep)
         if res is None:
             progress.log(f"tau {tau}: budget not reachable")
             return
         data, out, info = res
-        with progress.stage("eval", f"tau {tau}"):
-            p, info["view_psnr"] = _train_psnr(refs, out, eval_cams)
-        progress.log(f"tau {tau}: {len(data):,} bytes, train PSNR {p:.2f} dB")
+        # re-split / kept-layer-0 variants may be chosen despite a lower PSNR: render them fully
+        rival = (best_candidate()[4]["view_psnr"]
+                 if candidates and fl == sopts.first_layer and not min_keep else None)
+        with progress.stage("eval", f"tau {tau}, depth {d}"):
+            p, info["view_psnr"], partial = _train_psnr(refs, out, eval_cams, rival)
         info["depth"], info["first_layer"] = d, fl
+        if partial:
+            progress.log(f"tau {tau}, depth {d}: {len(data):,} bytes, {partial} hardest train views "
+                         f"{EVAL_DROP_MARGIN_DB:g}+ dB below the best candidate's: dropped")
+            dropped.append({"reserve": tau, "depth": d, "bytes": len(data), "views": partial,
+                            "partial_psnr": p})
+            return
+        progress.log(f"tau {tau}, depth {d}: {len(data):,} bytes, train PSNR {p:.2f} dB")
         candidates.append((p, tau, data, out, info))
+
+    def best_candidate():
+        return max(candidates, key=lambda c: (c[0], c[1]))
+
+    def refine_tau():
+        """The grid neighbours of the best candidate's tau (at its depth), while they improve."""
+        for _ in range(sopts.refine_steps):
+            if not candidates:
+                return
+            best = best_candidate()
+            i, d = taus.index(best[1]), best[4]["depth"]
+            nbrs = [taus[j] for j in (i - 1, i + 1)
+                    if 0 <= j < len(taus) and (taus[j], d) not in evaluated]
+            if not nbrs:
+                return
+            for tau in nbrs:
+                try_tau(tau, d)
 
     for tau in feasible:
         try_tau(tau)
-    # refine: the grid neighbours of the best candidate so far, while they improve on it
-    for _ in range(sopts.refine_steps):
-        if not candidates:
-            break
-        best_tau = max(candidates, key=lambda c: (c[0], c[1]))[1]
-        i = taus.index(best_tau)
-        nbrs = [taus[j] for j in (i - 1, i + 1) if 0 <= j < len(taus) and taus[j] not in evaluated]
-        if not nbrs:
-            break
-        for tau in nbrs:
-            try_tau(tau)
-    # deeper octree while the best file stays below the budget with every group at its best
-    # width: the position error of the voxel grid is then what limits fidelity, and each level
-    # halves it for about 3 bits per voxel
-    for _ in range(sopts.max_extra_depth):
-        if not candidates:
-            break
-        best = max(candidates, key=lambda c: (c[0], c[1]))
-        d_next = best[4]["depth"] + 1
-        if len(best[2]) >= target * (1.0 - sopts.tolerance) or d_next > 21:
-            break
-        progress.log(f"best file {len(best[2]):,} B is below the budget at depth {d_next - 1}: "
-                     f"trying depth {d_next}")
-        n_before = len(candidates)
-        try_tau(best[1], d_next)
-        if len(candidates) == n_before or candidates[-1][0] <= best[0]:
-            break
+    refine_tau()
+    # octree depth: the position-error default is right only in the middle of the RD range.
+    # Each level costs about 3 bits per voxel and halves the position error: at high budgets
+    # (attributes near their best widths) a deeper grid is worth far more than those bits
+    # (houseplant at 1.5 MB: depth 11 -> 13 is 53.7 -> 60.8 dB test PSNR), at low budgets the
+    # bits are better spent on attributes (houseplant 27x: depth 10 beats 11 by ~1 dB).  Walk
+    # the depth from the best candidate, first in the direction its allocation suggests, while
+    # the train PSNR improves; then refine tau at the new depth.
+    if candidates and sopts.depth_steps > 0:
+        best = best_candidate()
+        d0 = best[4]["depth"]
+        lo_d = max(1, depth - sopts.depth_steps)
+        hi_d = min(21, depth + min(sopts.depth_steps, sopts.max_extra_depth))
+        bits_all = np.concatenate([best[4]["raht_bits"].ravel(), best[4]["scale_bits"].ravel()])
+        saturated = len(best[2]) < target * (1.0 - sopts.tolerance)
+        deeper_first = saturated or float(np.mean(bits_all)) >= DEPTH_DEEPER_FIRST_BITS
+        for step in ((1, -1) if deeper_first else (-1, 1)):
+            moved = False
+            d = d0
+            while lo_d <= d + step <= hi_d and (best[1], d + step) not in evaluated:
+                before = best_candidate()
+                progress.log(f"depth {d + step} at tau {before[1]} (best so far: depth {d}, "
+                             f"{before[0]:.2f} dB train PSNR)")
+                try_tau(before[1], d + step)
+                if best_candidate() is before:
+                    break
+                d += step
+                moved = True
+            if moved:
+                break
+        if best_candidate()[4]["depth"] != d0:
+            refine_tau()
     # layered files: layer 0 should arrive after about `layer0_share` of the bytes.  Kept exact
     # SH vectors make the most important Gaussians several times dearer than the rest, so on SH
     # scenes a Gaussian share of `first_layer` can cost far more bytes; re-split the chosen
     # configuration with a proportionally smaller layer 0 (at most twice).
+    # A layer 0 that holds codeword indices also carries the whole SH codebook (GSZ.md §4.1),
+    # which on small scenes outweighs everything else in it (tiny_graphdeco at 12x: a 47 kB
+    # codebook for 87 Gaussians); keeping layer 0's vectors exact instead moves the codebook to
+    # layer 1, so that variant is tried too.  Among the candidates, those whose layer 0 arrives
+    # in time win over those that do not.
     rejected = set()
+
+    def share_of(c) -> float:
+        return layer_report(c[2])[0]["decodable_fraction"]
+
+    def layer0_late(c) -> bool:
+        return share_of(c) > 1.5 * sopts.layer0_share
     for _ in range(2 if sopts.layers > 1 else 0):
-        if not candidates:
+        pool = [c for c in candidates if id(c) not in rejected]
+        if not pool:
             break
-        best = max((c for c in candidates if id(c) not in rejected), key=lambda c: (c[0], c[1]))
-        share = layer_report(best[2])[0]["decodable_fraction"]
+        best = max(pool, key=lambda c: (c[0], c[1]))
+        share = share_of(best)
         if share <= 1.5 * sopts.layer0_share:
             break
         fl = best[4]["first_layer"] * sopts.layer0_share / share
@@ -853,12 +954,20 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
                      f"with {100 * fl:.2f} % of the Gaussians in layer 0")
         n_before = len(candidates)
         try_tau(best[1], best[4]["depth"], fl)
+        n0 = stage_for(best[1], best[4]["depth"], best[4]["first_layer"]).layers[0].num_points
+        plan = best[4]["sh_plan"]
+        if plan is not None and plan.keep < n0:
+            progress.log(f"... and keeping layer 0's {n0:,} SH vectors exact (the codebook then "
+                         f"travels with layer 1)")
+            try_tau(best[1], best[4]["depth"], best[4]["first_layer"], min_keep=n0)
         if len(candidates) > n_before:
             rejected.add(id(best))
     if not candidates:
         smallest = _smallest_file(stage_for(taus[-1]), sopts, codebooks[-1] if codebooks else None)
         raise BudgetError(target, smallest)
     chosen = [c for c in candidates if id(c) not in rejected]
+    if sopts.layers > 1 and any(not layer0_late(c) for c in chosen):
+        chosen = [c for c in chosen if not layer0_late(c)]
     chosen.sort(key=lambda c: (-c[0], -c[1]))
     psnr, tau, data, out, info = chosen[0]
     stage = stage_for(tau, info["depth"], info["first_layer"])
@@ -883,6 +992,7 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
                         "layer0_too_late": id(c) in rejected}
                        for c in sorted(candidates, key=lambda c: -c[1])],
         "screened": screened,
+        "dropped": dropped,
         "train_psnr": psnr, "channel_weights": weights,
         "components": {"geometry": stage.geometry_bytes, "attributes": info["attr_bytes"],
                        **info["attr_stats"], "sh": sum(map(len, sh_plan.chunk)) if sh_plan else 0,
@@ -908,7 +1018,7 @@ def _smallest_file(stage: Stage, sopts: SearchOptions, codebook) -> int:
     sh = sh_rest = None
     if codebook is not None:
         sh, sh_rest, _ = sh_chunk(stage, codebook, 0, SH_BITS, sopts.blocks,
-                                  cb_blocks=codebook_blocks(len(codebook), sopts.blocks))
+                                  cb_blocks=sh_set_blocks(len(codebook), sopts.blocks))
     attr, decoded, _ = attribute_chunks(stage, 1, sopts.blocks)
     data, _, _ = assemble(stage, attr, decoded, sh, sh_rest, _meta(stage, sopts, 0, {"sh_keep": 0}))
     return len(data)

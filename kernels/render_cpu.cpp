@@ -401,6 +401,10 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
 }
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-  m.def("preprocess", &preprocess, "gsz CPU 3DGS per-Gaussian preprocessing");
-  m.def("rasterize", &rasterize, "gsz CPU 3DGS tile rasteriser (forward + importance)");
+  // Both run without the GIL (they touch no Python object; libtorch allocates without it), so
+  // a Python thread -- the size search trains SH codebooks on one -- keeps running meanwhile.
+  m.def("preprocess", &preprocess, "gsz CPU 3DGS per-Gaussian preprocessing",
+        py::call_guard<py::gil_scoped_release>());
+  m.def("rasterize", &rasterize, "gsz CPU 3DGS tile rasteriser (forward + importance)",
+        py::call_guard<py::gil_scoped_release>());
 }

@@ -30,7 +30,7 @@ def _search(name, n, target, imp_cache):
 
 
 @pytest.mark.parametrize("name,n,target", [("sh0", 6000, 40_000), ("sh0", 6000, 90_000),
-                                           ("sh3", 4000, 60_000), ("sh3", 4000, 150_000)])
+                                           ("sh3", 4000, 60_000), ("sh3", 4000, 120_000)])
 def test_budget_is_hit_from_below(name, n, target, imp_cache):
     c, res = _search(name, n, target, imp_cache)
     assert len(res.data) <= target
