@@ -132,6 +132,17 @@ static const uint8_t POP8[256] = {
 
 static inline int popcount8(unsigned v) { return POP8[v & 0xFFu]; }
 
+/* CHILD_RANK[v * 8 + j]: the rank of child j among the children present in occupancy v (the
+ * bits below j), or 2^30 (more than any node count) when child j is absent */
+static int32_t CHILD_RANK[256 * 8];
+
+static void child_rank_init(void)
+{
+    for (unsigned v = 0; v < 256; v++)
+        for (unsigned j = 0; j < 8; j++)
+            CHILD_RANK[v * 8 + j] = ((v >> j) & 1u) ? popcount8(v & ((1u << j) - 1u)) : (1 << 30);
+}
+
 /* ================================================================== octree (OCTREE.md §4) */
 #define NUM_T 27
 #define SELF_T 13
@@ -148,6 +159,8 @@ typedef struct {
     unsigned kmask_f[8][NUM_T], kmask_o[8][NUM_T];   /* known neighbour bits (< k), face / other */
     int ucnt_f[8][NUM_T], ucnt_o[8][NUM_T];          /* unknown neighbours (>= k) in that node */
     int child_par[8][NUM_T], child_idx[8][NUM_T];    /* neighbour table derivation */
+    uint8_t cp8[8][NUM_T], ci8[8][NUM_T];            /* the same as bytes */
+    uint8_t *p16m;                                   /* [65536] P16_TO_MODEL as bytes */
     /* ctx_lut[(k * 8 + q) * 256 + w]: contribution of the q-th node of child k's octant, whose
      * context byte is w (bit 7 = node present, bits 0..6 = child bits decoded so far; child 7
      * is never a known neighbour bit, k <= 7),
@@ -285,7 +298,8 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
     uint32_t *cc = NULL;
     FineCtx *ff = NULL;
     uint64_t *codes = NULL, *ncodes = NULL;
-    int32_t *nbr = NULL, *nnbr = NULL, *coded = NULL, *start = NULL;
+    int32_t *nbr = NULL, *nnbr = NULL, *coded = NULL;
+    int64_t *start = NULL;
     uint8_t *occ = NULL;     /* per node: during the bit-planes 0x80 (present) | child bits 0..6
                               * decoded so far (occ[n] = 0: absent); after them the occupancy */
     uint8_t *hi7 = NULL;     /* child 7 of every node (bit-plane 7), merged into occ after it */
@@ -393,7 +407,7 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
                         const uint64_t mw = (uint64_t)tb->mix_weight;
                         const uint64_t pf = ((f1 << 16) + mw * pc) / (f0 + f1 + mw);
                         if (pf > 65535) { fail(e, "octree: probability out of range"); goto done; }
-                        fc->model = (uint8_t)tb->p16_to_model[pf];   /* < num_models (checked) */
+                        fc->model = tb->p16m[pf];    /* < num_models (checked) */
                         fc->stamp = stamp;
                         if (fc->listed != tag) {
                             fc->listed = tag;
@@ -479,11 +493,13 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
         }
         { IdList tmp = list; list = carry; carry = tmp; }
 
-        /* the next level: children in Morton order (node-major, child index ascending) */
+        /* the next level: children in Morton order (node-major, child index ascending);
+         * key[i] = (index of node i's first child) << 8 | occupancy of node i (key[n] = 0:
+         * the absent node has no children), one load per neighbour below */
         int64_t total = 0;
         if (ensure((void **)&start, &cap_start, ((size_t)n + 1) * sizeof *start, e) < 0) goto done;
         for (int64_t i = 0; i < n; i++) {
-            start[i] = (int32_t)total;
+            start[i] = (total << 8) | occ[i];
             total += popcount8(occ[i]);          /* popcount8 looks at bits 0..7 only */
         }
         start[n] = 0;
@@ -503,25 +519,27 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
         for (int64_t r = 0; r < n; r++) {
             const unsigned o = occ[r];
             const int32_t *nb = nbr + r * NUM_T;
-            unsigned pv[NUM_T];      /* occupancy of the parent's 27 neighbours (0 if absent) */
-            int32_t ps[NUM_T];       /* their first-child index */
+            int32_t base[NUM_T];     /* first-child index of the parent's 27 neighbours */
+            int32_t rrow[NUM_T];     /* their occupancy's row in CHILD_RANK */
             if (!last) {
                 for (int t = 0; t < NUM_T; t++) {
-                    pv[t] = occ[nb[t]];
-                    ps[t] = start[nb[t]];
+                    const int64_t kv = start[nb[t]];
+                    base[t] = (int32_t)(kv >> 8);
+                    rrow[t] = (int32_t)((kv & 0xFF) << 3);
                 }
             }
             for (int k = 0; k < 8; k++) {
                 if (!((o >> k) & 1)) continue;
                 ncodes[c] = (codes[r] << 3) | (uint64_t)k;
                 if (!last) {
+                    /* neighbour t of child k: child ci of the parent's neighbour cp, i.e. its
+                     * first child + the rank of bit ci, or absent (CHILD_RANK >= 2^30) */
                     int32_t *dst = nnbr + c * NUM_T;
-                    const int *cp = tb->child_par[k], *ci = tb->child_idx[k];
+                    const uint8_t *cpk = tb->cp8[k], *cik = tb->ci8[k];
                     for (int t = 0; t < NUM_T; t++) {
-                        const unsigned v = pv[cp[t]];
-                        const int j = ci[t];
-                        const int32_t idx = ps[cp[t]] + popcount8(v & ((1u << j) - 1u));
-                        dst[t] = ((v >> j) & 1) ? idx : absent;
+                        const int q = cpk[t];
+                        const int32_t idx = base[q] + CHILD_RANK[rrow[q] + cik[t]];
+                        dst[t] = idx < absent ? idx : absent;
                     }
                     dst[SELF_T] = (int32_t)c;
                 }
@@ -557,6 +575,7 @@ static int load_tables(OctTables *tb, PyObject *tables, Py_buffer *views, int *n
     int prec;
     *nviews = 0;
     tb->ctx_lut = NULL;
+    tb->p16m = NULL;
     if (!PyArg_ParseTuple(tables, "OOOOOOiLLLL;octree tables", &plan_known, &plan_unknown,
                           &child_par, &child_idx, &p16, &freq0, &prec, &cmin, &cmax, &climit, &mix))
         return -1;
@@ -606,6 +625,8 @@ static int load_tables(OctTables *tb, PyObject *tables, Py_buffer *views, int *n
             tb->ucnt_o[k][t] = (int)uo;
             tb->child_par[k][t] = (int)par;
             tb->child_idx[k][t] = (int)idx;
+            tb->cp8[k][t] = (uint8_t)par;
+            tb->ci8[k][t] = (uint8_t)idx;
             if (kf | ko | uf | uo) tb->t[k][tb->nt[k]++] = t;
         }
         /* the context ranges (kn_f + unk_f <= 6, kn_o + unk_o <= 20) hold for every occupancy,
@@ -641,11 +662,14 @@ static int load_tables(OctTables *tb, PyObject *tables, Py_buffer *views, int *n
                 tb->ctx_lut[(k * 8 + q) * 256 + w] = fine | (coarse << 16);
             }
         }
+    tb->p16m = malloc(65536);
+    if (!tb->p16m) { PyErr_NoMemory(); return -1; }
     for (int i = 0; i < 65536; i++) {
         if (tb->p16_to_model[i] < 0 || tb->p16_to_model[i] >= tb->num_models) {
             PyErr_SetString(PyExc_ValueError, "P16_TO_MODEL entry out of range");
             return -1;
         }
+        tb->p16m[i] = (uint8_t)tb->p16_to_model[i];
     }
     return 0;
 }
@@ -654,6 +678,8 @@ static void release_tables(OctTables *tb, Py_buffer *views, int n)
 {
     free(tb->ctx_lut);
     tb->ctx_lut = NULL;
+    free(tb->p16m);
+    tb->p16m = NULL;
     for (int i = 0; i < n; i++) PyBuffer_Release(&views[i]);
 }
 
@@ -2002,6 +2028,7 @@ PyMODINIT_FUNC PyInit__native(void)
     Py_DECREF(errors);
     if (!FormatError) return NULL;
     raht_pairs8_init();
+    child_rank_init();
     PyObject *m = PyModule_Create(&moddef);
     if (!m) return NULL;
     if (PyModule_AddIntConstant(m, "ABI", GSZ_NATIVE_ABI) < 0
