@@ -30,7 +30,7 @@
 #endif
 
 /* Bumped whenever a signature changes, so a stale build is ignored (decoder/native.py). */
-#define GSZ_NATIVE_ABI 3
+#define GSZ_NATIVE_ABI 4
 
 static PyObject *FormatError = NULL;   /* gsz.decoder.errors.GszFormatError */
 
@@ -242,7 +242,7 @@ typedef struct {
     uint32_t stamp;      /* chunk whose model is cached in `model` (0: none) */
     uint8_t model;
     uint8_t listed;      /* level + 1 of the halving list this context is on (0: none) */
-    uint16_t pad;
+    uint16_t cix;        /* the coarse context (a function of the fine one), set with `model` */
 } FineCtx;
 
 /* Growable list of context ids (the fine contexts to look at when halving). */
@@ -264,15 +264,320 @@ static int idlist_push(IdList *l, int32_t id, Err *e)
     return 0;
 }
 
+/* ------------------------------------------------------------------ helper thread
+ * A second thread (the Python caller's, once its own work is done: octree_help) can join a
+ * running traversal.  The traversal is split into *phases* of independent blocks that either
+ * thread claims with one atomic operation: the context ids of a bit-plane (they depend only on
+ * the bits of earlier bit-planes, so the whole bit-plane's can be computed ahead of its
+ * decoding) and the next level's neighbour rows.  Without a helper the traversal claims every
+ * block itself, in order, just before it needs it (the same work as one fused loop).  Only the
+ * decoding, the model cache and the count updates stay on the traversal's thread, so the
+ * result does not depend on who computed which block.
+ *
+ * claim = phase sequence number << 32 | next unclaimed block; a block is claimed by a
+ * compare-and-swap that also checks the phase, so a thread holding an older phase's
+ * description never claims a block of a newer one.  The descriptions are double-buffered
+ * (phase s uses desc[s & 1]); the traversal publishes phase s + 1 only once every block of
+ * phase s is done. */
+#if !defined(__STDC_NO_ATOMICS__)
+#include <stdatomic.h>
+#define GSZ_HELPER 1
+#if defined(__x86_64__) || defined(__i386__)
+#define cpu_relax() __builtin_ia32_pause()
+#else
+#define cpu_relax() ((void)0)
+#endif
+#else
+#define GSZ_HELPER 0
+#endif
+#if defined(__unix__) || defined(__APPLE__)
+#include <sched.h>
+#define yield_cpu() sched_yield()
+#else
+#define yield_cpu() ((void)0)
+#endif
+
+#define CTX_BLOCK 2048      /* nodes per context block */
+#define BUILD_BLOCK 1024    /* parents per neighbour-table block */
+
+enum { PHASE_CTX = 1, PHASE_BUILD = 2 };
+
+typedef struct {
+    int kind;
+    int64_t items, block, nblocks;
+    /* PHASE_CTX: fine context ids fix[i] of the cnt nodes of bit-plane k */
+    const OctTables *tb;
+    const uint8_t *occ;
+    const int32_t *nbr;
+    const int32_t *coded;        /* k == 7: the coded nodes, else NULL (all nodes) */
+    int32_t *fix;
+    int k, lb;
+    /* PHASE_BUILD: children of parents [r0, r1): codes and neighbour rows */
+    const int64_t *start;
+    const uint64_t *codes;
+    uint64_t *ncodes;
+    int32_t *nnbr;
+    int64_t total;
+    int last;
+#if GSZ_HELPER
+    _Atomic uint8_t *done;       /* per block */
+    _Atomic int64_t ndone;
+#endif
+} Phase;
+
+typedef struct {
+#if GSZ_HELPER
+    _Atomic uint64_t claim;
+    _Atomic int closed;
+#endif
+    Phase desc[2];
+    uint32_t seq;
+    void *done_buf;              /* the done flags of both descriptions */
+    size_t done_cap[2];
+} Helper;
+
+static void ctx_block(const Phase *p, int64_t a, int64_t b)
+{
+    const OctTables *tb = p->tb;
+    const int k = p->k;
+    const int *tk = tb->t[k];
+    const int t0 = tk[0], t1 = tk[1], t2 = tk[2], t3 = tk[3], t4 = tk[4], t5 = tk[5],
+              t6 = tk[6], t7 = tk[7];
+    const uint32_t *lut = tb->ctx_lut + (size_t)k * 8 * 256;
+    const unsigned below = (1u << k) - 1u;
+    const int32_t fine_k = k * (7 * 7 * 21 * 21), fine_lb = p->lb * (NUM_FINE / NUM_LB);
+    const uint8_t *occ = p->occ;
+    const int32_t *nbr = p->nbr, *coded = p->coded;
+    int32_t *restrict fix = p->fix;
+    for (int64_t i = a; i < b; i++) {
+        const int64_t node = coded ? coded[i] : i;
+        const int32_t *nb = nbr + node * NUM_T;
+        /* 8 octant nodes (padded with zero-contribution entries), unrolled with their offsets
+         * in registers */
+        const uint32_t acc = lut[occ[nb[t0]]] + lut[256 + occ[nb[t1]]]
+                             + lut[512 + occ[nb[t2]]] + lut[768 + occ[nb[t3]]]
+                             + lut[1024 + occ[nb[t4]]] + lut[1280 + occ[nb[t5]]]
+                             + lut[1536 + occ[nb[t6]]] + lut[1792 + occ[nb[t7]]];
+        int sib = popcount8(occ[node] & below);
+        if (sib > NUM_SIB - 1) sib = NUM_SIB - 1;
+        /* the fine context id is (((((k*7 + kn_f)*7 + unk_f)*21 + kn_o)*21 + unk_o)*4 + sib)*4
+         * + lb (OCTREE.md); its record is stored level-bucket-major so that the contexts of one
+         * level share cache lines (the coarse id follows from it: FINE_TO_COARSE) */
+        fix[i] = fine_lb + (fine_k + (int32_t)(acc & 0xFFFF)) * NUM_SIB + sib;
+    }
+}
+
+static void build_block(const Phase *p, int64_t r0, int64_t r1)
+{
+    const OctTables *tb = p->tb;
+    const uint8_t *occ = p->occ;
+    const int32_t *nbr = p->nbr;
+    const int64_t *start = p->start;
+    const uint64_t *codes = p->codes;
+    uint64_t *ncodes = p->ncodes;
+    int32_t *nnbr = p->nnbr;
+    const int32_t absent = (int32_t)p->total;
+    const int last = p->last;
+    int64_t c = start[r0] >> 8;
+    for (int64_t r = r0; r < r1; r++) {
+        const unsigned o = occ[r];
+        const int32_t *nb = nbr + r * NUM_T;
+        int32_t base[NUM_T];     /* first-child index of the parent's 27 neighbours */
+        int32_t rrow[NUM_T];     /* their occupancy's row in CHILD_RANK */
+        if (!last) {
+            for (int t = 0; t < NUM_T; t++) {
+                const int64_t kv = start[nb[t]];
+                base[t] = (int32_t)(kv >> 8);
+                rrow[t] = (int32_t)((kv & 0xFF) << 3);
+            }
+        }
+        for (int k = 0; k < 8; k++) {
+            if (!((o >> k) & 1)) continue;
+            ncodes[c] = (codes[r] << 3) | (uint64_t)k;
+            if (!last) {
+                /* neighbour t of child k: child ci of the parent's neighbour cp, i.e. its first
+                 * child + the rank of bit ci, or absent (CHILD_RANK >= 2^30) */
+                int32_t *dst = nnbr + c * NUM_T;
+                const uint8_t *cpk = tb->cp8[k], *cik = tb->ci8[k];
+                for (int t = 0; t < NUM_T; t++) {
+                    const int q = cpk[t];
+                    const int32_t idx = base[q] + CHILD_RANK[rrow[q] + cik[t]];
+                    dst[t] = idx < absent ? idx : absent;
+                }
+                dst[SELF_T] = (int32_t)c;
+            }
+            c++;
+        }
+    }
+}
+
+static void run_block(const Phase *p, int64_t b)
+{
+    const int64_t a = b * p->block, e = a + p->block < p->items ? a + p->block : p->items;
+    if (p->kind == PHASE_CTX) ctx_block(p, a, e);
+    else build_block(p, a, e);
+}
+
+/* The next phase's description (to fill before phase_publish), or NULL when out of memory. */
+static Phase *phase_next(Helper *h, int kind, int64_t items, int64_t block)
+{
+    Phase *p = &h->desc[(h->seq + 1) & 1];
+    p->kind = kind;
+    p->items = items;
+    p->block = block;
+    p->nblocks = (items + block - 1) / block;
+#if GSZ_HELPER
+    const int slot = (int)((h->seq + 1) & 1);
+    if ((size_t)p->nblocks > h->done_cap[slot]) {
+        /* both slots live in one allocation: [slot 0 | slot 1] */
+        size_t c0 = h->done_cap[0], c1 = h->done_cap[1];
+        if (slot == 0) c0 = (size_t)p->nblocks * 2; else c1 = (size_t)p->nblocks * 2;
+        uint8_t *nb = malloc(c0 + c1 + 2);
+        if (!nb) return NULL;
+        /* the other slot's flags are not in use (its phase is complete) */
+        free(h->done_buf);
+        h->done_buf = nb;
+        h->done_cap[0] = c0;
+        h->done_cap[1] = c1;
+        h->desc[0].done = (_Atomic uint8_t *)nb;
+        h->desc[1].done = (_Atomic uint8_t *)(nb + c0 + 1);
+    }
+    for (int64_t b = 0; b < p->nblocks; b++) atomic_store_explicit(&p->done[b], 0, memory_order_relaxed);
+    atomic_store_explicit(&p->ndone, 0, memory_order_relaxed);
+#endif
+    return p;
+}
+
+static void phase_publish(Helper *h)
+{
+    h->seq++;
+#if GSZ_HELPER
+    atomic_store_explicit(&h->claim, (uint64_t)h->seq << 32, memory_order_release);
+#endif
+}
+
+#if GSZ_HELPER
+/* Claim and run one block of phase `seq` (description p); 1 if one was run, 0 if none was
+ * left. */
+static int claim_one(Helper *h, uint32_t seq, const Phase *p)
+{
+    uint64_t c = atomic_load_explicit(&h->claim, memory_order_acquire);
+    for (;;) {
+        if ((uint32_t)(c >> 32) != seq) return 0;
+        const int64_t b = (int64_t)(c & 0xFFFFFFFFu);
+        if (b >= p->nblocks) return 0;
+        if (atomic_compare_exchange_weak_explicit(&h->claim, &c, c + 1, memory_order_acq_rel,
+                                                  memory_order_acquire)) {
+            run_block(p, b);
+            atomic_store_explicit(&p->done[b], 1, memory_order_release);
+            atomic_fetch_add_explicit((_Atomic int64_t *)&p->ndone, 1, memory_order_release);
+            return 1;
+        }
+    }
+}
+#endif
+
+/* The traversal's thread: make block b of the current phase done (running blocks itself while
+ * any are unclaimed; without atomics it simply runs block b). */
+static void phase_need(Helper *h, int64_t b)
+{
+    Phase *p = &h->desc[h->seq & 1];
+#if GSZ_HELPER
+    while (!atomic_load_explicit(&p->done[b], memory_order_acquire))
+        if (!claim_one(h, h->seq, p)) cpu_relax();
+#else
+    run_block(p, b);
+#endif
+}
+
+/* The traversal's thread: every block of the current phase done, and no helper still inside
+ * one (the phase's description and flags may be reused after this).  all = run the blocks not
+ * yet run (without atomics: the blocks phase_need did not run). */
+static void phase_finish(Helper *h, int all)
+{
+    Phase *p = &h->desc[h->seq & 1];
+#if GSZ_HELPER
+    (void)all;
+    while (claim_one(h, h->seq, p)) {}
+    while (atomic_load_explicit(&p->ndone, memory_order_acquire) < p->nblocks) cpu_relax();
+#else
+    if (all)
+        for (int64_t b = 0; b < p->nblocks; b++) run_block(p, b);
+#endif
+}
+
+/* The traversal's thread, when it ends (also on an error in the middle of a phase): no block
+ * can be claimed any more, and the blocks already claimed are finished (they read buffers the
+ * traversal is about to free). */
+static void phase_close(Helper *h)
+{
+#if GSZ_HELPER
+    if (!h->seq) return;
+    Phase *p = &h->desc[h->seq & 1];
+    const uint64_t old = atomic_exchange_explicit(&h->claim, ((uint64_t)h->seq << 32) | 0xFFFFFFFFu,
+                                                  memory_order_acq_rel);
+    int64_t claimed = (int64_t)(old & 0xFFFFFFFFu);
+    if ((uint32_t)(old >> 32) != h->seq) claimed = 0;
+    if (claimed > p->nblocks) claimed = p->nblocks;
+    while (atomic_load_explicit(&p->ndone, memory_order_acquire) < claimed) cpu_relax();
+#else
+    (void)h;
+#endif
+}
+
+/* The helper's loop (octree_help): blocks of whatever phase is published, until closed. */
+static void helper_loop(Helper *h)
+{
+#if GSZ_HELPER
+    unsigned idle = 0;
+    while (!atomic_load_explicit(&h->closed, memory_order_acquire)) {
+        const uint64_t c = atomic_load_explicit(&h->claim, memory_order_acquire);
+        const uint32_t seq = (uint32_t)(c >> 32);
+        if (seq && claim_one(h, seq, &h->desc[seq & 1])) {
+            idle = 0;
+            continue;
+        }
+        if (++idle < 4096) cpu_relax();
+        else { yield_cpu(); idle = 0; }
+    }
+#else
+    (void)h;
+#endif
+}
+
+static void helper_close(Helper *h)
+{
+#if GSZ_HELPER
+    atomic_store_explicit(&h->closed, 1, memory_order_release);
+#else
+    (void)h;
+#endif
+}
+
+/* coarse context part of a fine one: fine acc = kn_f*3087 + unk_f*441 + kn_o*21 + unk_o ->
+ * (kn_f + kn_o)*27 + unk_f + unk_o */
+static uint16_t FINE_TO_COARSE[7 * 7 * 21 * 21];
+
+static void fine_to_coarse_init(void)
+{
+    for (int a = 0; a < 7 * 7 * 21 * 21; a++) {
+        const int kf = a / 3087, uf = (a % 3087) / 441, ko = (a % 441) / 21, uo = a % 21;
+        FINE_TO_COARSE[a] = (uint16_t)((kf + ko) * 27 + uf + uo);
+    }
+}
+
 /*
  * The normative traversal (decoder/octree.py::walk_octree).  mode 0: bits from `dec`; mode 1:
  * bits from the known occupancy bytes `known` (levels concatenated, level l holding
  * known_sizes[l] nodes), recorded into `out`.  On success *codes_out holds the leaf Morton codes
- * (ascending) and *count_out their number (== num_points).
+ * (ascending) and *count_out their number (== num_points).  `h`: the phase state (a helper may
+ * be attached to it, see above).
  *
  * Representation: the nodes of a level are 0..n-1 in Morton order; nbr[27 * i + t] is the
  * index of node i's neighbour at offset t, or n when there is none -- occ[n] is a permanent 0
- * byte, so an absent neighbour reads as an empty node without a branch.
+ * byte, so an absent neighbour reads as an empty node without a branch.  (An offset-major
+ * layout, 27 planes of n entries, so that a bit-plane would read only its octant's 8 planes,
+ * was 40 % slower: the next level's rows then gather from 27 pages per parent.)
  *
  * Halving (after each level, every context with n0 + n1 > COUNT_LIMIT) looks only at the fine
  * contexts that can exceed the limit: those used during the level, and those that still
@@ -292,24 +597,26 @@ static int ensure(void **p, size_t *cap, size_t need, Err *e)
 
 static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, BinDec *dec,
                 const uint8_t *known, const int64_t *known_sizes, int64_t known_len, SymOut *out,
-                uint64_t **codes_out, int64_t *count_out, Err *e)
+                Helper *h, uint64_t **codes_out, int64_t *count_out, Err *e)
 {
     int rc = -1;
     uint32_t *cc = NULL;
     FineCtx *ff = NULL;
     uint64_t *codes = NULL, *ncodes = NULL;
-    int32_t *nbr = NULL, *nnbr = NULL, *coded = NULL;
+    int32_t *nbr = NULL, *nnbr = NULL, *coded = NULL, *fixa = NULL;
     int64_t *start = NULL;
-    uint8_t *occ = NULL;     /* per node: during the bit-planes 0x80 (present) | child bits 0..6
-                              * decoded so far (occ[n] = 0: absent); after them the occupancy */
-    uint8_t *hi7 = NULL;     /* child 7 of every node (bit-plane 7), merged into occ after it */
+    uint8_t *occ = NULL;     /* per node: during the bit-planes 0x80 (present) | child bits
+                              * of the finished bit-planes (occ[n] = 0: absent); after them the
+                              * occupancy */
+    uint8_t *pbit = NULL;    /* the bits of the current bit-plane, merged into occ after it
+                              * (child 7: after the level) */
     int64_t n = 1, known_off = 0;
-    int32_t *cbuf_c = NULL, *cbuf_f = NULL;     /* contexts and models of one chunk */
-    uint8_t *mbuf = NULL, *bbuf = NULL;        /* (and the chunk's decoded bits) */
+    uint8_t *mbuf = NULL, *bbuf = NULL;        /* models and decoded bits of one chunk */
+    uint8_t *ff_touched = NULL;
     uint32_t stamp = 0;
     IdList list = {0}, carry = {0};
     size_t cap_codes = 0, cap_ncodes = 0, cap_nbr = 0, cap_nnbr = 0, cap_occ = 0, cap_coded = 0,
-           cap_start = 0, cap_hi7 = 0;
+           cap_start = 0, cap_pbit = 0, cap_fix = 0;
 
     *codes_out = NULL;
     *count_out = 0;
@@ -325,14 +632,18 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
     }
     cc = calloc(2 * (size_t)NUM_COARSE, sizeof *cc);
     ff = calloc((size_t)NUM_FINE, sizeof *ff);       /* pages are touched only where used */
+    /* pages of ff written to so far: the first access to a page must be a write.  A read
+     * maps the kernel's shared zero page, and the write after it replaces that mapping, which
+     * costs a TLB shootdown (an inter-processor interrupt, expensive in a VM) whenever another
+     * thread of the process runs -- measured ~870 per flowers decode, ~10 % of the traversal. */
+    const uintptr_t ff_page0 = (uintptr_t)ff >> 12;
+    ff_touched = calloc(((size_t)NUM_FINE * sizeof *ff >> 15) + 2, 1);
     if (ensure((void **)&codes, &cap_codes, sizeof *codes, e) < 0
         || ensure((void **)&nbr, &cap_nbr, NUM_T * sizeof *nbr, e) < 0)
         goto done;
-    cbuf_c = malloc((size_t)tb->chunk_max * sizeof *cbuf_c);
-    cbuf_f = malloc((size_t)tb->chunk_max * sizeof *cbuf_f);
     mbuf = malloc((size_t)tb->chunk_max);
     bbuf = malloc((size_t)tb->chunk_max);
-    if (!cc || !ff || !codes || !nbr || !cbuf_c || !cbuf_f || !mbuf || !bbuf) { fail_nomem(e); goto done; }
+    if (!cc || !ff || !ff_touched || !codes || !nbr || !mbuf || !bbuf) { fail_nomem(e); goto done; }
     codes[0] = 0;
     for (int t = 0; t < NUM_T; t++) nbr[t] = 1;      /* n = 1: absent */
     nbr[SELF_T] = 0;
@@ -351,8 +662,9 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
             if (symout_reserve(out, 8 * n, e) < 0) goto done;
         }
         if (ensure((void **)&occ, &cap_occ, (size_t)n + 1, e) < 0
-            || ensure((void **)&hi7, &cap_hi7, (size_t)n, e) < 0
-            || ensure((void **)&coded, &cap_coded, (size_t)n * sizeof *coded, e) < 0)
+            || ensure((void **)&pbit, &cap_pbit, (size_t)n, e) < 0
+            || ensure((void **)&coded, &cap_coded, (size_t)n * sizeof *coded, e) < 0
+            || ensure((void **)&fixa, &cap_fix, (size_t)n * sizeof *fixa, e) < 0)
             goto done;
         memset(occ, 0x80, (size_t)n);                /* present, no child known yet */
         occ[n] = 0;                                  /* the absent neighbour */
@@ -362,45 +674,49 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
                 /* a node with no child among 0..6 has child 7 for free (not coded) */
                 cnt = 0;
                 for (int64_t i = 0; i < n; i++) {
-                    if (occ[i] & 0x7F) coded[cnt++] = (int32_t)i;
-                    else hi7[i] = 1;
+                    if (occ[i] & 0x7F) { coded[cnt++] = (int32_t)i; pbit[i] = 0; }
+                    else pbit[i] = 1;
                 }
             }
-            const int *tk = tb->t[k];
-            const int t0 = tk[0], t1 = tk[1], t2 = tk[2], t3 = tk[3], t4 = tk[4], t5 = tk[5],
-                      t6 = tk[6], t7 = tk[7];
-            const uint32_t *lut = tb->ctx_lut + (size_t)k * 8 * 256;
-            const unsigned below = (1u << k) - 1u;
-            const int32_t fine_k = k * (7 * 7 * 21 * 21), coarse_k = k * (27 * 27);
+            /* the bit-plane's context ids, as blocks (computed ahead by a helper, if any) */
+            Phase *ph = phase_next(h, PHASE_CTX, cnt, CTX_BLOCK);
+            if (!ph) { fail_nomem(e); goto done; }
+            ph->tb = tb;
+            ph->occ = occ;
+            ph->nbr = nbr;
+            ph->coded = k == 7 ? coded : NULL;
+            ph->fix = fixa;
+            ph->k = k;
+            ph->lb = lb;
+            phase_publish(h);
+            const int32_t coarse_k = k * (27 * 27), fine_k = k * (7 * 7 * 21 * 21);
             const int32_t fine_lb = lb * (NUM_FINE / NUM_LB);
-            int64_t s = 0;
+            int64_t s = 0, ready = 0;
             while (s < cnt) {
                 int64_t step = s > tb->chunk_min ? s : tb->chunk_min;
                 if (step > tb->chunk_max) step = tb->chunk_max;
                 const int64_t end = s + step < cnt ? s + step : cnt;
+                while (ready < end) {
+                    phase_need(h, ready / CTX_BLOCK);
+                    ready = (ready / CTX_BLOCK + 1) * CTX_BLOCK;
+                }
                 /* models of the chunk, all from the counts before the chunk */
                 stamp++;
                 for (int64_t i = s; i < end; i++) {
-                    const int64_t node = (k == 7) ? coded[i] : i;
-                    const int32_t *nb = nbr + node * NUM_T;
-                    /* 8 octant nodes (padded with zero-contribution entries), unrolled with
-                     * their offsets in registers */
-                    const uint32_t acc = lut[occ[nb[t0]]] + lut[256 + occ[nb[t1]]]
-                                         + lut[512 + occ[nb[t2]]] + lut[768 + occ[nb[t3]]]
-                                         + lut[1024 + occ[nb[t4]]] + lut[1280 + occ[nb[t5]]]
-                                         + lut[1536 + occ[nb[t6]]] + lut[1792 + occ[nb[t7]]];
-                    int sib = popcount8(occ[node] & below);
-                    if (sib > NUM_SIB - 1) sib = NUM_SIB - 1;
-                    const int32_t cix = (coarse_k + (int32_t)(acc >> 16)) * NUM_SIB + sib;
-                    /* the fine context id is (((((k*7 + kn_f)*7 + unk_f)*21 + kn_o)*21 + unk_o)*4
-                     * + sib)*4 + lb (OCTREE.md); its record is stored level-bucket-major so that
-                     * the contexts of one level share cache lines */
-                    const int32_t fix = fine_lb + (fine_k + (int32_t)(acc & 0xFFFF)) * NUM_SIB + sib;
+                    const int32_t fix = fixa[i];
                     FineCtx *fc = ff + fix;
+                    const uintptr_t pg = ((uintptr_t)fc >> 12) - ff_page0;
+                    if (!(ff_touched[pg >> 3] & (1u << (pg & 7)))) {
+                        ff_touched[pg >> 3] |= (uint8_t)(1u << (pg & 7));
+                        *(volatile uint8_t *)fc = 0;    /* the page's first access: a write */
+                    }
                     if (fc->stamp != stamp) {
                         /* the model is a function of the fine context (which fixes the coarse
                          * one) and of the counts, which are frozen during a chunk: computed
                          * once per chunk and context */
+                        const int32_t u = (fix - fine_lb) >> 2;
+                        const int32_t cix = (coarse_k + FINE_TO_COARSE[u - fine_k]) * NUM_SIB
+                                            + (fix & (NUM_SIB - 1));
                         const uint64_t c0 = cc[2 * cix], c1 = cc[2 * cix + 1];
                         const uint64_t pc = ((2 * c1 + 1) << 16) / (2 * (c0 + c1) + 2);
                         const uint64_t f0 = fc->n0, f1 = fc->n1;
@@ -409,13 +725,12 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
                         if (pf > 65535) { fail(e, "octree: probability out of range"); goto done; }
                         fc->model = tb->p16m[pf];    /* < num_models (checked) */
                         fc->stamp = stamp;
+                        fc->cix = (uint16_t)cix;
                         if (fc->listed != tag) {
                             fc->listed = tag;
                             if (idlist_push(&list, fix, e) < 0) goto done;
                         }
                     }
-                    cbuf_c[i - s] = cix;
-                    cbuf_f[i - s] = fix;
                     mbuf[i - s] = fc->model;
                 }
                 /* the chunk's bits, then the count updates */
@@ -461,15 +776,18 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
                         out->models[out->len] = mbuf[i - s];
                         out->len++;
                     }
-                    if (k < 7) occ[node] |= (uint8_t)(bit << k);
-                    else hi7[node] = (uint8_t)bit;
-                    cc[2 * cbuf_c[i - s] + bit]++;
-                    (&ff[cbuf_f[i - s]].n0)[bit]++;       /* n0 or n1, without a branch */
+                    pbit[node] = (uint8_t)bit;
+                    FineCtx *fc = ff + fixa[i];
+                    cc[2 * fc->cix + bit]++;
+                    (&fc->n0)[bit]++;       /* n0 or n1, without a branch */
                 }
                 s = end;
             }
+            phase_finish(h, 0);     /* every block was needed (ready >= cnt) */
+            if (k < 7)
+                for (int64_t i = 0; i < n; i++) occ[i] |= (uint8_t)(pbit[i] << k);
         }
-        for (int64_t i = 0; i < n; i++) occ[i] = (uint8_t)((occ[i] & 0x7F) | (hi7[i] << 7));
+        for (int64_t i = 0; i < n; i++) occ[i] = (uint8_t)((occ[i] & 0x7F) | (pbit[i] << 7));
         /* halving: every coarse pair, and the listed fine contexts */
         for (int64_t i = 0; i < NUM_COARSE; i++) {
             const uint32_t a = cc[2 * i], b = cc[2 * i + 1];
@@ -494,8 +812,8 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
         { IdList tmp = list; list = carry; carry = tmp; }
 
         /* the next level: children in Morton order (node-major, child index ascending);
-         * key[i] = (index of node i's first child) << 8 | occupancy of node i (key[n] = 0:
-         * the absent node has no children), one load per neighbour below */
+         * start[i] = (index of node i's first child) << 8 | occupancy of node i (start[n] = 0:
+         * the absent node has no children), one load per neighbour when building the rows */
         int64_t total = 0;
         if (ensure((void **)&start, &cap_start, ((size_t)n + 1) * sizeof *start, e) < 0) goto done;
         for (int64_t i = 0; i < n; i++) {
@@ -514,38 +832,19 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
             goto done;
         if (!last && ensure((void **)&nnbr, &cap_nnbr, (size_t)total * NUM_T * sizeof *nnbr + 4, e) < 0)
             goto done;
-        const int32_t absent = (int32_t)total;
-        int64_t c = 0;
-        for (int64_t r = 0; r < n; r++) {
-            const unsigned o = occ[r];
-            const int32_t *nb = nbr + r * NUM_T;
-            int32_t base[NUM_T];     /* first-child index of the parent's 27 neighbours */
-            int32_t rrow[NUM_T];     /* their occupancy's row in CHILD_RANK */
-            if (!last) {
-                for (int t = 0; t < NUM_T; t++) {
-                    const int64_t kv = start[nb[t]];
-                    base[t] = (int32_t)(kv >> 8);
-                    rrow[t] = (int32_t)((kv & 0xFF) << 3);
-                }
-            }
-            for (int k = 0; k < 8; k++) {
-                if (!((o >> k) & 1)) continue;
-                ncodes[c] = (codes[r] << 3) | (uint64_t)k;
-                if (!last) {
-                    /* neighbour t of child k: child ci of the parent's neighbour cp, i.e. its
-                     * first child + the rank of bit ci, or absent (CHILD_RANK >= 2^30) */
-                    int32_t *dst = nnbr + c * NUM_T;
-                    const uint8_t *cpk = tb->cp8[k], *cik = tb->ci8[k];
-                    for (int t = 0; t < NUM_T; t++) {
-                        const int q = cpk[t];
-                        const int32_t idx = base[q] + CHILD_RANK[rrow[q] + cik[t]];
-                        dst[t] = idx < absent ? idx : absent;
-                    }
-                    dst[SELF_T] = (int32_t)c;
-                }
-                c++;
-            }
-        }
+        Phase *ph = phase_next(h, PHASE_BUILD, n, BUILD_BLOCK);
+        if (!ph) { fail_nomem(e); goto done; }
+        ph->tb = tb;
+        ph->occ = occ;
+        ph->nbr = nbr;
+        ph->start = start;
+        ph->codes = codes;
+        ph->ncodes = ncodes;
+        ph->nnbr = nnbr;
+        ph->total = total;
+        ph->last = last;
+        phase_publish(h);
+        phase_finish(h, 1);
         { uint64_t *t = codes; codes = ncodes; ncodes = t; size_t ct = cap_codes; cap_codes = cap_ncodes; cap_ncodes = ct; }
         if (!last) { int32_t *t = nbr; nbr = nnbr; nnbr = t; size_t ct = cap_nbr; cap_nbr = cap_nnbr; cap_nnbr = ct; }
         n = total;
@@ -561,9 +860,10 @@ static int walk(const OctTables *tb, int depth, int64_t num_points, int mode, Bi
     *count_out = n;
     rc = 0;
 done:
+    phase_close(h);
     free(cc); free(ff); free(codes); free(ncodes); free(nbr); free(nnbr);
-    free(occ); free(hi7); free(coded); free(start);
-    free(cbuf_c); free(cbuf_f); free(mbuf); free(bbuf); free(list.v); free(carry.v);
+    free(occ); free(pbit); free(coded); free(start); free(fixa); free(ff_touched);
+    free(mbuf); free(bbuf); free(list.v); free(carry.v);
     return rc;
 }
 
@@ -688,27 +988,139 @@ static void release_views(Py_buffer *views, int n)
     for (int i = 0; i < n; i++) PyBuffer_Release(&views[i]);
 }
 
+#define HELPER_CAPSULE "gsz.decoder._native.octree_helper"
+
+typedef struct {
+    Helper h;
+    int used;            /* handed to an octree_decode already */
+} HelperBox;
+
+static void helper_capsule_free(PyObject *cap)
+{
+    HelperBox *b = PyCapsule_GetPointer(cap, HELPER_CAPSULE);
+    if (b) { free(b->h.done_buf); free(b); }
+}
+
+PyDoc_STRVAR(octree_helper_doc,
+"octree_helper() -> helper\n\n"
+"A fresh helper slot for one octree_decode(): another thread calling octree_help(helper)\n"
+"joins that traversal (context ids and neighbour rows) until it ends or octree_helper_close()\n"
+"is called.  Same output with or without a helper.");
+
+static PyObject *py_octree_helper(PyObject *self, PyObject *noargs)
+{
+    HelperBox *b = calloc(1, sizeof *b);
+    if (!b) return PyErr_NoMemory();
+#if GSZ_HELPER
+    atomic_init(&b->h.claim, 0);
+    atomic_init(&b->h.closed, 0);
+    atomic_init(&b->h.desc[0].ndone, 0);
+    atomic_init(&b->h.desc[1].ndone, 0);
+#endif
+    PyObject *cap = PyCapsule_New(b, HELPER_CAPSULE, helper_capsule_free);
+    if (!cap) free(b);
+    return cap;
+}
+
+PyDoc_STRVAR(octree_help_doc,
+"octree_help(helper)\n\n"
+"Work on the traversal the helper was given to (without the GIL) until it ends or the helper\n"
+"is closed; returns at once when it already is.  Returns immediately on builds without C11\n"
+"atomics.");
+
+static PyObject *py_octree_help(PyObject *self, PyObject *arg)
+{
+    HelperBox *b = PyCapsule_GetPointer(arg, HELPER_CAPSULE);
+    if (!b) return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    helper_loop(&b->h);
+    Py_END_ALLOW_THREADS
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(octree_helper_close_doc,
+"octree_helper_close(helper)\n\n"
+"Let every octree_help(helper) return (idempotent; octree_decode does it when it ends).");
+
+static PyObject *py_octree_helper_close(PyObject *self, PyObject *arg)
+{
+    HelperBox *b = PyCapsule_GetPointer(arg, HELPER_CAPSULE);
+    if (!b) return NULL;
+    helper_close(&b->h);
+    Py_RETURN_NONE;
+}
+
+static int little_endian(void)
+{
+    const uint16_t one = 1;
+    uint8_t b;
+    memcpy(&b, &one, 1);
+    return b == 1;
+}
+
+/* codes as little-endian uint64 bytes */
+static PyObject *codes_bytes(const uint64_t *codes, int64_t count)
+{
+    PyObject *res = PyBytes_FromStringAndSize(NULL, (Py_ssize_t)(count * 8));
+    if (res && count) {
+        uint8_t *o = (uint8_t *)PyBytes_AS_STRING(res);
+        if (little_endian()) {
+            memcpy(o, codes, (size_t)count * 8);
+        } else {
+            for (int64_t i = 0; i < count; i++)
+                for (int b = 0; b < 8; b++) o[8 * i + b] = (uint8_t)(codes[i] >> (8 * b));
+        }
+    }
+    return res;
+}
+
 PyDoc_STRVAR(octree_decode_doc,
-"octree_decode(tables, depth, num_points, num_symbols, lanes, body) -> bytes\n\n"
+"octree_decode(tables, depth, num_points, num_symbols, lanes, body, helper=None) -> bytes\n\n"
 "Decode the octree traversal (OCTREE.md §4) from a rANS payload whose lane count `lanes`\n"
 "and word count were validated by the caller; `body` holds the 4*lanes state bytes followed\n"
 "by the 16-bit words.  Returns the leaf Morton codes as little-endian uint64 bytes.  Checks\n"
-"the end conditions of ENTROPY.md §4.4.  Raises GszFormatError on corrupt input.");
+"the end conditions of ENTROPY.md §4.4.  Raises GszFormatError on corrupt input.  `helper`:\n"
+"an unused octree_helper() that another thread may join with octree_help(); it is closed\n"
+"when the traversal ends.");
 
 static PyObject *py_octree_decode(PyObject *self, PyObject *args)
 {
-    PyObject *tables, *body_obj;
+    PyObject *tables, *body_obj, *helper_obj = Py_None;
     int depth;
     long long num_points, num_symbols, lanes;
-    if (!PyArg_ParseTuple(args, "OiLLLO", &tables, &depth, &num_points, &num_symbols, &lanes,
-                          &body_obj))
+    if (!PyArg_ParseTuple(args, "OiLLLO|O", &tables, &depth, &num_points, &num_symbols, &lanes,
+                          &body_obj, &helper_obj))
         return NULL;
+    HelperBox *hb = NULL;
+    if (helper_obj != Py_None) {
+        hb = PyCapsule_GetPointer(helper_obj, HELPER_CAPSULE);
+        if (!hb) return NULL;
+        if (hb->used) {
+            PyErr_SetString(PyExc_ValueError, "octree_decode: this helper was used already");
+            return NULL;
+        }
+        hb->used = 1;
+    }
+    Helper local;
+    memset(&local, 0, sizeof local);
+#if GSZ_HELPER
+    atomic_init(&local.claim, 0);
+    atomic_init(&local.closed, 0);
+    atomic_init(&local.desc[0].ndone, 0);
+    atomic_init(&local.desc[1].ndone, 0);
+#endif
+    Helper *h = hb ? &hb->h : &local;
     OctTables tb;
     Py_buffer views[6], body;
     int nviews;
-    if (load_tables(&tb, tables, views, &nviews) < 0) { release_tables(&tb, views, nviews); return NULL; }
+    if (load_tables(&tb, tables, views, &nviews) < 0) {
+        release_tables(&tb, views, nviews);
+        helper_close(h);
+        return NULL;
+    }
     if (getbuf(body_obj, &body, 1, 'x', 0, "octree payload") < 0) {
         release_tables(&tb, views, nviews);
+        helper_close(h);
         return NULL;
     }
     Err e = {0};
@@ -735,7 +1147,9 @@ static PyObject *py_octree_decode(PyObject *self, PyObject *args)
     }
     if (!e.failed) {
         Py_BEGIN_ALLOW_THREADS
-        if (walk(&tb, depth, num_points, 0, &d, NULL, NULL, 0, NULL, &codes, &count, &e) == 0) {
+        const int wrc = walk(&tb, depth, num_points, 0, &d, NULL, NULL, 0, NULL, h, &codes, &count, &e);
+        helper_close(h);        /* the helper's thread can go on with its own work */
+        if (wrc == 0) {
             /* ENTROPY.md §4.4 end conditions */
             if (d.pos != d.nsym) fail(&e, "rANS: symbols left undecoded");
             else if (d.wpos != d.nwords) fail(&e, "rANS: words left unread");
@@ -746,16 +1160,13 @@ static PyObject *py_octree_decode(PyObject *self, PyObject *args)
         }
         Py_END_ALLOW_THREADS
     }
+    helper_close(h);
     free(d.st);
     PyBuffer_Release(&body);
     release_tables(&tb, views, nviews);
+    if (!hb) free(local.done_buf);
     if (e.failed) { free(codes); return raise_err(&e); }
-    PyObject *res = PyBytes_FromStringAndSize(NULL, (Py_ssize_t)(count * 8));
-    if (res && count) {
-        uint8_t *o = (uint8_t *)PyBytes_AS_STRING(res);
-        for (int64_t i = 0; i < count; i++)
-            for (int b = 0; b < 8; b++) o[8 * i + b] = (uint8_t)(codes[i] >> (8 * b));
-    }
+    PyObject *res = codes_bytes(codes, count);
     free(codes);
     return res;
 }
@@ -790,14 +1201,23 @@ static PyObject *py_octree_encode(PyObject *self, PyObject *args)
     uint64_t *codes = NULL;
     int64_t count = 0;
     SymOut out = {0};
+    Helper local;
+    memset(&local, 0, sizeof local);
+#if GSZ_HELPER
+    atomic_init(&local.claim, 0);
+    atomic_init(&local.closed, 0);
+    atomic_init(&local.desc[0].ndone, 0);
+    atomic_init(&local.desc[1].ndone, 0);
+#endif
     if (num_points > 0 && sizes.len / 8 != depth) {
         fail(&e, "octree encoder: one occupancy level per depth needed");
     } else {
         Py_BEGIN_ALLOW_THREADS
         walk(&tb, depth, num_points, 1, NULL, known.buf, sizes.buf, (int64_t)known.len, &out,
-             &codes, &count, &e);
+             &local, &codes, &count, &e);
         Py_END_ALLOW_THREADS
     }
+    free(local.done_buf);
     PyBuffer_Release(&known);
     PyBuffer_Release(&sizes);
     release_tables(&tb, views, nviews);
@@ -2000,6 +2420,9 @@ static PyObject *py_all_finite(PyObject *self, PyObject *arg)
 static PyMethodDef methods[] = {
     {"octree_decode", py_octree_decode, METH_VARARGS, octree_decode_doc},
     {"octree_encode", py_octree_encode, METH_VARARGS, octree_encode_doc},
+    {"octree_helper", py_octree_helper, METH_NOARGS, octree_helper_doc},
+    {"octree_help", py_octree_help, METH_O, octree_help_doc},
+    {"octree_helper_close", py_octree_helper_close, METH_O, octree_helper_close_doc},
     {"bank_encode", py_bank_encode, METH_VARARGS, bank_encode_doc},
     {"rans_decode", py_rans_decode, METH_VARARGS, rans_decode_doc},
     {"raht_tree", py_raht_tree, METH_VARARGS, raht_tree_doc},
@@ -2028,6 +2451,7 @@ PyMODINIT_FUNC PyInit__native(void)
     Py_DECREF(errors);
     if (!FormatError) return NULL;
     raht_pairs8_init();
+    fine_to_coarse_init();
     child_rank_init();
     PyObject *m = PyModule_Create(&moddef);
     if (!m) return NULL;

@@ -213,18 +213,21 @@ def decode_layer(chunks: dict, header, state: LayerState) -> GaussianCloud:
 
 class _GeometryJob:
     """The worker's part of one layer before the join: the octree (then ``codes_ready`` is
-    set) and the RAHT tree of its voxels."""
+    set) and the RAHT tree of its voxels.  ``helper`` lets the calling thread join the octree
+    traversal once its own work is done (``_native.octree_help``)."""
 
     def __init__(self, gh):
         self.gh = gh
         self.codes = None
         self.codes_ready = threading.Event()
+        self.helper = native.module().octree_helper()
 
     def __call__(self):
         try:
             with np.errstate(over="ignore", invalid="ignore"):   # errstate is per thread
-                self.codes = self.gh.decode_codes()
+                self.codes = self.gh.decode_codes(helper=self.helper)
         finally:
+            native.module().octree_helper_close(self.helper)  # also when it never started
             self.codes_ready.set()
         return native_tree(self.codes, self.gh.depth)
 
@@ -252,7 +255,8 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
     """decode_layer on two threads (native path), the same arrays bit for bit:
 
     worker                              calling thread
-    octree -> codes                     attributes, SH, scales (+ finiteness)
+    octree -> codes                     attributes, SH, scales (+ finiteness), then helps
+                                        with the octree's context ids and neighbour rows
     RAHT tree                           positions (+ finiteness), once the codes are there
     RAHT opacity + DC, float32          RAHT angles -> half angles, cos (NumPy's)
     sin (NumPy's) of the half angles    quaternions
@@ -272,6 +276,7 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
     nat = native.module()
     scales, ok_scales = native_scales(direct)
     ok_sh = nat.all_finite(sh_rest)
+    nat.octree_help(job.helper)                        # until the traversal ends
     job.codes_ready.wait()
     if job.codes is None:
         pending.result()                               # raises the geometry's error

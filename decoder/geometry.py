@@ -46,9 +46,10 @@ class GeometryHeader:
     num_points: int
     payload: memoryview
 
-    def decode_codes(self) -> np.ndarray:
-        """Morton codes (uint64 [M], ascending) of the voxels (OCTREE.md)."""
-        return decode_octree_codes(self.payload, self.depth, self.num_points)
+    def decode_codes(self, helper=None) -> np.ndarray:
+        """Morton codes (uint64 [M], ascending) of the voxels (OCTREE.md); ``helper``: see
+        :func:`gsz.decoder.octree.decode_octree_codes`."""
+        return decode_octree_codes(self.payload, self.depth, self.num_points, helper)
 
     def positions(self, codes: np.ndarray) -> np.ndarray:
         """Decoded float32 centres [M, 3] of the voxels with Morton codes ``codes``."""

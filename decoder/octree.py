@@ -393,14 +393,16 @@ def max_symbols(depth: int, num_points: int) -> int:
     return 8 * depth * num_points
 
 
-def decode_octree_codes(payload, depth: int, num_points: int) -> np.ndarray:
+def decode_octree_codes(payload, depth: int, num_points: int, helper=None) -> np.ndarray:
     """Decode a geometry payload (``format_spec/OCTREE.md``) to the voxels' Morton codes.
 
     payload: bytes-like; depth: octree depth d in 1..21 (coordinates in [0, 2^d));
     num_points: the number of occupied voxels M declared by the container.
     Returns uint64 [M], strictly ascending.
     Raises GszFormatError on any corrupt, truncated or inconsistent payload.
-    Uses the C traversal when ``gsz.decoder.native`` is enabled (identical output and checks).
+    Uses the C traversal when ``gsz.decoder.native`` is enabled (identical output and checks);
+    ``helper``: an unused ``_native.octree_helper()`` through which another thread may join
+    that traversal (``_native.octree_help``), ignored on the NumPy path.
     """
     if not 1 <= depth <= MAX_DEPTH:
         raise GszFormatError(f"octree depth {depth} outside [1, {MAX_DEPTH}]")
@@ -422,7 +424,7 @@ def decode_octree_codes(payload, depth: int, num_points: int) -> np.ndarray:
         lanes, _, p = parse_payload_header(body, num_symbols)
         tables = native.octree_tables(bank_precision(num_symbols))
         raw = native.module().octree_decode(tables, int(depth), int(num_points), int(num_symbols),
-                                            int(lanes), body[p:])
+                                            int(lanes), body[p:], helper)
         return np.frombuffer(raw, dtype="<u8").astype(np.uint64, copy=False)
     dec = RansDecoder(body, num_symbols, bank_model_set(num_symbols))
 

@@ -291,6 +291,91 @@ def test_non_finite_fields_reported_in_order(monkeypatch, overlap):
             assert_same_cloud(a, b)
 
 
+@needs_native
+def test_truncated_octree_payloads_same_outcome():
+    ijk = _voxels(sample("sh3", 4000), 10)
+    payload = encode_octree(ijk, 10)
+    for cut in sorted(set(np.linspace(0, len(payload) - 1, 80).astype(int))):
+        res = both(lambda: decode_octree(payload[:cut], 10, len(ijk)))
+        assert res[0][0] == res[1][0] == "error"
+    rng = np.random.default_rng(4)
+    for _ in range(60):
+        bad = bytearray(payload)
+        bad[int(rng.integers(1, len(bad)))] = int(rng.integers(256))
+        (ka, a), (kb, b) = both(lambda: decode_octree(bytes(bad), 10, len(ijk)))
+        assert ka == kb, (a, b)
+        if ka == "ok":
+            assert np.array_equal(a, b)
+
+
+def _helped_decode(payload, depth, m):
+    """decode_octree_codes on a thread with a helper that the calling thread joins at once:
+    ('ok', codes) or ('error', message)."""
+    nat = native.module()
+    helper = nat.octree_helper()
+    out = []
+
+    def work():
+        try:
+            out.append(("ok", decode_octree_codes(payload, depth, m, helper)))
+        except GszFormatError as e:
+            out.append(("error", str(e)))
+        finally:
+            nat.octree_helper_close(helper)
+    th = threading.Thread(target=work)
+    th.start()
+    nat.octree_help(helper)                 # returns when the traversal ends
+    th.join(timeout=60)
+    assert not th.is_alive() and len(out) == 1
+    return out[0]
+
+
+@needs_native
+def test_octree_helper_identical_and_same_errors():
+    """A second thread joining the traversal (context ids, neighbour rows) changes nothing:
+    the same codes, the same error on corrupt payloads (also when the traversal stops in the
+    middle of a phase the helper works on), and a helper cannot be used twice."""
+    def alone(payload, depth, m):
+        try:
+            return "ok", decode_octree_codes(payload, depth, m)
+        except GszFormatError as e:
+            return "error", str(e)
+    rng = np.random.default_rng(8)
+    cases = [(_voxels(sample("sh0"), d), d) for d in (9, 12)]
+    cases.append((np.unique(rng.integers(0, 1 << 14, size=(30000, 3)), axis=0), 14))
+    for ijk, depth in cases:
+        payload = encode_octree(ijk, depth)
+        a, b = alone(payload, depth, len(ijk)), _helped_decode(payload, depth, len(ijk))
+        assert a[0] == b[0] == "ok" and np.array_equal(a[1], b[1])
+        for _ in range(12):
+            bad = bytearray(payload)
+            bad[int(rng.integers(len(bad) // 2, len(bad)))] ^= 1 << int(rng.integers(8))
+            a, b = alone(bytes(bad), depth, len(ijk)), _helped_decode(bytes(bad), depth, len(ijk))
+            assert a[0] == b[0] and (np.array_equal(a[1], b[1]) if a[0] == "ok" else a[1] == b[1])
+        cut = payload[:len(payload) * 3 // 4]
+        a, b = alone(cut, depth, len(ijk)), _helped_decode(cut, depth, len(ijk))
+        assert a[0] == b[0] == "error" and a[1] == b[1]
+    nat = native.module()
+    h = nat.octree_helper()
+    decode_octree_codes(payload, depth, len(ijk), h)
+    nat.octree_help(h)                      # closed: returns at once
+    with pytest.raises(ValueError, match="used already"):
+        decode_octree_codes(payload, depth, len(ijk), h)
+
+
+@needs_native
+def test_hostile_declared_count_allocates_nothing_large():
+    """A one-voxel payload declaring 10^8 voxels at depth 21: rejected after the traversal,
+    which only ever holds the nodes actually decoded."""
+    import resource
+    payload = encode_octree(np.array([[5, 6, 7]]), 21)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    with pytest.raises(GszFormatError, match="points"):
+        decode_octree(payload, 21, 10 ** 8)
+    grown_mb = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024
+    assert grown_mb < 200, grown_mb
+
+
 # ------------------------------------------------------------------ rANS streams and tables
 def _model_sets():
     rng = np.random.default_rng(9)
