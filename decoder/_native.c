@@ -1384,28 +1384,31 @@ static uint64_t select_dth_largest(const uint64_t *key, int64_t k, int64_t d, ui
         }
         return heap[0];
     }
-    /* MSB-first radix select, 8-bit digits over the 64-bit keys; stops as soon as a single
-     * key is left under the prefix (usually after two passes) */
-    uint64_t prefix = 0;
+    /* MSB-first radix select, 8-bit digits from the highest byte any key uses; after each pass
+     * only the keys under the chosen prefix are kept (into `heap`, k entries of scratch), so
+     * later passes are short; stops as soon as a single key is left (11-bit digits: slower) */
+    uint64_t mx = 0;
+    for (int64_t i = 0; i < k; i++) mx |= key[i];
+    int shift = 0;
+    while (shift < 56 && (mx >> (shift + 8))) shift += 8;
+    const uint64_t *cur = key;
     int64_t need = d;
-    for (int shift = 56; shift >= 0; shift -= 8) {
+    for (;; shift -= 8) {
         memset(hist, 0, 256 * sizeof *hist);
-        const int hs = shift + 8;
-        for (int64_t i = 0; i < k; i++)
-            if (hs == 64 || (key[i] >> hs) == (prefix >> hs)) hist[(key[i] >> shift) & 255]++;
+        for (int64_t i = 0; i < k; i++) hist[(cur[i] >> shift) & 255]++;
         int dg = 255;
         for (; dg > 0; dg--) {
             if (need <= (int64_t)hist[dg]) break;
             need -= hist[dg];
         }
-        prefix |= (uint64_t)dg << shift;
-        if (hist[dg] == 1) {
-            /* exactly one key carries this prefix: it is the answer */
-            for (int64_t i = 0; i < k; i++)
-                if ((key[i] >> shift) == (prefix >> shift)) return key[i];
-        }
+        /* keep the keys with digit dg (in place when already in the scratch buffer) */
+        int64_t kk = 0;
+        for (int64_t i = 0; i < k; i++)
+            if ((int)((cur[i] >> shift) & 255) == dg) heap[kk++] = cur[i];
+        cur = heap;
+        k = kk;
+        if (k == 1 || shift == 0) return cur[0];     /* distinct keys: shift 0 leaves one */
     }
-    return prefix;
 }
 
 PyDoc_STRVAR(rans_tables_doc,
@@ -2416,6 +2419,65 @@ static PyObject *py_all_finite(PyObject *self, PyObject *arg)
     return PyBool_FromLong(!bad);
 }
 
+/* ================================================================== varints (ENTROPY.md §2) */
+PyDoc_STRVAR(read_varints_doc,
+"read_varints(buf, pos, count, out) -> int\n\n"
+"gsz.decoder.rans.read_varints in C: the first `count` terminating bytes (< 0x80) within\n"
+"buf[pos : pos + 9 * count] end the `count` unsigned LEB128 varints, written to out (int64\n"
+"[count]); returns the position after them, -1 when fewer terminators are found there\n"
+"(truncated) or -2 when one varint is longer than 9 bytes (same decision order as NumPy's).");
+
+static PyObject *py_read_varints(PyObject *self, PyObject *args)
+{
+    PyObject *o_buf, *o_out;
+    long long pos, count;
+    if (!PyArg_ParseTuple(args, "OLLO", &o_buf, &pos, &count, &o_out)) return NULL;
+    Py_buffer vb, vo;
+    if (getbuf(o_buf, &vb, 1, 'x', 0, "buf") < 0) return NULL;
+    if (getbuf(o_out, &vo, 8, 'i', 1, "out") < 0) { PyBuffer_Release(&vb); return NULL; }
+    long long res = 0;
+    if (pos < 0 || count < 0 || pos > vb.len || vo.len / 8 != count) {
+        PyBuffer_Release(&vb); PyBuffer_Release(&vo);
+        PyErr_SetString(PyExc_ValueError, "read_varints: inconsistent arguments");
+        return NULL;
+    }
+    const uint8_t *b = (const uint8_t *)vb.buf + pos;
+    int64_t *out = vo.buf;
+    const int64_t avail = (int64_t)vb.len - pos;
+    const int64_t window = 9 * count < avail ? 9 * count : avail;
+    Py_BEGIN_ALLOW_THREADS
+    /* pass 1: the terminators and the longest varint */
+    int64_t found = 0, i = 0, start = 0, longest = 0;
+    for (; i < window && found < count; i++) {
+        if (b[i] < 0x80) {
+            if (i - start + 1 > longest) longest = i - start + 1;
+            start = i + 1;
+            found++;
+        }
+    }
+    if (found < count) res = -1;
+    else if (longest > 9) res = -2;
+    else {
+        int64_t j = 0;
+        for (int64_t v = 0; v < count; v++) {
+            uint64_t x = 0;
+            int sh = 0;
+            for (;;) {
+                const uint8_t c = b[j++];
+                x |= (uint64_t)(c & 0x7F) << sh;
+                sh += 7;
+                if (c < 0x80) break;
+            }
+            out[v] = (int64_t)x;
+        }
+        res = pos + j;
+    }
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&vb);
+    PyBuffer_Release(&vo);
+    return PyLong_FromLongLong(res);
+}
+
 /* ================================================================== module */
 static PyMethodDef methods[] = {
     {"octree_decode", py_octree_decode, METH_VARARGS, octree_decode_doc},
@@ -2434,6 +2496,7 @@ static PyMethodDef methods[] = {
     {"voxel_positions", py_voxel_positions, METH_VARARGS, voxel_positions_doc},
     {"sh_assemble", py_sh_assemble, METH_VARARGS, sh_assemble_doc},
     {"all_finite", py_all_finite, METH_O, all_finite_doc},
+    {"read_varints", py_read_varints, METH_VARARGS, read_varints_doc},
     {NULL, NULL, 0, NULL},
 };
 

@@ -143,6 +143,14 @@ def read_varints(buf: np.ndarray, pos: int, count: int, what: str) -> tuple[np.n
         raise GszFormatError(f"rANS: {count} varints ({what}) cannot fit in {buf.size - pos} bytes")
     if count == 0:
         return np.zeros(0, dtype=np.int64), pos
+    if native.enabled():
+        out = np.empty(count, dtype=np.int64)
+        end = native.module().read_varints(buf, pos, count, out)
+        if end == -1:
+            raise GszFormatError(f"rANS: truncated varint array ({what})")
+        if end == -2:
+            raise GszFormatError(f"rANS: varint too long ({what})")
+        return out, end
     window = buf[pos:pos + 9 * count]
     ends = np.flatnonzero(window < 0x80)
     if ends.size < count:
@@ -204,6 +212,9 @@ class ModelSet:
     levels: tuple = ()
     _tables: dict | None = field(default=None, repr=False, compare=False)
     _ntables: tuple | None = field(default=None, repr=False, compare=False)
+    #: (bin counts, all bins, all levels) of the COARSE models as flat int64 arrays, when the
+    #: parser has them (read_model_set); else built from ``bins``/``levels`` on demand
+    _flat: tuple | None = field(default=None, repr=False, compare=False)
 
     @property
     def num_models(self) -> int:
@@ -299,9 +310,19 @@ class ModelSet:
             self._ntables = native.module().rans_tables(
                 c64(self.types), c64(self.lo), c64(self.span), c64(self.prec), c64(self.group),
                 c64(self.binshift), c64(self.centre), c64(self.r_left), c64(self.r_right),
-                c64([b.size for b in self.bins]), cat(self.bins), cat(self.levels),
+                *(c64(a) for a in self.coarse_flat()),
                 int(max_lut_entries))
         return self._ntables
+
+    def coarse_flat(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(bins per COARSE model, every bin, every level code) as flat int64 arrays, in model
+        order (``bins``/``levels`` concatenated)."""
+        if self._flat is None:
+            cat = (lambda xs: np.concatenate(xs).astype(np.int64, copy=False) if len(xs)
+                   else np.zeros(0, np.int64))
+            self._flat = (np.fromiter((b.size for b in self.bins), dtype=np.int64,
+                                      count=len(self.bins)), cat(self.bins), cat(self.levels))
+        return self._flat
 
     def validate(self) -> None:
         """Static constraints of ENTROPY.md section 3 (raises GszFormatError)."""
@@ -339,12 +360,13 @@ class ModelSet:
             return
         # every COARSE model at once (a per-model loop cost ~15 us per model: 50 ms for the
         # 3600 models of an SH-3 codebook); the same checks as model by model
-        nb = np.fromiter((b.size for b in self.bins), dtype=np.int64, count=co.size)
-        nq = np.fromiter((q.size for q in self.levels), dtype=np.int64, count=co.size)
-        if np.any(nb == 0) or np.any(nb != nq):
+        if self._flat is None:
+            nq = np.fromiter((q.size for q in self.levels), dtype=np.int64, count=co.size)
+            if np.any(self.coarse_flat()[0] != nq):
+                raise GszFormatError("rANS model set: coarse model without bins")
+        nb, allb, allq = self.coarse_flat()
+        if np.any(nb == 0) or allb.size != allq.size:
             raise GszFormatError("rANS model set: coarse model without bins")
-        allb = np.concatenate(self.bins).astype(np.int64, copy=False)
-        allq = np.concatenate(self.levels).astype(np.int64, copy=False)
         first = np.cumsum(nb) - nb
         last = first + nb - 1
         h = self.binshift[co]
@@ -462,6 +484,8 @@ def read_model_set(buf: memoryview | bytes, pos: int = 0) -> tuple[ModelSet, int
         bins = levels = ()
     ms = ModelSet(types=types, lo=lo, span=span, prec=prec, group=group, binshift=binshift,
                   centre=centre, r_left=rl, r_right=rr, bins=bins, levels=levels)
+    if n_co:
+        ms._flat = (counts, bins_flat, levels_flat)
     ms.validate()
     return ms, pos
 

@@ -411,6 +411,28 @@ def test_rans_streams_and_tables_identical(case):
 
 
 @needs_native
+def test_varint_arrays_identical():
+    """The C varint reader gives NumPy's values, end position and error (truncated / too
+    long) on random, partly terminated byte strings."""
+    from gsz.decoder.rans import read_varints
+    rng = np.random.default_rng(12)
+    oks = 0
+    for _ in range(4000):
+        buf = rng.integers(0, 256, int(rng.integers(0, 40))).astype(np.uint8)
+        if rng.random() < 0.5:
+            buf[rng.random(buf.size) < 0.6] &= 0x7F
+        pos, count = int(rng.integers(0, buf.size + 1)), int(rng.integers(0, 8))
+
+        def run():
+            v, p = read_varints(buf, pos, count, "test")
+            return v.tolist(), p
+        (ka, a), (kb, b) = both(run)
+        assert ka == kb and (a == b if ka == "ok" else str(a) == str(b)), (a, b)
+        oks += ka == "ok"
+    assert 500 < oks < 3900
+
+
+@needs_native
 def test_laplace_and_wide_models_identical():
     """LAPLACE models (float64 product chains), spans up to 65536 and every precision: the C
     normalisation (radix select of the remainders) equals the NumPy one."""
