@@ -42,6 +42,10 @@ SH_BITS = 8          # codebook and kept SH vectors (the paper's setting)
 #: least this (attributes near their useful precision: position error is what is left), and a
 #: shallower one first otherwise.
 DEPTH_DEEPER_FIRST_BITS = 8.0
+#: Levels deeper than the default the walk may go while the best file stays below the budget at
+#: full quality (saturated); otherwise it stops at max_extra_depth.
+SATURATED_EXTRA_DEPTH = 8
+SATURATED_MIN_GAIN_DB = 0.1
 KEEP_FRACTIONS = (0.0, 0.0025, 0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.32)
 #: Keep fractions tried only when the largest of KEEP_FRACTIONS wins (budgets near or above the
 #: scene's quality ceiling): their statistics cover every vector and cost ~3x more to compute.
@@ -916,7 +920,14 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
         for step in ((1, -1) if deeper_first else (-1, 1)):
             moved = False
             d = d0
-            while lo_d <= d + step <= hi_d and (best[1], d + step) not in evaluated:
+            def room(d_next):
+                # a file still below the budget with every group at its best width gains from
+                # every further level for almost nothing: go on while it stays saturated
+                cap = hi_d
+                if step > 0 and len(best_candidate()[2]) < target * (1.0 - sopts.tolerance):
+                    cap = min(21, depth + SATURATED_EXTRA_DEPTH)
+                return lo_d <= d_next <= cap
+            while room(d + step) and (best[1], d + step) not in evaluated:
                 before = best_candidate()
                 progress.log(f"depth {d + step} at tau {before[1]} (best so far: depth {d}, "
                              f"{before[0]:.2f} dB train PSNR)")
@@ -925,6 +936,8 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
                     break
                 d += step
                 moved = True
+                if d > hi_d and best_candidate()[0] - before[0] < SATURATED_MIN_GAIN_DB:
+                    break           # past the usual range, further levels no longer pay
             if moved:
                 break
         if best_candidate()[4]["depth"] != d0:
