@@ -17,6 +17,7 @@ Summary of the scheme
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -475,11 +476,11 @@ def read_model_set(buf: memoryview | bytes, pos: int = 0) -> tuple[ModelSet, int
         dz = unzigzag(deltas)
         cq = np.cumsum(dz)
         levels_flat = cq - np.repeat(cq[first] - dz[first], counts)
-        # views of the flat arrays (np.split costs ~10x more per piece)
-        ends = np.cumsum(counts).tolist()
-        starts = first.tolist()
-        bins = tuple(bins_flat[a:b] for a, b in zip(starts, ends))
-        levels = tuple(levels_flat[a:b] for a, b in zip(starts, ends))
+        # per-model views of the flat arrays, made when first asked for (the native path only
+        # uses the flat arrays; a tuple of views cost 1.5 us per model: 6 ms for jug's SH sets)
+        ends = np.cumsum(counts)
+        bins = CoarseSlices(bins_flat, first, ends)
+        levels = CoarseSlices(levels_flat, first, ends)
     else:
         bins = levels = ()
     ms = ModelSet(types=types, lo=lo, span=span, prec=prec, group=group, binshift=binshift,
@@ -488,6 +489,32 @@ def read_model_set(buf: memoryview | bytes, pos: int = 0) -> tuple[ModelSet, int
         ms._flat = (counts, bins_flat, levels_flat)
     ms.validate()
     return ms, pos
+
+
+class CoarseSlices(Sequence):
+    """The per-model pieces ``flat[starts[i]:ends[i]]`` of a flat array as a read-only
+    sequence of views (what a tuple of the views would give, without making them up front)."""
+
+    def __init__(self, flat: np.ndarray, starts: np.ndarray, ends: np.ndarray):
+        self._flat, self._starts, self._ends = flat, starts, ends
+
+    def __len__(self) -> int:
+        return int(self._starts.size)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return tuple(self[j] for j in range(*i.indices(len(self))))
+        if i < 0:
+            i += len(self)
+        if not 0 <= i < len(self):
+            raise IndexError("model index out of range")
+        return self._flat[int(self._starts[i]):int(self._ends[i])]
+
+    def __add__(self, other):
+        return tuple(self) + tuple(other)
+
+    def __radd__(self, other):
+        return tuple(other) + tuple(self)
 
 
 # ---- payload decoding --------------------------------------------------------------------------

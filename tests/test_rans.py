@@ -310,3 +310,17 @@ def test_payload_within_one_percent_of_constriction():
     print(f"payload {len(payload)} B, constriction {ref} B, tables {len(table)} B")
     assert len(payload) < 1.01 * ref
     assert len(table) < 0.005 * len(payload)
+
+
+def test_parsed_coarse_pieces_behave_like_a_tuple_of_views():
+    # the parser hands out per-model COARSE pieces lazily; callers index, iterate, slice and
+    # concatenate them like the tuple they used to be
+    sym, mids = laplace_data(60_000, 40, seed=11)
+    models = fit_model_set(sym, mids, 40)
+    back, _ = read_model_set(write_model_set(models))
+    n = len(back.bins)
+    assert n == len(models.bins) > 0
+    np.testing.assert_array_equal(back.bins[-1], models.bins[-1])
+    assert [b.size for b in back.bins[1:3]] == [b.size for b in models.bins[1:3]]
+    with pytest.raises(IndexError):
+        back.bins[n]
