@@ -30,7 +30,7 @@
 #endif
 
 /* Bumped whenever a signature changes, so a stale build is ignored (decoder/native.py). */
-#define GSZ_NATIVE_ABI 4
+#define GSZ_NATIVE_ABI 5
 
 static PyObject *FormatError = NULL;   /* gsz.decoder.errors.GszFormatError */
 
@@ -1251,6 +1251,101 @@ static int put_varint(uint8_t *p, uint64_t v)
     return n;
 }
 
+/* One rANS encoder step (ENTROPY.md §4.2, run backwards): renormalise state x for a symbol of
+ * frequency f at precision prec (emitting its low 16 bits below wb[*wi] when x >= f << (32 -
+ * prec)), then push the symbol (cumulative frequency c).  Shared by every native encoder so
+ * that they all make the bytes of gsz.encoder.rans._payload. */
+static inline uint64_t rans_put(uint64_t x, uint64_t f, uint64_t c, unsigned prec,
+                                uint16_t *wb, int64_t *wi)
+{
+    if (x >= (f << (32 - prec))) {
+        wb[--*wi] = (uint16_t)(x & 0xFFFF);
+        x >>= 16;
+    }
+    return ((x / f) << prec) + (x % f) + c;
+}
+
+/* The payload bytes: varint lanes, varint word count, the final lane states (uint32 LE), the
+ * words in stream order (uint16 LE). */
+static PyObject *rans_payload_bytes(const uint64_t *st, int64_t lanes, const uint16_t *w, int64_t nw)
+{
+    uint8_t head[20];
+    int hl = put_varint(head, (uint64_t)lanes);
+    hl += put_varint(head + hl, (uint64_t)nw);
+    PyObject *res = PyBytes_FromStringAndSize(NULL, (Py_ssize_t)(hl + 4 * lanes + 2 * nw));
+    if (!res) return NULL;
+    uint8_t *o = (uint8_t *)PyBytes_AS_STRING(res);
+    memcpy(o, head, (size_t)hl);
+    o += hl;
+    for (int64_t l = 0; l < lanes; l++) {
+        const uint64_t x = st[l];
+        o[4 * l] = x & 0xFF; o[4 * l + 1] = (x >> 8) & 0xFF;
+        o[4 * l + 2] = (x >> 16) & 0xFF; o[4 * l + 3] = (x >> 24) & 0xFF;
+    }
+    o += 4 * lanes;
+    for (int64_t i = 0; i < nw; i++) {
+        o[2 * i] = w[i] & 0xFF;
+        o[2 * i + 1] = w[i] >> 8;
+    }
+    return res;
+}
+
+PyDoc_STRVAR(rans_encode_doc,
+"rans_encode(freq, cum, shift, lanes) -> bytes\n\n"
+"ENTROPY.md §4 payload of symbols given, in stream order, by their frequency freq (int64),\n"
+"cumulative frequency cum (int64) and model precision shift (uint8), over `lanes` interleaved\n"
+"lanes: byte-identical to gsz.encoder.rans._payload.");
+
+static PyObject *py_rans_encode(PyObject *self, PyObject *args)
+{
+    PyObject *freq_obj, *cum_obj, *shift_obj;
+    long long lanes;
+    if (!PyArg_ParseTuple(args, "OOOL", &freq_obj, &cum_obj, &shift_obj, &lanes)) return NULL;
+    Py_buffer fb, cb, sb;
+    if (getbuf(freq_obj, &fb, 8, 'i', 0, "freq") < 0) return NULL;
+    if (getbuf(cum_obj, &cb, 8, 'i', 0, "cum") < 0) { PyBuffer_Release(&fb); return NULL; }
+    if (getbuf(shift_obj, &sb, 1, 'x', 0, "shift") < 0) {
+        PyBuffer_Release(&fb); PyBuffer_Release(&cb); return NULL;
+    }
+    const int64_t n = fb.len / 8;
+    PyObject *res = NULL;
+    uint64_t *st = NULL;
+    uint16_t *wb = NULL;
+    int ok = 1;
+    if (cb.len / 8 != n || sb.len != n || lanes < 1 || lanes > (n > 1 ? n : 1)) {
+        PyErr_SetString(PyExc_ValueError, "rans_encode: inconsistent arguments");
+        ok = 0;
+    }
+    if (ok) {
+        st = malloc((size_t)lanes * sizeof *st);
+        wb = big_alloc((size_t)(n ? n : 1) * sizeof *wb);
+        if (!st || !wb) { PyErr_NoMemory(); ok = 0; }
+    }
+    int64_t wi = n, bad = 0;
+    if (ok) {
+        const int64_t *f = fb.buf, *c = cb.buf;
+        const uint8_t *p = sb.buf;
+        Py_BEGIN_ALLOW_THREADS
+        for (int64_t l = 0; l < lanes; l++) st[l] = 65536u;
+        int64_t lane = n ? (n - 1) % lanes : 0;
+        for (int64_t j = n - 1; j >= 0; j--) {
+            /* a symbol of a valid model: prec <= 16 (0: a SINGLE model, f = 1), 1 <= f, c + f <= 2^prec */
+            if (p[j] > 16 || f[j] < 1 || c[j] < 0 || c[j] + f[j] > ((int64_t)1 << p[j])) {
+                bad = 1;
+                break;
+            }
+            st[lane] = rans_put(st[lane], (uint64_t)f[j], (uint64_t)c[j], p[j], wb, &wi);
+            if (--lane < 0) lane = lanes - 1;
+        }
+        Py_END_ALLOW_THREADS
+        if (bad) { PyErr_SetString(PyExc_ValueError, "rans_encode: symbol frequency out of range"); ok = 0; }
+    }
+    if (ok) res = rans_payload_bytes(st, lanes, wb + wi, n - wi);
+    free(st); free(wb);
+    PyBuffer_Release(&fb); PyBuffer_Release(&cb); PyBuffer_Release(&sb);
+    return res;
+}
+
 PyDoc_STRVAR(bank_encode_doc,
 "bank_encode(bits, models, freq0, prec, lanes) -> bytes\n\n"
 "ENTROPY.md §4 payload of binary symbols (uint8 0/1) coded with the bank models `models`\n"
@@ -1303,39 +1398,13 @@ static PyObject *py_bank_encode(PyObject *self, PyObject *args)
             if (b > 1 || m >= nm) { bad = 1; break; }
             const uint64_t fz = (uint64_t)f0[m];
             const uint64_t f = b ? total - fz : fz, c = b ? fz : 0;
-            uint64_t x = st[lane];
-            if (x >= (f << (32 - prec))) {
-                wb[--wi] = (uint16_t)(x & 0xFFFF);
-                x >>= 16;
-            }
-            st[lane] = ((x / f) << prec) + (x % f) + c;
+            st[lane] = rans_put(st[lane], f, c, (unsigned)prec, wb, &wi);
             if (--lane < 0) lane = lanes - 1;
         }
         Py_END_ALLOW_THREADS
         if (bad) { PyErr_SetString(PyExc_ValueError, "bank_encode: bit or model id out of range"); ok = 0; }
     }
-    if (ok) {
-        const int64_t nw = n - wi;
-        uint8_t head[20];
-        int hl = put_varint(head, (uint64_t)lanes);
-        hl += put_varint(head + hl, (uint64_t)nw);
-        res = PyBytes_FromStringAndSize(NULL, (Py_ssize_t)(hl + 4 * lanes + 2 * nw));
-        if (res) {
-            uint8_t *o = (uint8_t *)PyBytes_AS_STRING(res);
-            memcpy(o, head, (size_t)hl);
-            o += hl;
-            for (int64_t l = 0; l < lanes; l++) {
-                const uint64_t x = st[l];
-                o[4 * l] = x & 0xFF; o[4 * l + 1] = (x >> 8) & 0xFF;
-                o[4 * l + 2] = (x >> 16) & 0xFF; o[4 * l + 3] = (x >> 24) & 0xFF;
-            }
-            o += 4 * lanes;
-            for (int64_t i = 0; i < nw; i++) {
-                o[2 * i] = wb[wi + i] & 0xFF;
-                o[2 * i + 1] = wb[wi + i] >> 8;
-            }
-        }
-    }
+    if (ok) res = rans_payload_bytes(st, lanes, wb + wi, n - wi);
     free(st); free(wb);
     PyBuffer_Release(&bits); PyBuffer_Release(&models); PyBuffer_Release(&freq);
     return res;
@@ -2486,6 +2555,7 @@ static PyMethodDef methods[] = {
     {"octree_help", py_octree_help, METH_O, octree_help_doc},
     {"octree_helper_close", py_octree_helper_close, METH_O, octree_helper_close_doc},
     {"bank_encode", py_bank_encode, METH_VARARGS, bank_encode_doc},
+    {"rans_encode", py_rans_encode, METH_VARARGS, rans_encode_doc},
     {"rans_decode", py_rans_decode, METH_VARARGS, rans_decode_doc},
     {"raht_tree", py_raht_tree, METH_VARARGS, raht_tree_doc},
     {"raht_apply", py_raht_apply, METH_VARARGS, raht_apply_doc},

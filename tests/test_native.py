@@ -1,6 +1,7 @@
 """The optional C accelerator (decoder/_native.c) against the NumPy reference: identical clouds
 and identical encoder bytes, the same accept/reject decision on hostile input, the GSZ_NATIVE=0
 switch and a working package when the extension is missing."""
+import contextlib
 import json
 import os
 import shutil
@@ -493,6 +494,26 @@ def test_rans_hostile_streams_same_outcome():
 
 
 # ------------------------------------------------------------------ encoder: identical bytes
+@needs_native
+@pytest.mark.parametrize("case", range(5))
+def test_rans_encoder_identical_bytes(case):
+    from gsz.encoder.rans import _payload, encode_symbols, fit_model_set
+    sym, mids, m = _model_sets()[case]
+    models = fit_model_set(sym, mids, m)
+    for lanes in (None, 1, 7, max(1, sym.size // 3)):
+        (ka, a), (kb, b) = both(lambda: encode_symbols(sym, mids, models, lanes=lanes))
+        assert ka == kb == "ok" and a == b, lanes
+    # no symbols at all: only the lane header and start states
+    z = np.zeros(0, np.int64)
+    (ka, a), (kb, b) = both(lambda: _payload(z, z, z, None))
+    assert ka == kb == "ok" and a == b
+    # an out-of-range lane count is the same error on both paths
+    for use_native in (True, False):
+        with native.numpy_only() if not use_native else contextlib.nullcontext():
+            with pytest.raises(ValueError, match="lane count"):
+                encode_symbols(sym, mids, models, lanes=sym.size + 1)
+
+
 @needs_native
 def test_octree_encoder_identical_bits_models_and_payload():
     rng = np.random.default_rng(2)
