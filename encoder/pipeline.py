@@ -167,7 +167,8 @@ class Layer:
     RAHT tree, channel sets) on the stage's voxel grid; the SH codebook is shared.
 
     index      [M_l] int64 ascending indices into the stage's voxels (so Morton order)
-    geometry   GEOM chunk payload of the layer
+    geometry_job  GEOM chunk payload of the layer, or a Future of it while a worker thread codes
+                  it (read :attr:`geometry`)
     tree       RAHT tree of the layer's voxels
     raht_dc    [7] float64 RAHT root coefficients (stored exactly)
     raht_ac    [7, M_l-1] float32 AC coefficients in stream (level) order
@@ -175,11 +176,18 @@ class Layer:
     """
 
     index: np.ndarray
-    geometry: bytes
+    geometry_job: object
     tree: object
     raht_dc: np.ndarray
     raht_ac: np.ndarray
     scales: np.ndarray
+
+    @property
+    def geometry(self) -> bytes:
+        """GEOM chunk payload of the layer (waits for the worker thread coding it, if any)."""
+        if not isinstance(self.geometry_job, bytes):
+            self.geometry_job = self.geometry_job.result()
+        return self.geometry_job
 
     @property
     def num_points(self) -> int:
@@ -282,10 +290,12 @@ def stage_source(kept: np.ndarray, vox) -> np.ndarray:
 
 def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, *, depth=None,
                   rel_error=None, layers: int = DEFAULT_LAYERS, first_layer: float = DEFAULT_FIRST_LAYER,
-                  progress: Progress | None = None, voxelized=None) -> Stage:
+                  progress: Progress | None = None, voxelized=None, pool=None) -> Stage:
     """Prune to ``reserve``, voxelise, split into importance layers, code each layer's geometry
     and transform its attributes.  ``voxelized``: the (kept, Voxelized) of
-    :func:`voxelize_stage` for these arguments when the caller already has it."""
+    :func:`voxelize_stage` for these arguments when the caller already has it.  ``pool``: an
+    executor that codes the geometry while the caller goes on (the octree coder runs without
+    the GIL; nothing before the file size needs its bytes)."""
     from .raht import raht_forward
 
     progress = progress or Progress(quiet=True)
@@ -302,15 +312,17 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
     for li in range(int(layer_of.max()) + 1):
         idx = np.flatnonzero(layer_of == li)
         tag = f"layer {li}, {len(idx)} voxels" if layers > 1 else ""
-        with progress.stage("geometry", tag):
-            geom = write_geometry(vox.ijk[idx], vox.origin, vox.side, d)
+        def code_geometry(ijk=vox.ijk[idx], tag=tag):
+            with progress.stage("geometry", tag):
+                return write_geometry(ijk, vox.origin, vox.side, d)
+        geom = pool.submit(code_geometry) if pool is not None else code_geometry()
         with progress.stage("transform", ("Euler + RAHT, " + tag) if tag else "Euler + RAHT"):
             tree = build_raht_tree(morton_encode(vox.ijk[idx]), d)
             euler = quaternion_to_euler(c.rotations[idx].astype(np.float64))
             attrs = np.concatenate([c.opacities[idx].astype(np.float64)[:, None], euler,
                                     c.sh_dc[idx].astype(np.float64)], axis=1)
             dc, ac = raht_forward(attrs, tree)
-        parts.append(Layer(index=idx, geometry=geom, tree=tree, raht_dc=dc,
+        parts.append(Layer(index=idx, geometry_job=geom, tree=tree, raht_dc=dc,
                            raht_ac=np.ascontiguousarray(ac.T, dtype=np.float32),
                            scales=np.ascontiguousarray(c.scales[idx].T, dtype=np.float32)))
     return Stage(reserve=float(reserve), depth=d, vox=vox, layers=parts,

@@ -642,8 +642,12 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     round, candidates with their train PSNR, and seconds per stage.  Raises BudgetError with the
     smallest reachable size when the budget cannot be met.
     """
-    with _search_threads():
-        return _encode_to_budget(cloud, target_bytes, options, importance, cameras, progress)
+    from concurrent.futures import ThreadPoolExecutor
+
+    # every candidate's octree is coded on this thread while the caller computes the candidate's
+    # SH statistics and rate tables (flowers: ~1.4 s of each ~10 s candidate)
+    with _search_threads(), ThreadPoolExecutor(max_workers=1, thread_name_prefix="gsz-geom") as pool:
+        return _encode_to_budget(cloud, target_bytes, options, importance, cameras, progress, pool)
 
 
 @contextlib.contextmanager
@@ -726,7 +730,8 @@ def _screen_psnr(refs, cloud, cameras, best_views) -> tuple[float, int]:
     return float(np.mean(vals)), 0
 
 
-def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progress) -> EncodeResult:
+def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progress,
+                      geometry_pool) -> EncodeResult:
     sopts = options or SearchOptions()
 
     def bad(msg):
@@ -758,7 +763,7 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
         if (tau, d, fl) not in stages:
             stages[(tau, d, fl)] = prepare_stage(cloud, importance, tau, depth=d, layers=sopts.layers,
                                                  first_layer=fl, progress=progress,
-                                                 voxelized=vox_for(tau, d))
+                                                 voxelized=vox_for(tau, d), pool=geometry_pool)
         return stages[(tau, d, fl)]
 
     taus = sorted(set(float(t) for t in sopts.reserves), reverse=True)
@@ -901,14 +906,15 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
 
     for tau in feasible:
         try_tau(tau)
-    refine_tau()
     # octree depth: the position-error default is right only in the middle of the RD range.
     # Each level costs about 3 bits per voxel and halves the position error: at high budgets
     # (attributes near their best widths) a deeper grid is worth far more than those bits
     # (houseplant at 1.5 MB: depth 11 -> 13 is 53.7 -> 60.8 dB test PSNR), at low budgets the
     # bits are better spent on attributes (houseplant 27x: depth 10 beats 11 by ~1 dB).  Walk
     # the depth from the best candidate, first in the direction its allocation suggests, while
-    # the train PSNR improves; then refine tau at the new depth.
+    # the train PSNR improves; then refine tau once, at the depth the walk ends on (refining
+    # before the walk as well cost one encode whenever the walk moved -- flowers 8x: tau 0.9
+    # at depth 11 -- and the grid neighbour's verdict at the old depth is not the one needed).
     if candidates and sopts.depth_steps > 0:
         best = best_candidate()
         d0 = best[4]["depth"]
@@ -940,8 +946,7 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
                     break           # past the usual range, further levels no longer pay
             if moved:
                 break
-        if best_candidate()[4]["depth"] != d0:
-            refine_tau()
+    refine_tau()
     # layered files: layer 0 should arrive after about `layer0_share` of the bytes.  Kept exact
     # SH vectors make the most important Gaussians several times dearer than the rest, so on SH
     # scenes a Gaussian share of `first_layer` can cost far more bytes; re-split the chosen
