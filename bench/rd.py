@@ -324,6 +324,25 @@ def report(state) -> str:
                      "n/a" if d is None else f"{d:+.2f} dB {'met' if t['target_db_met'] else 'NOT met'}",
                      f"{_frac(t)} {'met' if t['target_fraction_met'] else 'NOT met'}"]
         lines.append(f"| {scene} | {variant} | " + " | ".join(cells) + f" | {other('spz')} | {other('compressed.ply')} |")
+    return "\n".join(lines) + "\n\n" + search_report(rows)
+
+
+def search_report(rows) -> str:
+    """Markdown: the size search at every gsz budget (issue #4's table: deviation from the
+    target, test fidelity, the chosen configuration, search seconds)."""
+    lines = ["| scene | variant | budget | target B | actual B | deviation | test PSNR | SSIM | tau | depth | K "
+             "| kept SH | candidates full / screened | rounds | search s (+ importance) | CPU s | load |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if r["codec"] != "gsz" or "depth" not in r:
+            continue
+        dev = (r["bytes"] - r["target"]) / r["target"]
+        load = r.get("load") or [float("nan")] * 2
+        lines.append(
+            f"| {r['scene']} | {r['variant']} | {r['budget']} | {r['target']:,} | {r['bytes']:,} | {100 * dev:+.3f} % "
+            f"| {r['psnr']:.2f} | {r['ssim']:.4f} | {r['reserve']} | {r['depth']} | {r['codebook_size']} "
+            f"| {r['sh_keep']:,} | {r['candidates']} / {r['screened']} | {r['rounds']} "
+            f"| {r['search_s']:.0f} (+{r['importance_s']:.0f}) | {r['cpu_s']:.0f} | {load[0]:.1f}-{load[1]:.1f} |")
     return "\n".join(lines) + "\n"
 
 
@@ -535,6 +554,7 @@ def main(argv=None):
             for label, target in gsz_todo:
                 prog = Progress(quiet=not a.verbose)
                 log(f"{scene} {variant} gsz {label}: searching for {target:,} B ...")
+                load0 = os.getloadavg()[0]
                 t0 = time.perf_counter()
                 try:
                     res = encode_to_budget(cloud, target, options=sopts, importance=imp, progress=prog)
@@ -560,6 +580,10 @@ def main(argv=None):
                          "psnr": ev["psnr"], "ssim": ev["ssim"], "views": [v["psnr"] for v in ev["views"]],
                          "encode_s": t_imp + t_search, "decode_s": t_dec, "importance_s": t_imp,
                          "search_s": t_search, "reserve": rep.get("reserve"), "sh_keep": rep.get("sh_keep"),
+                         "depth": rep.get("depth"), "codebook_size": rep.get("codebook_size"),
+                         "candidates": len(rep.get("candidates", [])), "screened": len(rep.get("screened", [])),
+                         "rounds": len(rep.get("calibration", [])), "cpu_s": rep.get("cpu_seconds"),
+                         "load": [load0, os.getloadavg()[0]], "note": rep.get("note"),
                          "stage_seconds": rep.get("seconds")})
 
     state["meta"]["finished"] = time.strftime("%Y-%m-%d %H:%M:%S")
