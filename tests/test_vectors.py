@@ -43,3 +43,18 @@ def test_vector_layers_decode_as_prefixes(name):
         assert len(got) == row["layer"] + 1 and len(got[-1].cloud) == row["cumulative_gaussians"]
         np.testing.assert_array_equal(got[-1].cloud.positions, full.positions[:row["cumulative_gaussians"]])
     assert exp["layers"][-1]["cumulative_gaussians"] == exp["num_gaussians"]
+
+
+def test_halving_vector_needs_the_count_halving(monkeypatch):
+    # the vector is only worth its bytes if a decoder without OCTREE.md §4's halving fails on it
+    import gsz.decoder.octree as octree
+    from gsz.decoder import GszFormatError, native
+    data = (VEC / "sh0_plant_20k_d13_halving.gsz").read_bytes()
+    with native.numpy_only():
+        right = decode(data)
+        monkeypatch.setattr(octree, "COUNT_LIMIT", 1 << 60)
+        try:
+            wrong = decode(data)
+        except GszFormatError:
+            return                      # the occupancy went wrong far enough to be rejected
+    assert not np.array_equal(wrong.positions, right.positions)

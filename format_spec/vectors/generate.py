@@ -44,6 +44,11 @@ VECTORS = [
     # (NOISE_SIGMA) and 12-bit groups of ~40 symbols, where a LAPLACE model (two parameters) is
     # cheaper than a frequency table; 3000 voxels give every rANS stream several lanes
     ("sh0_plant_3000_laplace", "houseplant_sh0_20k.ply", 3000, 0, dict(reserve=1.0, bits=12)),
+    # octree coverage: the whole 20k sample on a depth-13 grid, where coarse contexts pass
+    # COUNT_LIMIT within a level, so a decoder that skips the count halving (OCTREE.md §4)
+    # decodes different occupancy; 1-bit attributes keep the file small
+    ("sh0_plant_20k_d13_halving", "houseplant_sh0_20k.ply", 20_000, 0,
+     dict(reserve=1.0, bits=1, depth=13)),
 ]
 #: vectors whose scales and opacities get seeded Gaussian noise of this sigma before encoding
 NOISED = {"sh0_plant_3000_laplace": 0.05}
