@@ -767,18 +767,25 @@ def _value_index(models: ModelSet, tabs: dict, mid: np.ndarray, off: np.ndarray)
     g = tabs["sym_start"][mid] + np.where(t == LAPLACE, off, 0)
     c = np.flatnonzero(t == COARSE)
     if c.size:
-        mc, oc = mid[c], off[c]
-        sh = models.binshift[mc]
-        b = oc >> sh
-        key = (mc << 17) | b
-        bk = tabs["bin_key"]
-        i = np.searchsorted(bk, key)
-        ok = i < bk.size
-        ok[ok] = bk[i[ok]] == key[ok]
+        e, ok = _coarse_entries(models, tabs, mid[c], off[c])
         if not ok.all():
             raise ValueError("a symbol has zero frequency in its model")
-        g[c] = tabs["bin_first"][i] + (oc - (b << sh))
+        g[c] = e
     return g
+
+
+def _coarse_entries(models: ModelSet, tabs: dict, mc: np.ndarray, oc: np.ndarray):
+    """(entry, present) of values lo + oc of COARSE models mc: the index into tabs['freq'] (its
+    bin's first entry + the offset inside the bin; meaningless where not present) and whether
+    the value's bin is in the model at all."""
+    sh = models.binshift[mc]
+    b = oc >> sh
+    key = (mc << 17) | b
+    bk = tabs["bin_key"]
+    if not bk.size:
+        return np.zeros(mc.size, np.int64), np.zeros(mc.size, bool)
+    i = np.minimum(np.searchsorted(bk, key), bk.size - 1)
+    return tabs["bin_first"][i] + (oc - (b << sh)), bk[i] == key
 
 
 def _payload(freq: np.ndarray, cum: np.ndarray, shift: np.ndarray, lanes: int | None) -> bytes:
@@ -907,14 +914,8 @@ def _dense_cells(models: ModelSet, tabs: dict, n: int):
     entry[sgl] = tabs["sym_start"][rep[sgl]]
     co = np.flatnonzero(t[rep] == COARSE)
     if co.size:
-        mc, oc = rep[co], off[co]
-        sh = models.binshift[mc]
-        b = oc >> sh
-        key = (mc << 17) | b
-        bk = tabs["bin_key"]
-        i = np.minimum(np.searchsorted(bk, key), max(bk.size - 1, 0))
-        hit = bk[i] == key if bk.size else np.zeros(co.size, bool)
-        entry[co[hit]] = tabs["bin_first"][i[hit]] + (oc[hit] - (b[hit] << sh[hit]))
+        e, hit = _coarse_entries(models, tabs, rep[co], off[co])
+        entry[co[hit]] = e[hit]
     has = entry >= 0
     freq = np.zeros(total, np.int64)
     cum = np.zeros(total, np.int64)

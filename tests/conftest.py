@@ -29,3 +29,15 @@ def sample_sh0():
 def sample_sh3():
     import gsz
     return gsz.read_ply(SAMPLE_SH3)
+
+
+@pytest.fixture(params=["native", "numpy"])
+def each_decoder_path(request):
+    """Runs the test once on the C accelerator and once on the NumPy reference (name the
+    fixture in ``pytest.mark.usefixtures``); skips the native run where it is not built."""
+    from gsz.decoder import native
+    if request.param == "native" and not native.native_available():
+        pytest.skip("native accelerator not built")
+    old = native.set_enabled(request.param == "native")
+    yield request.param
+    native.set_enabled(old)

@@ -11,15 +11,8 @@ from gsz.encoder.octree import encode_octree, occupancy_levels
 from conftest import SAMPLE_SH3, shared_scene
 
 
-@pytest.fixture(autouse=True, params=["native", "numpy"])
-def decoder_path(request):
-    """Every test runs on the C accelerator and on the NumPy reference (same expectations)."""
-    from gsz.decoder import native
-    if request.param == "native" and not native.native_available():
-        pytest.skip("native accelerator not built")
-    old = native.set_enabled(request.param == "native")
-    yield request.param
-    native.set_enabled(old)
+# every test runs on the C accelerator and on the NumPy reference (same expectations)
+pytestmark = pytest.mark.usefixtures("each_decoder_path")
 
 
 def voxelise(positions: np.ndarray, depth: int) -> np.ndarray:

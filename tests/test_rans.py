@@ -10,15 +10,8 @@ from gsz.encoder.rans import (encode_stream, encode_symbols, fit_model_set, stre
                               varint_bytes, write_model_set)
 
 
-@pytest.fixture(autouse=True, params=["native", "numpy"])
-def decoder_path(request):
-    """Every test runs on the C accelerator and on the NumPy reference (same expectations)."""
-    from gsz.decoder import native
-    if request.param == "native" and not native.native_available():
-        pytest.skip("native accelerator not built")
-    old = native.set_enabled(request.param == "native")
-    yield request.param
-    native.set_enabled(old)
+# every test runs on the C accelerator and on the NumPy reference (same expectations)
+pytestmark = pytest.mark.usefixtures("each_decoder_path")
 
 
 def laplace_data(n, m, seed=0, max_scale=20.0, lim=128, with_scales=False):
