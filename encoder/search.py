@@ -930,6 +930,9 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
         bits_all = np.concatenate([best[4]["raht_bits"].ravel(), best[4]["scale_bits"].ravel()])
         saturated = len(best[2]) < target * (1.0 - sopts.tolerance)
         deeper_first = saturated or float(np.mean(bits_all)) >= DEPTH_DEEPER_FIRST_BITS
+
+        def shares_voxels(tau, d) -> bool:
+            return vox_for(tau, d)[1].merged_fraction >= MERGED_FRACTION_EXTRA_DEPTH
         for step in ((1, -1) if deeper_first else (-1, 1)):
             moved = looked_past = False
             d = d0
@@ -945,8 +948,7 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
                 cap = hi_d
                 cb = best_candidate()
                 if step > 0 and (len(cb[2]) < target * (1.0 - sopts.tolerance)
-                                 or vox_for(cb[1], cb[4]["depth"])[1].merged_fraction
-                                 >= MERGED_FRACTION_EXTRA_DEPTH):
+                                 or shares_voxels(cb[1], cb[4]["depth"])):
                     cap = min(21, depth + SATURATED_EXTRA_DEPTH)
                 return lo_d <= d_next <= cap
             while room(d + step) and (best[1], d + step) not in evaluated:
@@ -961,8 +963,7 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
                     # level that does not pay is looked past (not two in a row).
                     if (step > 0 and not looked_past and room(d + 2 * step)
                             and (best[1], d + 2 * step) not in evaluated
-                            and vox_for(before[1], d + step)[1].merged_fraction
-                            >= MERGED_FRACTION_EXTRA_DEPTH):
+                            and shares_voxels(before[1], d + step)):
                         looked_past = True
                         d += step
                         continue
