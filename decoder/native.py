@@ -19,7 +19,7 @@ import os
 import numpy as np
 
 #: ABI number the Python side expects (GSZ_NATIVE_ABI in _native.c).
-ABI = 5
+ABI = 6
 
 _module = None
 _why_not = ""
