@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from contextlib import contextmanager
 
@@ -16,6 +17,7 @@ class Progress:
         self.quiet = quiet
         self.stream = stream or sys.stderr
         self.seconds: dict[str, float] = {}
+        self._lock = threading.Lock()      # stages also run on worker threads (size search)
 
     def log(self, msg: str) -> None:
         if not self.quiet:
@@ -27,7 +29,8 @@ class Progress:
         t0 = time.perf_counter()
         yield
         dt = time.perf_counter() - t0
-        self.seconds[name] = self.seconds.get(name, 0.0) + dt
+        with self._lock:
+            self.seconds[name] = self.seconds.get(name, 0.0) + dt
         self.log(f"{name} done in {dt:.2f} s")
 
     def bar(self, total: int, desc: str):
