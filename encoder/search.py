@@ -343,9 +343,15 @@ class _Assigner:
         return entry
 
     def _reusable(self, source: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Voxels (ascending) whose vector is bit-identical to their single source Gaussian's."""
+        """Voxels (ascending) whose vector is bit-identical to their single source Gaussian's
+        (remembered for the last stage asked about: each stage asks once per codebook)."""
+        last = getattr(self, "_last", None)
+        if last is not None and last[0] is source and last[1] is x:
+            return last[2]
         single = np.flatnonzero(source >= 0)
-        return single[np.all(x[single] == self.sh[source[single]], axis=1)]
+        out = single[np.all(x[single] == self.sh[source[single]], axis=1)]
+        self._last = (source, x, out)
+        return out
 
     def _known(self, src: np.ndarray, codebook: np.ndarray) -> np.ndarray:
         """index[src] after assigning those of the Gaussians src not assigned yet."""

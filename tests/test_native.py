@@ -540,6 +540,23 @@ def test_whole_file_encode_identical():
     assert ka == kb == "ok" and a == b
 
 
+@needs_native
+def test_encoder_reconstruction_identical():
+    """The encoder's own picture of the decoded attributes (what the size search measures and
+    renders) comes from the C inverse RAHT when the accelerator is on: same bytes and the same
+    float32 fields as the NumPy reference, every layer, several widths."""
+    from gsz.encoder.pipeline import EncodeOptions, attribute_chunks, compute_train_importance, prepare_stage
+    cloud = sample("sh0", 3000)
+    imp = compute_train_importance(cloud, EncodeOptions(train_views=4, importance_width=64))
+    stage = prepare_stage(cloud, imp, 0.8, layers=3, first_layer=0.1)
+    for bits in (2, 9, 16):
+        (ka, a), (kb, b) = both(lambda: attribute_chunks(stage, bits, 8))
+        assert ka == kb == "ok" and a[0] == b[0]
+        for f in ("opacities", "rotations", "sh_dc", "scales"):
+            x, y = getattr(a[1], f), getattr(b[1], f)
+            assert x.dtype == y.dtype == np.float32 and np.array_equal(x, y), (bits, f)
+
+
 # ------------------------------------------------------------------ switches and fallbacks
 def _run(code: str, env_extra: dict) -> str:
     env = {**os.environ, **env_extra}
