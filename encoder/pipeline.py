@@ -405,64 +405,101 @@ def sh_set_blocks(entries: int, blocks: int) -> int:
 def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks: int,
              cb_blocks: int | None = None, index: np.ndarray | None = None):
     """SHVQ payloads (one per layer), the SH the decoder will reconstruct ([M, K, 3] float32,
-    output order), and stats.
+    output order), and stats: ``ShPayloads(...).payloads()`` (see there) with every kept vector
+    at ``sh_bits`` like the codebook."""
+    return ShPayloads(stage, codebook, keep, sh_bits, blocks, cb_blocks, index).payloads()
+
+
+class ShPayloads:
+    """The SHVQ payloads of one (stage, codebook, keep-count), with the kept vectors' group
+    bit-widths still open: the codebook, the codeword indices and the kept flags are coded
+    once here, each :meth:`payloads` call codes only the kept vectors' channel sets (the size
+    search allocates their bit-widths together with the attributes').
 
     ``cb_blocks``: blocks of the codebook ChannelSet (default :func:`sh_set_blocks`); the kept
     vectors of each layer get :func:`sh_set_blocks` of their count.
     ``index``: [M] nearest codeword of every voxel's vector when the caller has it (the size
     search assigns once per stage and codebook), else computed here.
-    The ``keep`` most important Gaussians keep their exact vectors (quantised at sh_bits like
-    the codebook); every other Gaussian takes its nearest codeword.  The codebook
-    (compacted to the codewords some layer uses) goes with the first layer that has codeword
-    indices (layer 0 when none has), so a layer whose Gaussians all keep their exact vectors
-    does not wait for it; every other layer refers to it."""
-    from .rans import encode_stream
-    from .vq import assign, compact
+    The ``keep`` most important Gaussians keep their exact vectors (quantised group-wise,
+    ``sh_bits`` by default); every other Gaussian takes its nearest codeword (codebook at
+    ``sh_bits``).  The codebook (compacted to the codewords some layer uses) goes with the
+    first layer that has codeword indices (layer 0 when none has), so a layer whose Gaussians
+    all keep their exact vectors does not wait for it; every other layer refers to it."""
 
-    m, d = stage.sh.shape
-    keep = min(int(keep), m)
-    kept = _top_k_mask(stage.importance, keep)
-    rest = ~kept
-    idx_all = np.zeros(m, np.int64)
-    if rest.any():
-        near = assign(stage.sh[rest], codebook) if index is None else np.asarray(index)[rest]
-        cb, idx = compact(codebook, near)
-        idx_all[rest] = idx
-    else:
-        cb = np.zeros((1, d), np.float32)
-    cb_bytes, cb_rec = write_channel_set(cb.T, sh_bits,
-                                         sh_set_blocks(cb.shape[0], blocks) if cb_blocks is None else cb_blocks)
-    out = np.empty((m, d), np.float32)
-    out[rest] = cb_rec.T[idx_all[rest]]
-    stats = {"kept": keep, "codebook_size": int(cb.shape[0]), "codebook_bytes": len(cb_bytes),
-             "kept_bytes": 0, "index_bytes": 0}
-    kept_counts = [int(kept[l.index].sum()) for l in stage.layers]
-    kept_blocks = [sh_set_blocks(p, blocks) for p in kept_counts]
-    cb_layer = next((li for li, l in enumerate(stage.layers) if kept_counts[li] < l.num_points), 0)
-    payloads = []
-    for li, layer in enumerate(stage.layers):
-        ml = layer.num_points
-        k_l = kept[layer.index]
-        p = kept_counts[li]
-        w = Writer()
-        w.u32(cb.shape[0] if li == cb_layer else 0).u32(p).u16(d)
-        if li == cb_layer:
-            w.bytes(cb_bytes)
-        if p:
-            sel = layer.index[k_l]
-            kept_bytes, kept_rec = write_channel_set(stage.sh[sel].T, sh_bits, kept_blocks[li])
-            w.bytes(kept_bytes)
-            flags = encode_stream(k_l.astype(np.int64), np.zeros(ml, np.int64), 1)
-            w.blob(flags)
-            out[sel] = kept_rec.T
-            stats["kept_bytes"] += len(kept_bytes) + len(flags) + 8
-        li_idx = idx_all[layer.index[~k_l]]
-        idx_blob = encode_stream(li_idx, np.zeros(li_idx.size, np.int64), 1)
-        w.blob(idx_blob)
-        stats["index_bytes"] += len(idx_blob) + 8
-        payloads.append(w.getvalue())
-    k = m and d // 3
-    return payloads, out[stage.order].reshape(m, k, 3), stats
+    def __init__(self, stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks: int,
+                 cb_blocks: int | None = None, index: np.ndarray | None = None):
+        from .rans import encode_stream
+        from .vq import assign, compact
+
+        m, d = stage.sh.shape
+        self.stage, self.sh_bits, self.m, self.d = stage, int(sh_bits), m, d
+        self.keep = keep = min(int(keep), m)
+        kept = _top_k_mask(stage.importance, keep)
+        rest = ~kept
+        idx_all = np.zeros(m, np.int64)
+        if rest.any():
+            near = assign(stage.sh[rest], codebook) if index is None else np.asarray(index)[rest]
+            cb, idx = compact(codebook, near)
+            idx_all[rest] = idx
+        else:
+            cb = np.zeros((1, d), np.float32)
+        cb_bytes, cb_rec = write_channel_set(cb.T, sh_bits,
+                                             sh_set_blocks(cb.shape[0], blocks) if cb_blocks is None else cb_blocks)
+        self.out = np.empty((m, d), np.float32)
+        self.out[rest] = cb_rec.T[idx_all[rest]]
+        self.stats = {"kept": keep, "codebook_size": int(cb.shape[0]), "codebook_bytes": len(cb_bytes),
+                      "kept_bytes": 0, "index_bytes": 0}
+        kept_counts = [int(kept[l.index].sum()) for l in stage.layers]
+        cb_layer = next((li for li, l in enumerate(stage.layers) if kept_counts[li] < l.num_points), 0)
+        #: per layer: (kept voxel indices in coding order, blocks of their channel set)
+        self.kept_sets = []
+        self._heads, self._tails = [], []
+        for li, layer in enumerate(stage.layers):
+            k_l = kept[layer.index]
+            p = kept_counts[li]
+            self.kept_sets.append((layer.index[k_l], sh_set_blocks(p, blocks)))
+            w = Writer()
+            w.u32(cb.shape[0] if li == cb_layer else 0).u32(p).u16(d)
+            if li == cb_layer:
+                w.bytes(cb_bytes)
+            self._heads.append(w.getvalue())
+            w = Writer()
+            if p:
+                flags = encode_stream(k_l.astype(np.int64), np.zeros(layer.num_points, np.int64), 1)
+                w.blob(flags)
+                self.stats["kept_bytes"] += len(flags) + 8
+            li_idx = idx_all[layer.index[~k_l]]
+            idx_blob = encode_stream(li_idx, np.zeros(li_idx.size, np.int64), 1)
+            w.blob(idx_blob)
+            self.stats["index_bytes"] += len(idx_blob) + 8
+            self._tails.append(w.getvalue())
+
+    @property
+    def fixed_bytes(self) -> int:
+        """Bytes of the payloads apart from the kept vectors' channel sets."""
+        return sum(map(len, self._heads)) + sum(map(len, self._tails))
+
+    def kept_vectors(self, layer: int) -> np.ndarray:
+        """float32 [D, P_l]: the kept vectors of a layer as their channel set codes them."""
+        return np.ascontiguousarray(self.stage.sh[self.kept_sets[layer][0]].T)
+
+    def payloads(self, kept_bits=None):
+        """(payloads per layer, SH as decoded [M, K, 3] output order, stats).  ``kept_bits``:
+        per layer an int or int array [D, B_l] (B_l = blocks_for(P_l, its kept_sets blocks));
+        default every group at ``sh_bits``."""
+        out = self.out.copy()
+        stats = dict(self.stats)
+        payloads = []
+        for li, (sel, kb) in enumerate(self.kept_sets):
+            body = b""
+            if sel.size:
+                bits = self.sh_bits if kept_bits is None else kept_bits[li]
+                body, rec = write_channel_set(self.kept_vectors(li), bits, kb)
+                out[sel] = rec.T
+                stats["kept_bytes"] += len(body)
+            payloads.append(self._heads[li] + body + self._tails[li])
+        k = self.m and self.d // 3
+        return payloads, out[self.stage.order].reshape(self.m, k, 3), stats
 
 
 def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: dict):

@@ -49,6 +49,10 @@ def write_search_report(report: dict, folder) -> list[str]:
     bits = report["bits"]
     rows = [(n, np.asarray(b)) for n, b in zip(bits["raht_channels"], bits["raht"])]
     rows += [(n, np.asarray(b)) for n, b in zip(bits["scale_channels"], bits["scales"])]
+    # the kept exact SH vectors' groups, where the search allocated them (saturated budgets)
+    for li, kept in enumerate(bits.get("sh_kept") or []):
+        if kept is not None:
+            rows += [(f"sh{j} L{li}", np.asarray(b)) for j, b in enumerate(kept)]
     buf = io.BytesIO()
     bits_heatmap(rows).save(buf, format="PNG")
     png = os.path.join(folder, "bits.png")

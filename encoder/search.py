@@ -32,7 +32,7 @@ from gsz.decoder.errors import GszError
 from gsz.decoder.groups import blocks_for
 
 from .pipeline import (DEFAULT_FIRST_LAYER, DEFAULT_LAYERS, EncodeOptions, EncodeOptionsError,
-                       EncodeResult, Stage, assemble, attribute_chunks, check_layer_options,
+                       EncodeResult, ShPayloads, Stage, assemble, attribute_chunks, check_layer_options,
                        sh_set_blocks,
                        compute_train_importance, default_codebook_size, layer_report, prepare_stage,
                        sh_chunk, stage_source, train_sh_codebook, voxelize_stage)
@@ -266,6 +266,17 @@ def _split_bits(pick: np.ndarray, shapes) -> list:
     return [(out[i], out[i + 1]) for i in range(0, len(out), 2)]
 
 
+def _split_kept_bits(pick: np.ndarray, shapes, kept_layers: list, num_layers: int) -> list:
+    """Per layer, the kept SH vectors' group bit-widths [D, B_l] from the solver's pick over
+    their groups (layers in ``kept_layers`` order); None for a layer whose kept vectors are not
+    in the allocation (none kept, or all at SH_BITS)."""
+    out, pos = [None] * num_layers, 0
+    for li, (c, b) in zip(kept_layers, shapes):
+        out[li] = pick[pos:pos + c * b].astype(np.int64).reshape(c, b) + 1
+        pos += c * b
+    return out
+
+
 def _concat_bits(bits: list) -> tuple[np.ndarray, np.ndarray]:
     """Every layer's blocks side by side: ([7, sum B_l], [3, sum B_l]) for reports/heatmaps."""
     return (np.concatenate([r for r, _ in bits], axis=1), np.concatenate([s for _, s in bits], axis=1))
@@ -274,11 +285,12 @@ def _concat_bits(bits: list) -> tuple[np.ndarray, np.ndarray]:
 @dataclass
 class _ShPlan:
     keep: int
-    chunk: bytes
+    chunk: list               # SHVQ payloads with every kept vector at SH_BITS
     sh_rest: np.ndarray
     stats: dict
     est_bytes: float
     est_loss: float
+    payloads: ShPayloads      # the same with the kept vectors' widths open (_spend_saturated)
 
 
 class _ShStageStats:
@@ -439,10 +451,11 @@ class _ShModel:
     def encode(self, keep: int) -> _ShPlan:
         # the compacted codebook's row order is the raw one's, so the raw codebook with the
         # stage's assignment gives exactly what sh_chunk would compute itself
-        chunk, sh_rest, stats = sh_chunk(self.stage, self.raw_codebook, keep, SH_BITS, self.blocks,
-                                         cb_blocks=self.cb_blocks, index=self.index)
+        payloads = ShPayloads(self.stage, self.raw_codebook, keep, SH_BITS, self.blocks,
+                              cb_blocks=self.cb_blocks, index=self.index)
+        chunk, sh_rest, stats = payloads.payloads()
         nb, loss = self.estimate(keep)
-        return _ShPlan(keep, chunk, sh_rest, stats, nb, loss)
+        return _ShPlan(keep, chunk, sh_rest, stats, nb, loss, payloads)
 
 
 def _container_overhead(num_chunks: int) -> int:
@@ -478,7 +491,7 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list
                   + (2 + 8 * 7) * len(stage.layers) + _group_meta_bytes(shapes))
 
     # --- joint choice of the SH keep-count and the attribute allocation ---------------------
-    sh_plan = None
+    sh_plan = sh_model = None
     if sh_models:
         with progress.stage("sh-plan", "codebook size and keep-count vs bit allocation"):
             best = None
@@ -503,12 +516,105 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list
                 model = best[1]
                 consider(model, [k for k in model.keeps(min_keep, KEEP_FRACTIONS_HIGH) if k > best[2]])
             # estimates say nothing fits: try the cheapest SH anyway, calibration decides
-            sh_plan = (sh_models[-1].encode(min_keep) if best is None else best[1].encode(best[2]))
+            sh_model, keep = (sh_models[-1], min_keep) if best is None else (best[1], best[2])
+            sh_plan = sh_model.encode(keep)
             progress.log(f"tau {stage.reserve}: keep {sh_plan.keep} exact SH vectors "
                          f"(SH chunks {sum(map(len, sh_plan.chunk)):,} B)")
-    fixed = base_fixed - _group_meta_bytes(shapes) + (sum(map(len, sh_plan.chunk)) if sh_plan else 0)
+    res = _calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_plan)
+    if res is not None and sh_plan is not None and res.saturated and len(res.best[0]) < target * (1 - sopts.tolerance):
+        res = _spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fixed,
+                               sh_model, sh_plan, res, weights)
+    if res is None:
+        progress.log(f"tau {stage.reserve}: no allocation fits")
+        return None
+    data, cloud, info = res.best
+    info = dict(info, rounds=res.history, sh_plan=res.sh_plan, shapes=shapes, fixed_bytes=res.fixed)
+    log.append({"reserve": stage.reserve, "bytes": len(data), "rounds": res.history})
+    return data, cloud, info
 
-    # --- calibration: find the largest solver budget whose real file fits ------------------
+
+@dataclass
+class _Calibrated:
+    best: tuple               # (data, cloud, info) of the largest file at or below the target
+    history: list             # per round: solver budget, predicted and actual bytes
+    saturated: bool           # stopped because more budget bought nothing more
+    sh_plan: _ShPlan | None
+    fixed: float
+
+
+def _spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_model,
+                     sh_plan, res, weights):
+    """A file below the budget with every attribute group at its best width: spend the rest on
+    the SH.  While not every vector is kept exact, keep more (the keep-count grid and its
+    estimate are coarse there: tiny_graphdeco at SOG's size stopped 2.5 % short with 32 % kept,
+    the estimate 14 % above the real SH bytes): the count from the measured shortfall and the
+    measured bytes per kept vector, twice at most.  Once all are exact, their groups join the
+    allocation at SH_BITS..16 bits (below a scene's maximum quality they would trade against the
+    attributes, which measured worse: jug noised 8x -0.4 dB).  Returns the best result."""
+    m = sh_model.m
+    for _ in range(2):
+        if sh_plan.keep >= m or not res.saturated or len(res.best[0]) >= target * (1 - sopts.tolerance):
+            break
+        short = target * (1 - 0.5 * sopts.tolerance) - len(res.best[0])
+        est_per_vector = max(1e-3, (sh_model.base.bits_per_kept - sh_model.index_bits) / 8)
+        real_over_est = sum(map(len, sh_plan.chunk)) / max(1.0, sh_plan.est_bytes)
+        keep = min(m, sh_plan.keep + max(1, int(short / (est_per_vector * real_over_est))))
+        progress.log(f"tau {stage.reserve}: {short:,.0f} B left with every group at its best width: "
+                     f"keeping {keep:,} SH vectors exact instead of {sh_plan.keep:,}")
+        plan = sh_model.encode(keep)
+        more = _calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, plan)
+        if more is None or len(more.best[0]) <= len(res.best[0]):
+            break
+        sh_plan, res = plan, more
+    if (sh_plan.keep >= m and res.saturated and len(res.best[0]) < target * (1 - sopts.tolerance)
+            and SH_BITS < 16):
+        progress.log(f"tau {stage.reserve}: every SH vector exact and bytes left: their groups join "
+                     f"the allocation at {SH_BITS}-16 bits")
+        with progress.stage("tables", f"tau {stage.reserve}: kept SH vectors' loss + rate"):
+            kept = _kept_tables(sh_plan, 1.0 if weights is None else weights["sh"])
+        more = _calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_plan,
+                          kept=kept)
+        if more is not None and len(more.best[0]) > len(res.best[0]):
+            res = more
+    return res
+
+
+def _kept_tables(plan: _ShPlan, weight: float) -> list:
+    """Per layer with kept exact SH vectors: (layer, loss [D, B, 16] = SSE times the SH
+    channel weight, rate [D, B, 16] with +inf below SH_BITS) of their groups."""
+    from gsz.kernels.quantize import quantize_all_bits
+
+    from .rate import rate_matrix
+    out = []
+    for li, (sel, kb) in enumerate(plan.payloads.kept_sets):
+        if sel.size:
+            x = plan.payloads.kept_vectors(li)
+            b = blocks_for(sel.size, kb)
+            loss = quantize_all_bits(x, b)[3] * weight
+            rate = rate_matrix(x, b, (SH_BITS, 16))
+            out.append((li, loss, rate))
+    return out
+
+
+def _calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_plan,
+               kept=None) -> _Calibrated | None:
+    """Find the largest solver budget whose real file fits (the attributes' allocation; with
+    ``kept`` -- :func:`_kept_tables` -- the kept SH vectors' groups are allocated with them).
+    None when no allocation fits."""
+    from .bit_allocation import InfeasibleBudgetError
+
+    n_attr, attr_shapes = loss.shape[0], shapes
+    kept_layers = []
+    if kept:
+        kept_layers = [li for li, _, _ in kept]
+        loss = np.concatenate([loss] + [l.reshape(-1, 16) for _, l, _ in kept])
+        rate = np.concatenate([rate] + [r.reshape(-1, 16) for _, _, r in kept])
+        shapes = attr_shapes + tuple(l.shape[:2] for _, l, _ in kept)
+        sh_fixed = sh_plan.payloads.fixed_bytes
+    else:
+        sh_fixed = sum(map(len, sh_plan.chunk)) if sh_plan else 0
+    fixed = base_fixed - _group_meta_bytes(attr_shapes) + sh_fixed
+
     # The estimate's error (actual - predicted) drifts slowly, so the first step corrects by the
     # observed offset; afterwards the solver budget is bracketed between the largest budget
     # known to fit and the smallest known to overflow, and the next budget interpolated between
@@ -524,6 +630,7 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list
     best = None
     tried = {}
     history = []
+    saturated = False
     cheapest = np.argmin(np.where(np.isfinite(rate), rate, np.inf), axis=1)
     prev_key = None
     for rnd in range(sopts.max_rounds):
@@ -535,15 +642,23 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list
         if key in tried:
             data, cloud, info = tried[key]
         else:
-            layer_bits = _split_bits(pick, shapes)
+            layer_bits = _split_bits(pick[:n_attr], attr_shapes)
             raht_bits, scale_bits = _concat_bits(layer_bits)
+            kept_bits = _split_kept_bits(pick[n_attr:], shapes[len(attr_shapes):], kept_layers,
+                                         len(stage.layers))
             with progress.stage("calibrate", f"tau {stage.reserve} round {rnd + 1}"):
                 attr, decoded, attr_stats = attribute_chunks(stage, layer_bits, sopts.blocks)
+                if sh_plan is None:
+                    sh_chunk_ = sh_rest = None
+                elif kept:
+                    sh_chunk_, sh_rest, _ = sh_plan.payloads.payloads(kept_bits)
+                else:
+                    sh_chunk_, sh_rest = sh_plan.chunk, sh_plan.sh_rest
                 extra = {"sh_keep": sh_plan.keep if sh_plan else 0}
-                data, cloud, meta_len = assemble(stage, attr, decoded, sh_plan.chunk if sh_plan else None,
-                                                 sh_plan.sh_rest if sh_plan else None,
+                data, cloud, meta_len = assemble(stage, attr, decoded, sh_chunk_, sh_rest,
                                                  _meta(stage, sopts, target, extra))
             info = {"pick": pick, "raht_bits": raht_bits, "scale_bits": scale_bits, "layer_bits": layer_bits,
+                    "kept_bits": kept_bits, "sh_bytes": sum(map(len, sh_chunk_)) if sh_plan else 0,
                     "attr_stats": attr_stats, "attr_bytes": sum(map(len, attr)), "meta_bytes": meta_len,
                     "predicted_bytes": fixed + group_meta + float(rate[np.arange(len(pick)), pick].sum()) / 8,
                     "loss": float(loss[np.arange(len(pick)), pick].sum())}
@@ -562,6 +677,7 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list
                 over = (budget_bytes, actual)
         else:
             if key == _solve_max(loss, rate).tobytes() or (over is None and history[:-1] and key == prev_key):
+                saturated = True
                 break                            # more budget buys nothing more: saturated
             if fit is None or budget_bytes > fit[0]:
                 fit = (budget_bytes, actual)
@@ -589,10 +705,7 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list
     if best is None:
         progress.log(f"tau {stage.reserve}: no allocation fits; calibration {history}")
         return None
-    data, cloud, info = best
-    info = dict(info, rounds=history, sh_plan=sh_plan, shapes=shapes, fixed_bytes=fixed)
-    log.append({"reserve": stage.reserve, "bytes": len(data), "rounds": history})
-    return data, cloud, info
+    return _Calibrated(best, history, saturated, sh_plan, fixed)
 
 
 def _solve_max(loss, rate) -> np.ndarray:
@@ -1064,7 +1177,10 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
         "layer_blocks": [int(b.shape[1]) for b, _ in info["layer_bits"]],
         "bits": {"raht": info["raht_bits"].tolist(), "scales": info["scale_bits"].tolist(),
                  "raht_channels": ["opacity", "roll", "pitch", "yaw", "f_dc_0", "f_dc_1", "f_dc_2"],
-                 "scale_channels": ["scale_0", "scale_1", "scale_2"], "sh": SH_BITS if sh_plan else None},
+                 "scale_channels": ["scale_0", "scale_1", "scale_2"], "sh": SH_BITS if sh_plan else None,
+                 # per layer: the kept exact SH vectors' group widths [D][B_l] where they were
+                 # allocated (budgets above the SH_BITS quality ceiling), else None (SH_BITS)
+                 "sh_kept": [None if b is None else b.tolist() for b in info["kept_bits"]]},
         "calibration": info["rounds"],
         "calibration_all": log,
         "first_layer": info["first_layer"],
@@ -1076,7 +1192,7 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
         "dropped": dropped,
         "train_psnr": psnr, "channel_weights": weights,
         "components": {"geometry": stage.geometry_bytes, "attributes": info["attr_bytes"],
-                       **info["attr_stats"], "sh": sum(map(len, sh_plan.chunk)) if sh_plan else 0,
+                       **info["attr_stats"], "sh": info["sh_bytes"],
                        "metadata": info["meta_bytes"]},
         "seconds": dict(progress.seconds), "total_seconds": time.perf_counter() - t0,
         # CPU seconds of this process (all its threads): on a shared machine the wall clock
@@ -1084,7 +1200,8 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
         "cpu_seconds": time.process_time() - c0,
     }
     if len(data) < target * (1.0 - sopts.tolerance):
-        bits_all = np.concatenate([info["raht_bits"].ravel(), info["scale_bits"].ravel()])
+        bits_all = np.concatenate([info["raht_bits"].ravel(), info["scale_bits"].ravel()]
+                                  + [b.ravel() for b in info["kept_bits"] if b is not None])
         report["note"] = (f"file is {100 * (1 - len(data) / target):.2f} % below the target: "
                           + ("the budget exceeds the maximum-quality size of this scene at the chosen reserve "
                              "ratio (every group at its best bit-width)" if bits_all.min() >= 12 or tau == 1.0
