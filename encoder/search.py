@@ -293,6 +293,20 @@ class _ShPlan:
     payloads: ShPayloads      # the same with the kept vectors' widths open (_spend_saturated)
 
 
+def _row_sse(x: np.ndarray, ref, step: int = 16384) -> np.ndarray:
+    """float64 [N]: sum over each row of (x - ref)^2, x float32 [N, D], ``ref(s, e)`` the float64
+    rows s..e of the reference.  In row chunks: the same values as the whole-array expression
+    (each row's sum is its own) at ~1/3 of the time (no N x D float64 temporaries; flowers:
+    0.33 -> 0.12 s per codebook and stage)."""
+    out = np.empty(x.shape[0], np.float64)
+    for s in range(0, x.shape[0], step):
+        d = x[s:s + step].astype(np.float64)
+        d -= ref(s, s + d.shape[0])
+        d *= d
+        d.sum(1, out=out[s:s + d.shape[0]])
+    return out
+
+
 class _ShStageStats:
     """What the SH estimates need from a stage whatever the codebook: importance order, the
     error and rate of the kept (exact, SH_BITS) vectors for every keep-count up to the largest
@@ -324,7 +338,7 @@ class _ShStageStats:
         bk = blocks_for(p_max, sh_set_blocks(p_max, blocks))
         sym, mn, mx = quantize_groups(top.T, bk, np.full((d, bk), SH_BITS))
         top_q = dequantize_groups(sym, mn, mx, np.full((d, bk), SH_BITS), split_lengths(p_max, bk)).T
-        err_keep = ((top.astype(np.float64) - top_q) ** 2).sum(1)
+        err_keep = _row_sse(top, lambda s, e: top_q[s:e])
         self.cum_keep = np.concatenate([[0.0], np.cumsum(err_keep)])
         if not rate:
             return
@@ -418,7 +432,7 @@ class _ShModel:
         self.cb_blocks = b
         sym, mn, mx = quantize_groups(cb.T, b, np.full((d, b), SH_BITS))
         cb_q = dequantize_groups(sym, mn, mx, np.full((d, b), SH_BITS), split_lengths(cb.shape[0], b)).T
-        err_vq = ((x.astype(np.float64) - cb_q[idx]) ** 2).sum(1)
+        err_vq = _row_sse(x, lambda s, e: cb_q[idx[s:e]])
         self.order = base.order
         self.cum_vq = np.concatenate([[0.0], np.cumsum(err_vq[base.order])])
         self.base = base
