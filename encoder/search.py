@@ -535,14 +535,18 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list
             progress.log(f"tau {stage.reserve}: keep {sh_plan.keep} exact SH vectors "
                          f"(SH chunks {sum(map(len, sh_plan.chunk)):,} B)")
     res = _calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_plan)
-    if res is not None and sh_plan is not None and res.saturated and len(res.best[0]) < target * (1 - sopts.tolerance):
+    # every attribute group at its best width and the file still short of the budget (the depth
+    # walk reads this, whether or not the SH then spend the rest)
+    saturated = res is not None and res.saturated and len(res.best[0]) < target * (1 - sopts.tolerance)
+    if saturated and sh_plan is not None:
         res = _spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fixed,
                                sh_model, sh_plan, res, weights)
     if res is None:
         progress.log(f"tau {stage.reserve}: no allocation fits")
         return None
     data, cloud, info = res.best
-    info = dict(info, rounds=res.history, sh_plan=res.sh_plan, shapes=shapes, fixed_bytes=res.fixed)
+    info = dict(info, rounds=res.history, sh_plan=res.sh_plan, shapes=shapes, fixed_bytes=res.fixed,
+                attributes_saturated=saturated)
     log.append({"reserve": stage.reserve, "bytes": len(data), "rounds": res.history})
     return data, cloud, info
 
@@ -1082,8 +1086,7 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
         lo_d = max(1, depth - sopts.depth_steps)
         hi_d = min(21, depth + min(sopts.depth_steps, sopts.max_extra_depth))
         bits_all = np.concatenate([best[4]["raht_bits"].ravel(), best[4]["scale_bits"].ravel()])
-        saturated = len(best[2]) < target * (1.0 - sopts.tolerance)
-        deeper_first = saturated or float(np.mean(bits_all)) >= DEPTH_DEEPER_FIRST_BITS
+        deeper_first = best[4]["attributes_saturated"] or float(np.mean(bits_all)) >= DEPTH_DEEPER_FIRST_BITS
 
         def shares_voxels(tau, d) -> bool:
             return vox_for(tau, d)[1].merged_fraction >= MERGED_FRACTION_EXTRA_DEPTH
@@ -1091,9 +1094,9 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
             moved = looked_past = False
             d = d0
             def room(d_next):
-                # Past the usual range a level pays in two cases: a file still below the budget
-                # with every group at its best width gains from every further level for almost
-                # nothing (saturated); and where Gaussians still share voxels, each level
+                # Past the usual range a level pays in two cases: with every attribute group at
+                # its best width and bytes left over (saturated; spent on the SH where there are
+                # any) each further level costs only bytes that would buy little else; and where Gaussians still share voxels, each level
                 # separates more of them -- merging loses far more than the position error a
                 # level halves (tiny_graphdeco, whose positions sit on a delivery grid, at 8x:
                 # 6.7 % merged at depth 14, 4.1 % at 19; test PSNR 49.8 -> 61.6 dB at the same
@@ -1101,8 +1104,7 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
                 # only halves an already small position error.
                 cap = hi_d
                 cb = best_candidate()
-                if step > 0 and (len(cb[2]) < target * (1.0 - sopts.tolerance)
-                                 or shares_voxels(cb[1], cb[4]["depth"])):
+                if step > 0 and (cb[4]["attributes_saturated"] or shares_voxels(cb[1], cb[4]["depth"])):
                     cap = min(21, depth + SATURATED_EXTRA_DEPTH)
                 return lo_d <= d_next <= cap
             while room(d + step) and (best[1], d + step) not in evaluated:
