@@ -542,8 +542,7 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list
         res = _spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fixed,
                                sh_model, sh_plan, res, weights)
     if res is None:
-        progress.log(f"tau {stage.reserve}: no allocation fits")
-        return None
+        return None                   # _calibrate logged why
     data, cloud, info = res.best
     info = dict(info, rounds=res.history, sh_plan=res.sh_plan, shapes=shapes, fixed_bytes=res.fixed,
                 attributes_saturated=saturated)
@@ -584,8 +583,7 @@ def _spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fi
         if more is None or len(more.best[0]) <= len(res.best[0]):
             break
         sh_plan, res = plan, more
-    if (sh_plan.keep >= m and res.saturated and len(res.best[0]) < target * (1 - sopts.tolerance)
-            and SH_BITS < 16):
+    if sh_plan.keep >= m and res.saturated and len(res.best[0]) < target * (1 - sopts.tolerance):
         progress.log(f"tau {stage.reserve}: every SH vector exact and bytes left: their groups join "
                      f"the allocation at {SH_BITS}-16 bits")
         with progress.stage("tables", f"tau {stage.reserve}: kept SH vectors' loss + rate"):
