@@ -360,6 +360,7 @@ class _Assigner:
         n = len(cloud)
         self.sh = np.ascontiguousarray(cloud.sh_rest.reshape(n, -1), dtype=np.float32)
         self.known = {}                       # id(codebook) -> (codebook, index [N], known [N])
+        self._last = None                     # (source, x, reusable) of the last stage asked about
 
     def _entry(self, codebook):
         entry = self.known.get(id(codebook))
@@ -371,7 +372,7 @@ class _Assigner:
     def _reusable(self, source: np.ndarray, x: np.ndarray) -> np.ndarray:
         """Voxels (ascending) whose vector is bit-identical to their single source Gaussian's
         (remembered for the last stage asked about: each stage asks once per codebook)."""
-        last = getattr(self, "_last", None)
+        last = self._last
         if last is not None and last[0] is source and last[1] is x:
             return last[2]
         single = np.flatnonzero(source >= 0)
@@ -537,7 +538,7 @@ def _encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list
     res = _calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_plan)
     # every attribute group at its best width and the file still short of the budget (the depth
     # walk reads this, whether or not the SH then spend the rest)
-    saturated = res is not None and res.saturated and len(res.best[0]) < target * (1 - sopts.tolerance)
+    saturated = res is not None and res.left_over(target, sopts.tolerance)
     if saturated and sh_plan is not None:
         res = _spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fixed,
                                sh_model, sh_plan, res, weights)
@@ -558,6 +559,11 @@ class _Calibrated:
     sh_plan: _ShPlan | None
     fixed: float
 
+    def left_over(self, target: int, tolerance: float) -> bool:
+        """Saturated and still more than ``tolerance`` below the target: bytes no attribute
+        group can use."""
+        return self.saturated and len(self.best[0]) < target * (1 - tolerance)
+
 
 def _spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_model,
                      sh_plan, res, weights):
@@ -570,7 +576,7 @@ def _spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fi
     attributes, which measured worse: jug noised 8x -0.4 dB).  Returns the best result."""
     m = sh_model.m
     for _ in range(2):
-        if sh_plan.keep >= m or not res.saturated or len(res.best[0]) >= target * (1 - sopts.tolerance):
+        if sh_plan.keep >= m or not res.left_over(target, sopts.tolerance):
             break
         short = target * (1 - 0.5 * sopts.tolerance) - len(res.best[0])
         est_per_vector = max(1e-3, (sh_model.base.bits_per_kept - sh_model.index_bits) / 8)
@@ -583,7 +589,7 @@ def _spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fi
         if more is None or len(more.best[0]) <= len(res.best[0]):
             break
         sh_plan, res = plan, more
-    if sh_plan.keep >= m and res.saturated and len(res.best[0]) < target * (1 - sopts.tolerance):
+    if sh_plan.keep >= m and res.left_over(target, sopts.tolerance):
         progress.log(f"tau {stage.reserve}: every SH vector exact and bytes left: their groups join "
                      f"the allocation at {SH_BITS}-16 bits")
         with progress.stage("tables", f"tau {stage.reserve}: kept SH vectors' loss + rate"):
