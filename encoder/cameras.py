@@ -76,6 +76,9 @@ from gsz.decoder.io_util import atomic_write  # noqa: E402
 TEST_EVERY = 8
 #: Images wider than this are downscaled for evaluation, like the reference loader (notes §1.2).
 MAX_PROTOCOL_WIDTH = 1600
+#: Width of generated views (4:3) when none is asked for: gsz-eval's test views, the size
+#: search's comparison views and the viewer's screenshots.
+DEFAULT_VIEW_WIDTH = 800
 
 
 @dataclass
@@ -509,7 +512,7 @@ def look_at(eye, target, up, *, fx, fy, width, height, name="") -> Camera:
     return Camera(R, -R @ eye, fx, fy, width / 2.0, height / 2.0, width, height, name)
 
 
-def default_cameras(cloud, *, n_train: int = 24, n_test: int = 8, width: int = 800,
+def default_cameras(cloud, *, n_train: int = 24, n_test: int = 8, width: int = DEFAULT_VIEW_WIDTH,
                     height: int = 600, fov_deg: float = 55.0, up="auto",
                     elevation_deg=(-20.0, 65.0), min_depth: float = 0.3) -> CameraSet:
     """Deterministic viewpoints around a scene when it comes without cameras.
@@ -592,11 +595,11 @@ def load_cameras(path_or_none, cloud, *, n_train: int = 24, n_test: int = 8, wid
     With a path (cameras.json, a folder holding one, or a COLMAP model): all cameras, split
     like the 3DGS protocol (name-sorted, every 8th is test, ``n_train``/``n_test`` ignored), and
     rescaled to ``width`` when given, else downscaled to at most 1600 px wide like the reference
-    loader.  With ``None``: :func:`default_cameras` of ``cloud`` at ``width`` (default 800)
-    with a 4:3 aspect ratio.
+    loader.  With ``None``: :func:`default_cameras` of ``cloud`` at ``width`` (default
+    DEFAULT_VIEW_WIDTH) with a 4:3 aspect ratio.
     """
     if path_or_none is None:
-        w = 800 if width is None else int(width)
+        w = DEFAULT_VIEW_WIDTH if width is None else int(width)
         h = max(1, int(round(w * 3 / 4)))
         return default_cameras(cloud, n_train=n_train, n_test=n_test, width=w, height=h, up=up)
     cams = read_cameras(path_or_none)

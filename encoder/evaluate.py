@@ -186,7 +186,7 @@ def _parse_background(s: str):
     return tuple(vals)
 
 
-def _pick_evenly(items, n):
+def pick_evenly(items, n):
     """``n`` items spread evenly over ``items`` (all of them when n >= len)."""
     if n is None or n >= len(items):
         return list(items)
@@ -232,7 +232,7 @@ def _run(args) -> dict:
             cams = load_cameras(None, original, n_test=args.views or 8,
                                 width=args.width, up=args.up).test
         else:
-            cams = _pick_evenly(load_cameras(args.cameras, original, width=args.width).test, args.views)
+            cams = pick_evenly(load_cameras(args.cameras, original, width=args.width).test, args.views)
     except ValueError as e:
         if isinstance(e, GszError):
             raise

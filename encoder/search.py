@@ -36,6 +36,7 @@ from .pipeline import (DEFAULT_FIRST_LAYER, DEFAULT_LAYERS, EncodeOptions, Encod
                        sh_set_blocks,
                        compute_train_importance, default_codebook_size, layer_report, prepare_stage,
                        sh_chunk, stage_source, train_sh_codebook, voxelize_stage)
+from .cameras import DEFAULT_VIEW_WIDTH
 from .progress import Progress
 
 SH_BITS = 8          # codebook and kept SH vectors (the paper's setting)
@@ -85,7 +86,12 @@ class SearchOptions:
     tolerance       accepted shortfall below the target (fraction)
     max_rounds      calibration rounds per tau
     solver          "fast" (convex hull + repair) or "cbc" (PuLP, the paper's ILP)
-    eval_views      train views rendered to compare candidates; eval_width their width
+    eval_views      train views rendered to compare candidates: generated ones, or as many of
+                    the caller's cameras spread evenly over them; eval_width their width at
+                    most.  The default is gsz-eval's view width: at lower resolutions the
+                    loss of small Gaussians hides below a pixel, and candidates that prune
+                    more win on train views and lose on test views (plaza 12x, flowers 27x at
+                    640 px: about 1 dB of test PSNR; bench/RESULTS.md)
     layers          importance-ordered layers of the file (progressive streaming); the bit
                     allocation runs over the groups of every layer at once
     first_layer     fraction of the Gaussians in layer 0 (when layers > 1)
@@ -110,7 +116,7 @@ class SearchOptions:
     blocks: int = 80
     codebook: int | None = None
     eval_views: int = 6
-    eval_width: int = 640
+    eval_width: int = DEFAULT_VIEW_WIDTH
     train_views: int = 24
     importance_width: int = 400
     vq_iters: int | None = None
@@ -750,17 +756,28 @@ def _size_bounds(stage: Stage, blocks: int) -> tuple[float, float]:
     return lo, hi
 
 
-def _search_setup(cloud, sopts, taus, stage_for, progress):
+def eval_cameras(cloud, sopts: SearchOptions, cameras=None) -> list:
+    """The train views candidates are compared on: ``eval_views`` of the caller's train cameras
+    spread evenly over them (downscaled to ``eval_width`` where wider), or generated views at
+    ``eval_width`` when there are none."""
+    from .cameras import load_cameras
+    from .evaluate import pick_evenly
+    if cameras:
+        return [c.scaled(sopts.eval_width) if c.width > sopts.eval_width else c
+                for c in pick_evenly(list(cameras), max(sopts.eval_views, 1))]
+    return load_cameras(None, cloud, n_train=max(sopts.eval_views, 1), n_test=1,
+                        width=sopts.eval_width).train[:sopts.eval_views]
+
+
+def _search_setup(cloud, sopts, taus, stage_for, progress, cameras=None):
     """The main thread's share of the set-up while the codebooks train: the largest tau's stage
     (geometry, tables, size bounds), the train-view references and the channel weights."""
-    from .cameras import load_cameras
     from .metrics import quantize_8bit
     from .render import render
     top = stage_for(taus[0])
     with progress.stage("tables", f"tau {taus[0]}: size bounds"):
         lo1, hi1 = _size_bounds(top, sopts.blocks)
-    eval_cams = load_cameras(None, cloud, n_train=max(sopts.eval_views, 1), n_test=1,
-                             width=sopts.eval_width).train[:sopts.eval_views]
+    eval_cams = eval_cameras(cloud, sopts, cameras)
     with progress.stage("eval-reference", f"{len(eval_cams)} train views"):
         # float renders (the first two also serve as the sensitivity's base), 8-bit as
         # render_views makes them
@@ -963,7 +980,8 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
             pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gsz-vq")
             vq_job = pool.submit(train_largest_first)
     try:
-        refs, eval_cams, weights, lo1, hi1, top = _search_setup(cloud, sopts, taus, stage_for, progress)
+        refs, eval_cams, weights, lo1, hi1, top = _search_setup(cloud, sopts, taus, stage_for, progress,
+                                                                cameras)
         codebooks = []
         if cloud.sh_degree > 0:
             while train_next(True):
@@ -1211,6 +1229,8 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
         "screened": screened,
         "dropped": dropped,
         "train_psnr": psnr, "channel_weights": weights,
+        "eval_views": [c.name for c in eval_cams],
+        "eval_size": [int(eval_cams[0].width), int(eval_cams[0].height)] if eval_cams else None,
         "components": {"geometry": stage.geometry_bytes, "attributes": info["attr_bytes"],
                        **info["attr_stats"], "sh": info["sh_bytes"],
                        "metadata": info["meta_bytes"]},

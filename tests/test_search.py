@@ -1,5 +1,6 @@
 """Size-aware search: the file never exceeds the budget, lands within 0.5 % below it, errors
 name the smallest reachable size, and more bytes never buy less fidelity."""
+import dataclasses
 import json
 import subprocess
 import sys
@@ -42,6 +43,22 @@ def test_budget_is_hit_from_below(name, n, target, imp_cache):
     assert len(r["bits"]["raht"]) == 7 and len(r["bits"]["scales"]) == 3
     assert all(1 <= b <= 16 for row in r["bits"]["raht"] + r["bits"]["scales"] for b in row)
     assert r["calibration"] and all("predicted_bytes" in x and "actual_bytes" in x for x in r["calibration"])
+
+
+def test_candidates_are_compared_on_the_callers_train_cameras(imp_cache):
+    """With real train cameras (--cameras) the search judges candidates on them, spread over
+    the set and downscaled to eval_width; without, on generated views at eval_width."""
+    from gsz.encoder.cameras import load_cameras
+    c = sample("sh0", 6000)
+    mine = [dataclasses.replace(cam, name=f"mine_{i:02d}")
+            for i, cam in enumerate(load_cameras(None, c, n_train=12, n_test=1, width=160).train)]
+    res = encode_to_budget(c, 60_000, options=FAST, cameras=mine)
+    r = res.report
+    assert r["eval_views"] == ["mine_00", "mine_06", "mine_11"]
+    assert r["eval_size"] == [96, 72]
+    assert len(res.data) <= 60_000
+    gen = _search("sh0", 6000, 60_000, imp_cache)[1].report
+    assert gen["eval_size"] == [96, 72] and not any(n.startswith("mine") for n in gen["eval_views"])
 
 
 def test_unreachable_budget_names_the_minimum(imp_cache):
