@@ -32,6 +32,7 @@ from gsz.decoder.raht import build_raht_tree
 from gsz.decoder.rotation import quaternion_to_euler
 from gsz.decoder.sh import MAX_CODEBOOK
 
+from .cameras import DEFAULT_VIEW_WIDTH
 from .geometry import write_geometry
 from .groups import write_channel_set
 from .progress import Progress
@@ -91,7 +92,11 @@ class EncodeOptions:
     beta             exponent of the volume term of the importance
     sh_bits          bit-width of SH codebook / kept vectors (None: same as ``bits``)
     train_views      number of default train cameras (when no camera file is given)
-    importance_width render width of the importance pass
+    importance_width render width of the importance pass (wider cameras are downscaled to
+                     it); the default is the width scenes are evaluated and viewed at
+                     (DEFAULT_VIEW_WIDTH): at 400 px the alpha-blending weight of small
+                     Gaussians hid below a pixel and pruning removed detail that shows at
+                     800 px (plaza tau 0.7, 12 bits: 36.43 -> 38.42 dB test PSNR)
     vq_iters         mini-batch k-means iterations
     layers           importance-ordered layers (1 = a single-layer file); layer 0 holds the
                      most important Gaussians and decodes on its own (progressive streaming)
@@ -110,7 +115,7 @@ class EncodeOptions:
     beta: float = 0.1
     sh_bits: int | None = None
     train_views: int = 24
-    importance_width: int = 400
+    importance_width: int = DEFAULT_VIEW_WIDTH
     vq_iters: int | None = None
     layers: int = DEFAULT_LAYERS
     first_layer: float = DEFAULT_FIRST_LAYER

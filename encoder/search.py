@@ -118,7 +118,7 @@ class SearchOptions:
     eval_views: int = 6
     eval_width: int = DEFAULT_VIEW_WIDTH
     train_views: int = 24
-    importance_width: int = 400
+    importance_width: int = DEFAULT_VIEW_WIDTH
     vq_iters: int | None = None
     layers: int = DEFAULT_LAYERS
     first_layer: float = DEFAULT_FIRST_LAYER
