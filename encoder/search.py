@@ -36,7 +36,7 @@ from .pipeline import (DEFAULT_FIRST_LAYER, DEFAULT_LAYERS, EncodeOptions, Encod
                        sh_set_blocks,
                        compute_train_importance, default_codebook_size, layer_report, prepare_stage,
                        sh_chunk, stage_source, train_sh_codebook, voxelize_stage)
-from .cameras import DEFAULT_VIEW_WIDTH
+from .cameras import DEFAULT_VIEW_WIDTH, load_cameras
 from .progress import Progress
 
 SH_BITS = 8          # codebook and kept SH vectors (the paper's setting)
@@ -760,7 +760,6 @@ def eval_cameras(cloud, sopts: SearchOptions, cameras=None) -> list:
     """The train views candidates are compared on: ``eval_views`` of the caller's train cameras
     spread evenly over them (downscaled to ``eval_width`` where wider), or generated views at
     ``eval_width`` when there are none."""
-    from .cameras import load_cameras
     from .evaluate import pick_evenly
     if cameras:
         return [c.scaled(sopts.eval_width) if c.width > sopts.eval_width else c

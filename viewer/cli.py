@@ -183,8 +183,9 @@ def _screenshot(args, a, b, jobs) -> str:
     from .app import ViewerApp
     if args.simulate_network is not None:
         raise _UsageError("--simulate-network is for the window; --layers K renders a layer prefix headless")
+    from gsz.encoder.cameras import DEFAULT_VIEW_WIDTH
     from .gl_renderer import create_headless_context
-    width = 800 if args.width is None else args.width
+    width = DEFAULT_VIEW_WIDTH if args.width is None else args.width
     if width < 1 or (args.height is not None and args.height < 1) or width > 16384 \
             or (args.height or 0) > 16384:
         raise _UsageError("--width/--height must be 1..16384")
