@@ -30,7 +30,7 @@
 #endif
 
 /* Bumped whenever a signature changes, so a stale build is ignored (decoder/native.py). */
-#define GSZ_NATIVE_ABI 6
+#define GSZ_NATIVE_ABI 7
 
 static PyObject *FormatError = NULL;   /* gsz.decoder.errors.GszFormatError */
 
@@ -2547,6 +2547,142 @@ static PyObject *py_read_varints(PyObject *self, PyObject *args)
     return PyLong_FromLongLong(res);
 }
 
+/* ================================================================== model sets (ENTROPY.md §3) */
+PyDoc_STRVAR(model_set_parse_doc,
+"model_set_parse(body) -> (types, lo, span, prec, group, binshift, centre, rl, rr, counts,\n"
+"                          bins, levels) | None\n\n"
+"The body of a model set (ENTROPY.md 3.1-3.2, after zstd) parsed and checked in C: the same\n"
+"accept/reject decision and the same int64 arrays as gsz.decoder.rans.read_model_set and\n"
+"ModelSet.validate (bins / levels flat, in model order).  Returns None on ANY violation; the\n"
+"caller then runs the Python parser, whose message is the normative one.");
+
+/* one unsigned LEB128 varint of at most 9 bytes; -1 when truncated or too long */
+static inline int msp_varint(const uint8_t *b, int64_t n, int64_t *p, int64_t *out)
+{
+    uint64_t x = 0;
+    for (int i = 0; i < 9; i++) {
+        if (*p >= n) return -1;
+        const uint8_t c = b[(*p)++];
+        x |= (uint64_t)(c & 0x7F) << (7 * i);
+        if (c < 0x80) { *out = (int64_t)x; return 0; }
+    }
+    return -1;
+}
+
+static inline int64_t msp_unzigzag(int64_t u) { return (int64_t)((uint64_t)u >> 1) ^ -(u & 1); }
+
+static PyObject *py_model_set_parse(PyObject *self, PyObject *arg)
+{
+    Py_buffer vb;
+    if (getbuf(arg, &vb, 1, 'x', 0, "body") < 0) return NULL;
+    const uint8_t *b = vb.buf;
+    const int64_t n = vb.len;
+    int64_t p = 0, M = 0, ok = 0;
+    int64_t *arr[12] = {NULL};
+    int64_t nb_total = 0;
+    PyObject *res = NULL;
+    if (msp_varint(b, n, &p, &M) < 0 || M > ((int64_t)1 << 20) || M > n - p) goto done;
+    for (int i = 0; i < 9; i++) {
+        arr[i] = calloc((size_t)(M ? M : 1), sizeof(int64_t));
+        if (!arr[i]) { PyErr_NoMemory(); goto done; }
+    }
+    int64_t *type = arr[0], *lo = arr[1], *span = arr[2], *prec = arr[3], *group = arr[4];
+    int64_t *bsh = arr[5], *centre = arr[6], *rl = arr[7], *rr = arr[8];
+    int64_t nonempty = 0, wide = 0, nco = 0, nlap = 0, v;
+    for (int64_t m = 0; m < M; m++) {
+        if (msp_varint(b, n, &p, &type[m]) < 0 || type[m] > 3) goto done;
+        nonempty += type[m] != 0;
+        wide += type[m] >= 2;
+        nco += type[m] == 2;
+        nlap += type[m] == 3;
+    }
+    /* the field arrays in the serialised order: lo (non-empty), span, precision (wide),
+     * coarse shape, centre (laplace), then the two ratio byte arrays */
+    for (int64_t m = 0; m < M; m++)
+        if (type[m] != 0) { if (msp_varint(b, n, &p, &v) < 0) goto done; lo[m] = msp_unzigzag(v); }
+    for (int64_t m = 0; m < M; m++)
+        if (type[m] >= 2 && msp_varint(b, n, &p, &span[m]) < 0) goto done;
+    for (int64_t m = 0; m < M; m++)
+        if (type[m] >= 2 && msp_varint(b, n, &p, &prec[m]) < 0) goto done;
+    for (int64_t m = 0; m < M; m++)
+        if (type[m] == 2) {
+            if (msp_varint(b, n, &p, &v) < 0) goto done;
+            group[m] = v & 3;
+            bsh[m] = v >> 2;
+        }
+    for (int64_t m = 0; m < M; m++)
+        if (type[m] == 3 && msp_varint(b, n, &p, &centre[m]) < 0) goto done;
+    for (int side = 0; side < 2; side++) {
+        if (nlap > n - p) goto done;
+        int64_t *r = side == 0 ? rl : rr;
+        for (int64_t m = 0; m < M; m++)
+            if (type[m] == 3) r[m] = b[p++];
+    }
+    for (int64_t m = 0; m < M; m++)
+        if (span[m] > 65536 || prec[m] > 16 || bsh[m] > 16) goto done;
+    arr[9] = malloc((size_t)(nco ? nco : 1) * sizeof(int64_t));
+    if (!arr[9]) { PyErr_NoMemory(); goto done; }
+    int64_t *counts = arr[9];
+    for (int64_t m = 0, ci = 0; m < M; m++) {
+        if (type[m] != 2) continue;
+        if (msp_varint(b, n, &p, &counts[ci]) < 0) goto done;
+        if (counts[ci] < 1 || counts[ci] > (span[m] >> bsh[m]) + 1) goto done;
+        nb_total += counts[ci++];
+    }
+    /* every count <= 65537, so nb_total < 2^37; each gap/delta takes >= 1 byte */
+    if (2 * nb_total > n - p) goto done;
+    arr[10] = malloc((size_t)(nb_total ? nb_total : 1) * sizeof(int64_t));
+    arr[11] = malloc((size_t)(nb_total ? nb_total : 1) * sizeof(int64_t));
+    if (!arr[10] || !arr[11]) { PyErr_NoMemory(); goto done; }
+    int64_t *bins = arr[10], *levels = arr[11];
+    for (int64_t i = 0; i < nb_total; i++)
+        if (msp_varint(b, n, &p, &bins[i]) < 0 || bins[i] > 65536) goto done;
+    for (int64_t i = 0; i < nb_total; i++) {
+        if (msp_varint(b, n, &p, &v) < 0) goto done;
+        levels[i] = msp_unzigzag(v);
+        if (levels[i] > 65536 || levels[i] < -65536) goto done;
+    }
+    if (p != n) goto done;
+    /* running sums per model, then ModelSet.validate's checks */
+    for (int64_t m = 0, ci = 0, i = 0; m < M; m++) {
+        const int64_t t = type[m], sp = span[m], pr = prec[m];
+        if (t != 0 && (lo[m] < -((int64_t)1 << 31) || lo[m] + sp >= ((int64_t)1 << 31))) goto done;
+        if (t == 3 && (sp + 1 > ((int64_t)1 << pr) || centre[m] > sp)) goto done;
+        if (t != 2) continue;
+        const int64_t nb = counts[ci++], h = bsh[m], g = group[m];
+        int64_t bprev = -1, qprev = 0, k = 0;
+        for (int64_t j = 0; j < nb; j++, i++) {
+            bprev += bins[i] + 1;
+            qprev += levels[i];
+            bins[i] = bprev;
+            levels[i] = qprev;
+            if (qprev < 1 || qprev > ((int64_t)25 << g)) goto done;
+            const int64_t hi = ((bprev + 1) << h) < sp + 1 ? ((bprev + 1) << h) : sp + 1;
+            k += hi - (bprev << h);
+        }
+        if (bins[i - nb] != 0 || bprev != (sp >> h) || k > ((int64_t)1 << pr)) goto done;
+    }
+    ok = 1;
+done:
+    PyBuffer_Release(&vb);
+    if (ok) {
+        const int64_t len[12] = {M, M, M, M, M, M, M, M, M, nco, nb_total, nb_total};
+        PyObject *items[12] = {NULL};
+        for (int i = 0; i < 12 && ok; i++) {
+            items[i] = PyBytes_FromStringAndSize((const char *)arr[i], (Py_ssize_t)(len[i] * 8));
+            if (!items[i]) ok = 0;
+        }
+        if (ok) res = PyTuple_Pack(12, items[0], items[1], items[2], items[3], items[4], items[5],
+                                   items[6], items[7], items[8], items[9], items[10], items[11]);
+        for (int i = 0; i < 12; i++) Py_XDECREF(items[i]);
+    } else if (!PyErr_Occurred()) {
+        res = Py_None;
+        Py_INCREF(res);
+    }
+    for (int i = 0; i < 12; i++) free(arr[i]);
+    return res;
+}
+
 /* ================================================================== rate model (encoder) */
 /*
  * The per-part loop of gsz.encoder.rate.group_stats: statistics of a block's quantised symbols
@@ -2836,6 +2972,7 @@ static PyMethodDef methods[] = {
     {"sh_assemble", py_sh_assemble, METH_VARARGS, sh_assemble_doc},
     {"all_finite", py_all_finite, METH_O, all_finite_doc},
     {"read_varints", py_read_varints, METH_VARARGS, read_varints_doc},
+    {"model_set_parse", py_model_set_parse, METH_O, model_set_parse_doc},
     {"rate_group_stats", py_rate_group_stats, METH_VARARGS, rate_group_stats_doc},
     {NULL, NULL, 0, NULL},
 };

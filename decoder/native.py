@@ -19,7 +19,7 @@ import os
 import numpy as np
 
 #: ABI number the Python side expects (GSZ_NATIVE_ABI in _native.c).
-ABI = 6
+ABI = 7
 
 _module = None
 _why_not = ""

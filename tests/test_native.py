@@ -433,6 +433,74 @@ def test_varint_arrays_identical():
     assert 500 < oks < 3900
 
 
+def _model_set_bodies(monkeypatch) -> list[bytes]:
+    """Decompressed model-set bodies of every test vector and of the _model_sets streams."""
+    import gsz.decoder.rans as R
+    bodies, parse = [], R._parse_model_set_body
+
+    def record(raw):
+        bodies.append(bytes(raw))
+        return parse(raw)
+    monkeypatch.setattr(R, "_parse_model_set_body", record)
+    old = native.set_enabled(False)
+    try:
+        for p in sorted(VEC.glob("*.gsz")):
+            decode(p.read_bytes())
+        for sym, mids, m in _model_sets():
+            read_model_set(encode_stream(sym, mids, m), 0)
+    finally:
+        native.set_enabled(old)
+    monkeypatch.setattr(R, "_parse_model_set_body", parse)
+    return bodies
+
+
+@needs_native
+def test_model_set_parser_identical(monkeypatch):
+    """The C model-set parser accepts exactly the bodies the NumPy parser accepts (real bodies
+    and 6000 mutated ones: bit flips, byte changes, truncations, insertions) and gives the same
+    parameter and COARSE arrays; on a reject read_model_set raises the NumPy parser's message."""
+    import gsz.decoder.rans as R
+    bodies = _model_set_bodies(monkeypatch)
+    kinds = {int(t) for b in bodies for t in R._parse_model_set_body(b).types}
+    assert kinds == {0, 1, 2, 3}                 # every model type is exercised
+    rng = np.random.default_rng(5)
+    accepted = rejected = 0
+    for it in range(6000 + len(bodies)):
+        raw = bytearray(bodies[it % len(bodies)])
+        for _ in range(int(rng.integers(1, 3)) if it >= len(bodies) else 0):
+            op, at = int(rng.integers(4)), int(rng.integers(max(1, len(raw))))
+            if op == 0 and raw:
+                raw[at] ^= 1 << int(rng.integers(8))
+            elif op == 1 and raw:
+                raw[at] = int(rng.integers(256))
+            elif op == 2:
+                del raw[at:]
+            else:
+                raw.insert(at, int(rng.integers(256)))
+        raw = bytes(raw)
+        got = native.module().model_set_parse(raw)
+        try:
+            ref = R._parse_model_set_body(raw)
+        except GszFormatError:
+            assert got is None, f"C parser accepted a body NumPy rejects (case {it})"
+            rejected += 1
+            continue
+        assert got is not None, f"C parser rejected a valid body (case {it})"
+        accepted += 1
+        ms = R._model_set_from_native(got)
+        for f in ("types", "lo", "span", "prec", "group", "binshift", "centre", "r_left", "r_right"):
+            assert np.array_equal(getattr(ms, f), getattr(ref, f)), (it, f)
+        for x, y in zip(ms.coarse_flat(), ref.coarse_flat()):
+            assert np.array_equal(x, y), it
+        assert [b.tolist() for b in ms.bins] == [b.tolist() for b in ref.bins]
+    assert accepted > len(bodies) and rejected > 3000
+    # a rejected body surfaces the NumPy parser's message through read_model_set
+    bad = bytes([2]) + bytes([9, 9])             # 2 models of type 9
+    assert native.module().model_set_parse(bad) is None
+    with pytest.raises(GszFormatError, match="unknown model type"):
+        read_model_set(bytes([len(bad) << 1]) + bad, 0)
+
+
 @needs_native
 def test_laplace_and_wide_models_identical():
     """LAPLACE models (float64 product chains), spans up to 65536 and every precision: the C
