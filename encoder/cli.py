@@ -11,6 +11,7 @@ from gsz.decoder.errors import GszError
 
 def build_parser() -> argparse.ArgumentParser:
     from .pipeline import STREAMING_LAYERS, EncodeOptions
+    from .search import SearchOptions
     d = EncodeOptions()
     p = argparse.ArgumentParser(
         prog="gsz-encode", description="Compress a trained 3DGS point_cloud.ply into a .gsz file.",
@@ -27,7 +28,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--bits", type=int, default=None, help=f"fixed configuration: uniform bit-width of every quantisation group (1-16; default {d.bits})")
     p.add_argument("--codebook", type=int, default=d.codebook, help="SH vector-quantisation codebook size K")
     p.add_argument("--keep", type=int, default=None, help="number of most important Gaussians whose exact SH is kept (default: 1%% of voxels)")
-    p.add_argument("--blocks", type=int, default=d.blocks, help="blocks per quantised channel")
+    p.add_argument("--blocks", type=int, default=None,
+                   help=f"blocks per quantised channel (default: {d.blocks} for a fixed configuration, one "
+                        f"quantisation step per channel; {SearchOptions.blocks} for the size search, which "
+                        "picks a bit-width per block)")
     p.add_argument("--depth", type=int, default=None, help="octree depth 1-21 (default: chosen from the position-error budget)")
     p.add_argument("--rel-error", type=float, default=None, help="auto-depth position-error budget, relative to the robust scene diagonal")
     p.add_argument("--beta", type=float, default=d.beta, help="volume-term exponent of the importance")
@@ -64,7 +68,8 @@ def _run_fixed(a, prog) -> dict:
     from .pipeline import EncodeOptions, encode
     opts = EncodeOptions(reserve=EncodeOptions.reserve if a.reserve is None else a.reserve,
                          bits=EncodeOptions.bits if a.bits is None else a.bits,
-                         codebook=a.codebook, keep=a.keep, blocks=a.blocks, depth=a.depth,
+                         codebook=a.codebook, keep=a.keep,
+                         blocks=EncodeOptions.blocks if a.blocks is None else a.blocks, depth=a.depth,
                          rel_error=a.rel_error, beta=a.beta, sh_bits=a.sh_bits,
                          train_views=a.train_views, importance_width=a.importance_width,
                          layers=a.layers, first_layer=a.first_layer, seed=a.seed).validate()
@@ -85,7 +90,9 @@ def _run_search(a, prog) -> dict:
     style = size_style(a.size) if a.size is not None else "auto"
     prog.log(f"target size {format_size(target, style)} ({target:,} bytes)")
     cloud, cameras = _read_inputs(a, prog)
-    sopts = SearchOptions(solver=a.solver, blocks=a.blocks, train_views=a.train_views,
+    sopts = SearchOptions(solver=a.solver,
+                          blocks=SearchOptions.blocks if a.blocks is None else a.blocks,
+                          train_views=a.train_views,
                           importance_width=a.importance_width, seed=a.seed,
                           layers=a.layers, first_layer=a.first_layer,
                           codebook=a.codebook if a.codebook != 4096 else None)

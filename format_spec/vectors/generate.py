@@ -33,22 +33,22 @@ FIELDS = ("positions", "scales", "rotations", "opacities", "sh_dc", "sh_rest")
 
 VECTORS = [
     # name, sample, count, sh degree, options
-    ("sh0_plant_200", "houseplant_sh0_20k.ply", 200, 0, dict(reserve=1.0, bits=10)),
-    ("sh1_jug_150", "measuring_jug_sh3_12k.ply", 150, 1, dict(reserve=0.9, bits=8, codebook=16, keep=10)),
-    ("sh3_jug_300", "measuring_jug_sh3_12k.ply", 300, 3, dict(reserve=0.8, bits=12, codebook=32, keep=20)),
+    ("sh0_plant_200", "houseplant_sh0_20k.ply", 200, 0, dict(blocks=80, reserve=1.0, bits=10)),
+    ("sh1_jug_150", "measuring_jug_sh3_12k.ply", 150, 1, dict(blocks=80, reserve=0.9, bits=8, codebook=16, keep=10)),
+    ("sh3_jug_300", "measuring_jug_sh3_12k.ply", 300, 3, dict(blocks=80, reserve=0.8, bits=12, codebook=32, keep=20)),
     # three importance layers (GSZ.md §4.1): per-layer GEOM/ATTR/SHVQ; layer 0's Gaussians all
     # keep their exact SH vectors, so the codebook travels with layer 1
     ("sh2_jug_400_layers3", "measuring_jug_sh3_12k.ply", 400, 2,
-     dict(reserve=0.9, bits=10, codebook=24, keep=90, layers=3, first_layer=0.2)),
+     dict(blocks=80, reserve=0.9, bits=10, codebook=24, keep=90, layers=3, first_layer=0.2)),
     # entropy-coder coverage: log-scales and opacities moved off the sample's delivery grid
     # (NOISE_SIGMA) and 12-bit groups of ~40 symbols, where a LAPLACE model (two parameters) is
     # cheaper than a frequency table; 3000 voxels give every rANS stream several lanes
-    ("sh0_plant_3000_laplace", "houseplant_sh0_20k.ply", 3000, 0, dict(reserve=1.0, bits=12)),
+    ("sh0_plant_3000_laplace", "houseplant_sh0_20k.ply", 3000, 0, dict(blocks=80, reserve=1.0, bits=12)),
     # octree coverage: the whole 20k sample on a depth-13 grid, where coarse contexts pass
     # COUNT_LIMIT within a level, so a decoder that skips the count halving (OCTREE.md §4)
     # decodes different occupancy; 1-bit attributes keep the file small
     ("sh0_plant_20k_d13_halving", "houseplant_sh0_20k.ply", 20_000, 0,
-     dict(reserve=1.0, bits=1, depth=13)),
+     dict(blocks=80, reserve=1.0, bits=1, depth=13)),
 ]
 #: vectors whose scales and opacities get seeded Gaussian noise of this sigma before encoding
 NOISED = {"sh0_plant_3000_laplace": 0.05}
