@@ -1,7 +1,8 @@
 """Codec benchmark at fixed configurations on every shared scene (and a noised variant).
 
     .venv/bin/python bench/bench_codec.py [--scenes a,b] [--bits 8,12] [--reserve 0.8]
-                                          [--noise] [--width 800] [--out bench/out/codec.json]
+                                          [--blocks 1,80] [--noise] [--width 800]
+                                          [--out bench/out/codec.json]
 
 Prints, per scene and bit-width: bytes, bytes/Gaussian, ratio to the PLY, component breakdown,
 fidelity PSNR/SSIM vs the original on the default test views (gsz-eval's protocol), encode seconds
@@ -44,6 +45,8 @@ def main(argv=None):
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--bits", default="8,12")
     ap.add_argument("--reserve", type=float, default=0.8)
+    ap.add_argument("--blocks", default=None,
+                    help="comma-separated blocks per channel (default: the fixed configuration's default)")
     ap.add_argument("--noise", action="store_true", help="also run the noised variant of each scene")
     ap.add_argument("--width", type=int, default=800)
     ap.add_argument("--views", type=int, default=8)
@@ -76,8 +79,9 @@ def main(argv=None):
             t0 = time.perf_counter()
             imp = compute_train_importance(cloud, opts0)
             t_imp = time.perf_counter() - t0
-            for bits in [int(b) for b in a.bits.split(",")]:
-                opts = EncodeOptions(reserve=a.reserve, bits=bits)
+            for bits, blocks in [(int(b), int(k)) for b in a.bits.split(",")
+                                 for k in (a.blocks or str(EncodeOptions.blocks)).split(",")]:
+                opts = EncodeOptions(reserve=a.reserve, bits=bits, blocks=blocks)
                 res = encode(cloud, opts, importance=imp)
                 t0 = time.perf_counter()
                 dec = decode(res.data)
@@ -85,7 +89,7 @@ def main(argv=None):
                 assert dec.equals(res.cloud)
                 ev = evaluate(refs, dec, cams)
                 r = res.report
-                row = {"scene": scene, "variant": variant, "bits": bits, "reserve": a.reserve,
+                row = {"scene": scene, "variant": variant, "bits": bits, "blocks": blocks, "reserve": a.reserve,
                        "gaussians": len(cloud), "voxels": r["voxels"], "depth": r["depth"],
                        "bytes": r["bytes"], "bytes_per_gaussian": r["bytes"] / len(cloud),
                        "ratio_vs_ply": ply_bytes / r["bytes"], "components": r["components"],
@@ -95,7 +99,7 @@ def main(argv=None):
                        "reference_render_seconds": t_ref}
                 rows.append(row)
                 c = r["components"]
-                print(f"{scene:30s} {variant:6s} {bits:2d} bit: {r['bytes']:>10,} B  "
+                print(f"{scene:30s} {variant:6s} {bits:2d} bit {blocks:2d} blk: {r['bytes']:>10,} B  "
                       f"{row['bytes_per_gaussian']:6.2f} B/G  {row['ratio_vs_ply']:5.1f}x  "
                       f"PSNR {ev['psnr']:6.2f}  SSIM {ev['ssim']:.4f}  geom {c['geometry']:,} "
                       f"attr {c['attributes']:,} sh {c.get('sh', 0):,}  "

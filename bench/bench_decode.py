@@ -3,7 +3,7 @@
     .venv/bin/python bench/bench_decode.py [--scenes a,b] [--files x.gsz ...] [--repeats 3]
 
 Every shared scene (../shared/data/*.ply) is encoded once with ``gsz-encode --reserve 0.8
---bits 12`` (cached in bench/.cache/decode/, keyed by the scene's size and mtime; --files adds
+--bits 12 --blocks 1`` (cached in bench/.cache/decode/, keyed by the scene's size and mtime; --files adds
 any other .gsz).  For each file and each path (numpy = the reference decoder, what GSZ_NATIVE=0
 gives; native = decoder/_native.c):
 
@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parent.parent
 SHARED = Path(os.environ.get("GSZ_SHARED", ROOT.parent / "shared")) / "data"
 CACHE = ROOT / "bench" / ".cache" / "decode"
 OUT = ROOT / "bench" / "out" / "decode.json"
-ENCODE_ARGS = ["--reserve", "0.8", "--bits", "12"]
+ENCODE_ARGS = ["--reserve", "0.8", "--bits", "12", "--blocks", "1"]   # the fixed default
 
 
 def uptime() -> str:
@@ -47,7 +47,7 @@ def uptime() -> str:
 
 def encoded_file(ply: Path) -> Path:
     st = ply.stat()
-    out = CACHE / f"{ply.stem}_r08_b12_{st.st_size}_{int(st.st_mtime)}.gsz"
+    out = CACHE / f"{ply.stem}_r08_b12_k1_{st.st_size}_{int(st.st_mtime)}.gsz"
     if not out.exists():
         CACHE.mkdir(parents=True, exist_ok=True)
         exe = Path(sys.executable).with_name("gsz-encode")

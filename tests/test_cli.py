@@ -33,6 +33,7 @@ def test_encode_reports_sizes_stages_and_progress(gsz_file):
     out, report, stderr = gsz_file
     assert report["bytes"] == os.path.getsize(out)
     assert report["ratio"] > 4   # SH-0 sample at 10 uniform bits; the size search does better
+    assert report["options"]["blocks"] == 1          # the fixed configuration's default
     for k in ("geometry", "attributes", "metadata"):
         assert report["components"][k] > 0
     for stage in ("importance", "prune", "voxelize", "geometry", "attributes", "container"):

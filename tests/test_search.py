@@ -92,6 +92,7 @@ def test_cli_size_units_json_and_report(tmp_path):
     assert p.returncode == 0, p.stderr
     r = json.loads(p.stdout)
     assert r["target"] == "150 kB" and 0.995 * 150_000 <= r["bytes"] <= 150_000
+    assert r["layer_blocks"] == [80]    # --blocks left out: the search's default, not the fixed one
     assert out.stat().st_size == r["bytes"]
     assert (tmp_path / "rep" / "bits.png").stat().st_size > 500
     p = subprocess.run([sys.executable, "-c", code, str(SAMPLE_SH0), "-o", str(tmp_path / "q.gsz"),
