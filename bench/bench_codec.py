@@ -46,7 +46,8 @@ def main(argv=None):
     ap.add_argument("--bits", default="8,12")
     ap.add_argument("--reserve", type=float, default=0.8)
     ap.add_argument("--blocks", default=None,
-                    help="comma-separated blocks per channel (default: the fixed configuration's default)")
+                    help="comma-separated blocks per channel, or 'default' (the fixed configuration's "
+                         "default for the bit-width; the default)")
     ap.add_argument("--noise", action="store_true", help="also run the noised variant of each scene")
     ap.add_argument("--width", type=int, default=800)
     ap.add_argument("--views", type=int, default=8)
@@ -79,8 +80,8 @@ def main(argv=None):
             t0 = time.perf_counter()
             imp = compute_train_importance(cloud, opts0)
             t_imp = time.perf_counter() - t0
-            for bits, blocks in [(int(b), int(k)) for b in a.bits.split(",")
-                                 for k in (a.blocks or str(EncodeOptions.blocks)).split(",")]:
+            for bits, blocks in [(int(b), None if k == "default" else int(k)) for b in a.bits.split(",")
+                                 for k in (a.blocks or "default").split(",")]:
                 opts = EncodeOptions(reserve=a.reserve, bits=bits, blocks=blocks)
                 res = encode(cloud, opts, importance=imp)
                 t0 = time.perf_counter()
@@ -89,6 +90,7 @@ def main(argv=None):
                 assert dec.equals(res.cloud)
                 ev = evaluate(refs, dec, cams)
                 r = res.report
+                blocks = r["options"]["blocks"]
                 row = {"scene": scene, "variant": variant, "bits": bits, "blocks": blocks, "reserve": a.reserve,
                        "gaussians": len(cloud), "voxels": r["voxels"], "depth": r["depth"],
                        "bytes": r["bytes"], "bytes_per_gaussian": r["bytes"] / len(cloud),

@@ -10,7 +10,7 @@ from gsz.decoder.errors import GszError
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .pipeline import STREAMING_LAYERS, EncodeOptions
+    from .pipeline import MANY_BLOCKS, ONE_BLOCK_MIN_BITS, STREAMING_LAYERS, EncodeOptions
     from .search import SearchOptions
     d = EncodeOptions()
     p = argparse.ArgumentParser(
@@ -29,9 +29,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--codebook", type=int, default=d.codebook, help="SH vector-quantisation codebook size K")
     p.add_argument("--keep", type=int, default=None, help="number of most important Gaussians whose exact SH is kept (default: 1%% of voxels)")
     p.add_argument("--blocks", type=int, default=None,
-                   help=f"blocks per quantised channel (default: {d.blocks} for a fixed configuration, one "
-                        f"quantisation step per channel; {SearchOptions.blocks} for the size search, which "
-                        "picks a bit-width per block)")
+                   help=f"blocks per quantised channel (default for a fixed configuration: 1 at >= "
+                        f"{ONE_BLOCK_MIN_BITS} bits, one quantisation step per channel, {MANY_BLOCKS} below; "
+                        f"{SearchOptions.blocks} for the size search, which picks a bit-width per block)")
     p.add_argument("--depth", type=int, default=None, help="octree depth 1-21 (default: chosen from the position-error budget)")
     p.add_argument("--rel-error", type=float, default=None, help="auto-depth position-error budget, relative to the robust scene diagonal")
     p.add_argument("--beta", type=float, default=d.beta, help="volume-term exponent of the importance")
@@ -69,7 +69,7 @@ def _run_fixed(a, prog) -> dict:
     opts = EncodeOptions(reserve=EncodeOptions.reserve if a.reserve is None else a.reserve,
                          bits=EncodeOptions.bits if a.bits is None else a.bits,
                          codebook=a.codebook, keep=a.keep,
-                         blocks=EncodeOptions.blocks if a.blocks is None else a.blocks, depth=a.depth,
+                         blocks=a.blocks, depth=a.depth,
                          rel_error=a.rel_error, beta=a.beta, sh_bits=a.sh_bits,
                          train_views=a.train_views, importance_width=a.importance_width,
                          layers=a.layers, first_layer=a.first_layer, seed=a.seed).validate()

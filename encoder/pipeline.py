@@ -46,6 +46,26 @@ class EncodeOptionsError(GszError, ValueError):
 #: of ``gsz-encode --layers`` without a number, and the layer-0 share; bench/bench_stream.py
 #: measured the trade-off (bench/RESULTS.md, "Progressive streaming").
 DEFAULT_LAYERS = 1
+#: blocks per channel of the fixed configuration below ONE_BLOCK_MIN_BITS (and of the search)
+MANY_BLOCKS = 80
+#: uniform bit-width from which the fixed configuration's default is one block per channel
+ONE_BLOCK_MIN_BITS = 10
+
+
+def default_blocks(bits: int) -> int:
+    """Blocks per channel of a fixed configuration at a uniform ``bits`` (no --blocks given).
+
+    One block gives one quantisation step per channel over all of its RAHT coefficients --
+    equal steps, what minimises the error of an orthonormal transform at a given rate when the
+    steps are fine; per-block min/max at the same width spends levels on blocks of tiny
+    fine-level coefficients.  When the steps are coarse the coarsest coefficients (which set a
+    single block's range) make the step too big for the fine ones and colour detail rounds
+    away, so below ONE_BLOCK_MIN_BITS blocks win.  Measured (bench/RESULTS.md, tau 0.8): one
+    block at b >= 10 bits matched or beat 80 blocks at b - 2 bits in PSNR at 8-20 % fewer
+    bytes on houseplant, jug and tiny_graphdeco (12 bits: 14-25 % smaller than 80 blocks at
+    <= 0.14 dB less on five of six scenes); at 8 bits one block lost 0.6-8.6 dB (jug: DC
+    colour RMSE 0.17 against 0.02)."""
+    return 1 if int(bits) >= ONE_BLOCK_MIN_BITS else MANY_BLOCKS
 STREAMING_LAYERS = 3
 DEFAULT_FIRST_LAYER = 0.1
 MAX_LAYERS = 16
@@ -86,16 +106,9 @@ class EncodeOptions:
     codebook         SH VQ codebook size K (1..65536); capped at one codeword per 8 Gaussians
     keep             number of most important Gaussians whose exact SH vectors are kept
                      (None: 1 % of the voxels)
-    blocks           blocks per quantised channel (groups = channels x blocks).  Default 1:
-                     with one bit-width for every group, one block gives one quantisation
-                     step per channel over all of its RAHT coefficients, the MSE-optimal step
-                     allocation of an orthonormal transform; per-block min/max at the same
-                     bit-width spends levels on blocks of tiny (fine-level) coefficients.
-                     Measured (bench/RESULTS.md): houseplant tau 0.8, 12 bits: 1 block
-                     1.13 MB / 44.63 dB against 80 blocks 1.42 MB / 44.65 dB; 1 block at b
-                     bits beat 80 blocks at b - 2 bits in size and PSNR at every b tested.
-                     The size search chooses per-group bit-widths and uses 80 blocks
-                     (``SearchOptions.blocks``), where blocks are what it adapts.
+    blocks           blocks per quantised channel (groups = channels x blocks); None: the
+                     default of :func:`default_blocks` for the bit-width of each channel set
+                     (1 block from ONE_BLOCK_MIN_BITS bits up, MANY_BLOCKS below)
     depth            octree depth 1..21 (None: chosen from the position-error budget)
     rel_error        position-error budget relative to the robust scene diagonal (auto depth)
     beta             exponent of the volume term of the importance
@@ -118,7 +131,7 @@ class EncodeOptions:
     bits: int = 12
     codebook: int = 4096
     keep: int | None = None
-    blocks: int = 1
+    blocks: int | None = None
     depth: int | None = None
     rel_error: float | None = None
     beta: float = 0.1
@@ -143,7 +156,7 @@ class EncodeOptions:
             bad(f"--codebook must be 1..{MAX_CODEBOOK}, got {self.codebook}")
         if self.keep is not None and int(self.keep) < 0:
             bad(f"--keep must be >= 0, got {self.keep}")
-        if not (1 <= int(self.blocks) <= 65535):
+        if self.blocks is not None and not (1 <= int(self.blocks) <= 65535):
             bad(f"--blocks must be 1..65535, got {self.blocks}")
         if self.depth is not None and not (1 <= int(self.depth) <= 21):
             bad(f"--depth must be 1..21, got {self.depth}")
@@ -585,8 +598,10 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
                           rel_error=opts.rel_error, layers=opts.layers, first_layer=opts.first_layer,
                           progress=progress)
     m = stage.num_points
-    with progress.stage("attributes", f"{opts.bits} bits, {opts.blocks} blocks"):
-        attr, decoded, attr_stats = attribute_chunks(stage, opts.bits, opts.blocks)
+    blocks = default_blocks(opts.bits) if opts.blocks is None else int(opts.blocks)
+    sh_blocks = default_blocks(opts.sh_bits or opts.bits) if opts.blocks is None else int(opts.blocks)
+    with progress.stage("attributes", f"{opts.bits} bits, {blocks} blocks"):
+        attr, decoded, attr_stats = attribute_chunks(stage, opts.bits, blocks)
     sh = sh_rest = None
     sh_stats = {}
     if cloud.sh_degree > 0:
@@ -594,8 +609,10 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
         with progress.stage("sh", f"codebook {k}"):
             cb = train_sh_codebook(stage, k, seed=opts.seed, iters=opts.vq_iters, progress=progress)
             keep = int(round(0.01 * m)) if opts.keep is None else int(opts.keep)
-            sh, sh_rest, sh_stats = sh_chunk(stage, cb, keep, int(opts.sh_bits or opts.bits), opts.blocks)
-    options_json = dict(asdict(opts), depth=stage.depth)
+            sh, sh_rest, sh_stats = sh_chunk(stage, cb, keep, int(opts.sh_bits or opts.bits), sh_blocks)
+    options_json = dict(asdict(opts), depth=stage.depth, blocks=blocks)
+    if cloud.sh_degree > 0 and sh_blocks != blocks:
+        options_json["sh_blocks"] = sh_blocks
     with progress.stage("container"):
         meta = {"encoder": "gsz 0.1.0", "codec": "mesongs++", "options": options_json,
                 "input_gaussians": n_in, "voxels": m}

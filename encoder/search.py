@@ -32,7 +32,7 @@ from gsz.decoder.errors import GszError
 from gsz.decoder.groups import blocks_for
 
 from .pipeline import (DEFAULT_FIRST_LAYER, DEFAULT_LAYERS, EncodeOptions, EncodeOptionsError,
-                       EncodeResult, ShPayloads, Stage, assemble, attribute_chunks, check_layer_options,
+                       EncodeResult, MANY_BLOCKS, ShPayloads, Stage, assemble, attribute_chunks, check_layer_options,
                        sh_set_blocks,
                        compute_train_importance, default_codebook_size, layer_report, prepare_stage,
                        sh_chunk, stage_source, train_sh_codebook, voxelize_stage)
@@ -113,7 +113,7 @@ class SearchOptions:
     tolerance: float = 0.005
     max_rounds: int = 8
     solver: str = "fast"
-    blocks: int = 80
+    blocks: int = MANY_BLOCKS
     codebook: int | None = None
     eval_views: int = 6
     eval_width: int = DEFAULT_VIEW_WIDTH

@@ -84,26 +84,26 @@ def test_sh_keep_reproduces_kept_vectors_closely():
 
 
 @pytest.mark.parametrize("name", ["sh0", "sh3"])
-def test_default_one_block_beats_80_blocks_at_uniform_bits(name):
-    """The fixed configuration's default (one block per channel: one quantisation step over all
-    of a channel's RAHT coefficients) gives a smaller file than 80 blocks at the same bit-width,
-    and at 2 bits more than 80 blocks it is still no larger while rendering at least as close to
-    the original (held-out views of the committed sample)."""
+def test_default_blocks_follow_the_bit_width(name):
+    """The fixed configuration's default block count: one block per channel (one quantisation
+    step over all of a channel's RAHT coefficients) from 10 bits up, where it is smaller than 80
+    blocks at the same width and still no larger, at least as close to the original, than 80
+    blocks at 2 bits fewer (held-out views of the committed sample); 80 blocks below 10 bits,
+    where one block's coarse steps round the colour detail away."""
     from gsz.encoder.cameras import load_cameras
     from gsz.encoder.evaluate import evaluate, render_views
-    from gsz.encoder.pipeline import EncodeOptions
-    assert EncodeOptions().blocks == 1
+    from gsz.encoder.pipeline import default_blocks
+    assert [default_blocks(b) for b in (4, 8, 9, 10, 12, 16)] == [80, 80, 80, 1, 1, 1]
     c = sample(name, 6000)
     cams = load_cameras(None, c, n_test=3, width=160).test
     refs = render_views(c, cams)
-    runs = {}
-    for bits, blocks in ((8, 1), (8, 80), (10, 80)):
+
+    def run(bits, blocks=None):
         r = encoded(name, 6000, bits=bits, blocks=blocks)
-        runs[bits, blocks] = (len(r.data), evaluate(refs, decode(r.data), cams)["psnr"])
-    (s1, p1), (s80, p80), (s80_10, p80_10) = runs[8, 1], runs[8, 80], runs[10, 80]
-    assert s1 < 0.9 * s80, runs
-    # one block at 10 bits against 80 blocks at 8: the acceptance pair of the default
-    s1_10, p1_10 = (lambda r: (len(r.data), evaluate(refs, decode(r.data), cams)["psnr"]))(
-        encoded(name, 6000, bits=10, blocks=1))
-    assert s1_10 < s80_10 and p1_10 >= p80_10 - 0.1, (runs, s1_10, p1_10)
-    assert s1_10 <= 1.05 * s80 and p1_10 >= p80 - 0.1, (runs, s1_10, p1_10)
+        return len(r.data), evaluate(refs, decode(r.data), cams)["psnr"], r.report["options"]["blocks"]
+    s10, p10, k10 = run(10)
+    s10_80, _, _ = run(10, 80)
+    s8, p8, k8 = run(8)
+    assert (k10, k8) == (1, 80)
+    assert s10 < 0.9 * s10_80
+    assert s10 <= 1.05 * s8 and p10 >= p8 - 0.1, (s10, p10, s8, p8)
