@@ -17,6 +17,7 @@ Summary of the scheme
 """
 from __future__ import annotations
 
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -386,20 +387,30 @@ class ModelSet:
             raise GszFormatError("rANS model set: more coarse symbols than 2**n")
 
 
+_ZSTD = threading.local()     # one decompression context per thread (~20 us to create)
+
+
 def _unzstd(frame: bytes) -> bytes:
     """Decompress exactly one zstd frame that declares its content size (<= MAX_TABLE_BYTES)."""
     import zstandard
+    dctx = getattr(_ZSTD, "dctx", None)
+    if dctx is None:
+        dctx = _ZSTD.dctx = zstandard.ZstdDecompressor()
     try:
         size = zstandard.get_frame_parameters(frame).content_size
         if size == zstandard.CONTENTSIZE_UNKNOWN or size > MAX_TABLE_BYTES:
             raise GszFormatError(f"rANS model set: zstd frame content size {size} missing or "
                                  f"above {MAX_TABLE_BYTES}")
-        out = zstandard.ZstdDecompressor().decompress(frame, max_output_size=MAX_TABLE_BYTES)
-        obj = zstandard.ZstdDecompressor().decompressobj()
-        obj.decompress(frame)
-        if not obj.eof or obj.unused_data:
-            raise GszFormatError("rANS model set: bytes after the zstd frame")
+        out = dctx.decompress(frame, max_output_size=MAX_TABLE_BYTES, allow_extra_data=False)
+        if size == 0:
+            # allow_extra_data=False does not see bytes after an empty frame (zstandard 0.25)
+            obj = dctx.decompressobj()
+            obj.decompress(frame)
+            if not obj.eof or obj.unused_data:
+                raise GszFormatError("rANS model set: bytes after the zstd frame")
     except zstandard.ZstdError as exc:
+        if "unused data" in str(exc):
+            raise GszFormatError("rANS model set: bytes after the zstd frame") from None
         raise GszFormatError(f"rANS model set: bad zstd frame ({exc})") from None
     if len(out) != size:
         raise GszFormatError("rANS model set: zstd content size mismatch")

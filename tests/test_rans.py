@@ -268,6 +268,17 @@ def test_hostile_headers_bounded():
         with pytest.raises(GszFormatError):
             read_model_set(varint_bytes([(len(frame) << 1) | 1]) + frame)
     assert read_model_set(varint_bytes([(len(good) << 1) | 1]) + good)[0].num_models == 0
+    # ENTROPY.md 3.1: a skippable frame, a frame that needs a dictionary, bytes after an empty
+    # frame or after a second frame are not "exactly one zstd data frame"
+    import struct
+    skippable = struct.pack("<II", 0x184D2A50, len(good)) + good
+    zdict = zstandard.train_dictionary(1024, [bytes([i % 256]) * 60 + b"gsz" * i for i in range(300)])
+    with_dict = zstandard.ZstdCompressor(dict_data=zdict).compress(varint_bytes([0]))
+    empty = zstandard.ZstdCompressor().compress(b"")
+    for frame, why in ((skippable, "zstd"), (with_dict, "zstd"), (empty + b"\x00\x00", "after the zstd frame"),
+                       (good + good, "after the zstd frame")):
+        with pytest.raises(GszFormatError, match=why):
+            read_model_set(varint_bytes([(len(frame) << 1) | 1]) + frame)
     # garbage zstd frame
     with pytest.raises(GszFormatError):
         read_model_set(varint_bytes([(8 << 1) | 1]) + b"\x28\xb5\x2f\xfd" + b"\xff" * 4)
