@@ -9,7 +9,8 @@ plyfile (a valid graphdeco PLY: the 3DGS property set, the scene's SH degree, fi
 ratio (PLY bytes / .gsz bytes) and PSNR with the acceptance (>= 10x and >= 35 dB) per scene.
 
 Every group is quantised at a uniform 12 bits in all runs; the configurations differ in the
-reserve ratio, the octree depth and the number of generated train views (flags of gsz-encode):
+reserve ratio, the octree depth, the number of generated train views and the importance's
+volume exponent (flags of gsz-encode):
 
 * SH-2/3 scenes: the defaults (``--reserve 0.8``, one block per channel) give >= 10x already;
 * SH-0 scenes: an SH-0 PLY carries 68 B per Gaussian and a kept Gaussian costs ~11 B at 12
@@ -33,8 +34,8 @@ SHARED = Path(os.environ.get("GSZ_SHARED", ROOT.parent / "shared")) / "data"
 
 #: scene -> extra gsz-encode flags (every run also gets --bits 12)
 CONFIGS = {
-    "houseplant_sh0": ["--reserve", "0.6", "--depth", "9", "--train-views", "64"],
-    "plaza_taebak_crop_sh0": ["--reserve", "0.595", "--depth", "10", "--train-views", "64"],
+    "houseplant_sh0": ["--reserve", "0.6", "--depth", "9", "--train-views", "128", "--beta", "0"],
+    "plaza_taebak_crop_sh0": ["--reserve", "0.59", "--depth", "10", "--train-views", "128", "--beta", "0"],
     "showroom_lacadiere_crop_sh0": ["--reserve", "0.55"],
     "flowers_daffodils_sh2": [],
     "measuring_jug_sh3": [],
