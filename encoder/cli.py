@@ -82,9 +82,12 @@ def _run_search(a, prog) -> dict:
     from .search import SearchOptions, encode_to_budget
     from .sizes import budget_from_args, format_size, size_style
 
-    if a.reserve is not None or a.bits is not None or a.keep is not None or a.depth is not None:
-        raise GszError("--size/--ratio/--profile choose reserve, bits and keep themselves; "
-                       "drop --reserve/--bits/--keep/--depth")
+    fixed_only = [flag for flag, v in (("--reserve", a.reserve), ("--bits", a.bits), ("--keep", a.keep),
+                                       ("--depth", a.depth), ("--rel-error", a.rel_error),
+                                       ("--sh-bits", a.sh_bits)) if v is not None]
+    if fixed_only:
+        raise GszError("--size/--ratio/--profile choose the reserve, depth, bit-widths and kept SH "
+                       f"themselves; drop {'/'.join(fixed_only)}")
     in_bytes = os.path.getsize(a.input) if os.path.isfile(a.input) else None
     target = budget_from_args(size=a.size, ratio=a.ratio, profile=a.profile, ply_bytes=in_bytes)
     style = size_style(a.size) if a.size is not None else "auto"
@@ -92,7 +95,7 @@ def _run_search(a, prog) -> dict:
     cloud, cameras = _read_inputs(a, prog)
     sopts = SearchOptions(solver=a.solver,
                           blocks=SearchOptions.blocks if a.blocks is None else a.blocks,
-                          train_views=a.train_views,
+                          train_views=a.train_views, beta=a.beta,
                           importance_width=a.importance_width, seed=a.seed,
                           layers=a.layers, first_layer=a.first_layer,
                           codebook=a.codebook if a.codebook != 4096 else None)

@@ -102,6 +102,7 @@ class SearchOptions:
                     (pruned + voxelised) cloud and skip the tau when that bound is no better
                     than the best candidate's train PSNR
     overlap         train the SH codebooks on a worker thread during the set-up
+    beta            exponent of the importance's volume term (EncodeOptions.beta)
     """
 
     reserves: tuple = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)
@@ -126,6 +127,7 @@ class SearchOptions:
     screen: bool = True
     overlap: bool = True
     seed: int = 0
+    beta: float = 0.1
 
 
 @dataclass
@@ -902,6 +904,8 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
     def bad(msg):
         raise EncodeOptionsError(msg)
     check_layer_options(sopts.layers, sopts.first_layer, bad)
+    if not float(sopts.beta) >= 0:
+        bad(f"--beta must be >= 0, got {sopts.beta}")
     progress = progress or Progress(quiet=True)
     target = int(target_bytes)
     if target <= 0:
@@ -909,7 +913,7 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
     cloud.validate()
     t0, c0 = time.perf_counter(), time.process_time()
     eopts = EncodeOptions(train_views=sopts.train_views, importance_width=sopts.importance_width,
-                          seed=sopts.seed)
+                          beta=sopts.beta, seed=sopts.seed)
     if importance is None:
         importance = compute_train_importance(cloud, eopts, cameras=cameras, progress=progress)
     from .voxelize import DEFAULT_REL_ERROR, choose_depth
@@ -1227,7 +1231,7 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
                        for c in sorted(candidates, key=lambda c: -c[1])],
         "screened": screened,
         "dropped": dropped,
-        "train_psnr": psnr, "channel_weights": weights,
+        "train_psnr": psnr, "channel_weights": weights, "beta": float(sopts.beta),
         "eval_views": [c.name for c in eval_cams],
         "eval_size": [int(eval_cams[0].width), int(eval_cams[0].height)] if eval_cams else None,
         "components": {"geometry": stage.geometry_bytes, "attributes": info["attr_bytes"],

@@ -72,6 +72,13 @@ def test_bad_inputs_give_one_line_errors_and_no_output(tmp_path):
     assert not (tmp_path / "y.ply").exists()
     p = run("info", tmp_path / "missing.gsz", check=False)
     assert p.returncode == 2 and "not found" in p.stderr
+    # a size target with knobs only a fixed configuration has: one line naming them, no file
+    p = run("encode", SAMPLE_SH0, "-o", out, "--ratio", "20", "--rel-error", "0.01", "--sh-bits", "8",
+            check=False)
+    assert p.returncode == 2 and "--rel-error/--sh-bits" in p.stderr and "Traceback" not in p.stderr
+    assert not out.exists()
+    p = run("encode", SAMPLE_SH0, "-o", out, "--ratio", "20", "--beta", "-1", *FAST, check=False)
+    assert p.returncode == 2 and "--beta" in p.stderr and not out.exists()
 
 
 def test_layered_encode_decode_first_layers_and_partial(tmp_path):

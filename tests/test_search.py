@@ -87,12 +87,14 @@ def test_cli_size_units_json_and_report(tmp_path):
     out = tmp_path / "p.gsz"
     code = "import sys; from gsz.encoder.cli import main; sys.exit(main(sys.argv[1:]))"
     p = subprocess.run([sys.executable, "-c", code, str(SAMPLE_SH0), "-o", str(out), "--size", "150kB",
-                        "--train-views", "4", "--importance-width", "96", "--json", "--report", str(tmp_path / "rep")],
+                        "--train-views", "4", "--importance-width", "96", "--beta", "0", "--json", "--report",
+                        str(tmp_path / "rep")],
                        capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
     r = json.loads(p.stdout)
     assert r["target"] == "150 kB" and 0.995 * 150_000 <= r["bytes"] <= 150_000
     assert r["layer_blocks"] == [80]    # --blocks left out: the search's default, not the fixed one
+    assert r["beta"] == 0.0              # --beta reaches the search's importance pass
     assert out.stat().st_size == r["bytes"]
     assert (tmp_path / "rep" / "bits.png").stat().st_size > 500
     p = subprocess.run([sys.executable, "-c", code, str(SAMPLE_SH0), "-o", str(tmp_path / "q.gsz"),
