@@ -68,8 +68,7 @@ def _run_fixed(a, prog) -> dict:
     from .pipeline import EncodeOptions, encode
     opts = EncodeOptions(reserve=EncodeOptions.reserve if a.reserve is None else a.reserve,
                          bits=EncodeOptions.bits if a.bits is None else a.bits,
-                         codebook=a.codebook, keep=a.keep,
-                         blocks=a.blocks, depth=a.depth,
+                         codebook=a.codebook, keep=a.keep, blocks=a.blocks, depth=a.depth,
                          rel_error=a.rel_error, beta=a.beta, sh_bits=a.sh_bits,
                          train_views=a.train_views, importance_width=a.importance_width,
                          layers=a.layers, first_layer=a.first_layer, seed=a.seed).validate()

@@ -46,6 +46,10 @@ class EncodeOptionsError(GszError, ValueError):
 #: of ``gsz-encode --layers`` without a number, and the layer-0 share; bench/bench_stream.py
 #: measured the trade-off (bench/RESULTS.md, "Progressive streaming").
 DEFAULT_LAYERS = 1
+STREAMING_LAYERS = 3
+DEFAULT_FIRST_LAYER = 0.1
+MAX_LAYERS = 16
+
 #: blocks per channel of the fixed configuration below ONE_BLOCK_MIN_BITS (and of the search)
 MANY_BLOCKS = 80
 #: uniform bit-width from which the fixed configuration's default is one block per channel
@@ -60,15 +64,12 @@ def default_blocks(bits: int) -> int:
     steps are fine; per-block min/max at the same width spends levels on blocks of tiny
     fine-level coefficients.  When the steps are coarse the coarsest coefficients (which set a
     single block's range) make the step too big for the fine ones and colour detail rounds
-    away, so below ONE_BLOCK_MIN_BITS blocks win.  Measured (bench/RESULTS.md, tau 0.8): one
-    block at b >= 10 bits matched or beat 80 blocks at b - 2 bits in PSNR at 8-20 % fewer
-    bytes on houseplant, jug and tiny_graphdeco (12 bits: 14-25 % smaller than 80 blocks at
-    <= 0.14 dB less on five of six scenes); at 8 bits one block lost 0.6-8.6 dB (jug: DC
-    colour RMSE 0.17 against 0.02)."""
+    away, so below ONE_BLOCK_MIN_BITS blocks win.  Measured (bench/RESULTS.md, "Codec at fixed
+    configurations", tau 0.8, every scene grid and noised): one block at 10 and 12 bits was
+    smaller than 80 blocks at 2 bits fewer and at least as good on 22 of 24 pairs; at 12 bits
+    it is 15-20 % smaller than 80 blocks at <= 0.13 dB less on five of six scenes; at 8 bits it
+    lost 0.6-8.6 dB (jug: DC colour RMSE 0.17 against 0.02)."""
     return 1 if int(bits) >= ONE_BLOCK_MIN_BITS else MANY_BLOCKS
-STREAMING_LAYERS = 3
-DEFAULT_FIRST_LAYER = 0.1
-MAX_LAYERS = 16
 
 
 def check_layer_options(layers, first_layer, bad) -> None:
