@@ -904,16 +904,15 @@ def _encode_to_budget(cloud, target_bytes, options, importance, cameras, progres
     def bad(msg):
         raise EncodeOptionsError(msg)
     check_layer_options(sopts.layers, sopts.first_layer, bad)
-    if not float(sopts.beta) >= 0:
-        bad(f"--beta must be >= 0, got {sopts.beta}")
+    # the importance pass's options, checked by their own rules (beta, train views, width)
+    eopts = EncodeOptions(train_views=sopts.train_views, importance_width=sopts.importance_width,
+                          beta=sopts.beta, seed=sopts.seed).validate()
     progress = progress or Progress(quiet=True)
     target = int(target_bytes)
     if target <= 0:
         raise BudgetError(target, 1)
     cloud.validate()
     t0, c0 = time.perf_counter(), time.process_time()
-    eopts = EncodeOptions(train_views=sopts.train_views, importance_width=sopts.importance_width,
-                          beta=sopts.beta, seed=sopts.seed)
     if importance is None:
         importance = compute_train_importance(cloud, eopts, cameras=cameras, progress=progress)
     from .voxelize import DEFAULT_REL_ERROR, choose_depth
