@@ -90,8 +90,8 @@ def main(argv=None):
                 assert dec.equals(res.cloud)
                 ev = evaluate(refs, dec, cams)
                 r = res.report
-                blocks = r["options"]["blocks"]
-                row = {"scene": scene, "variant": variant, "bits": bits, "blocks": blocks, "reserve": a.reserve,
+                row = {"scene": scene, "variant": variant, "bits": bits, "blocks": r["options"]["blocks"],
+                       "reserve": a.reserve,
                        "gaussians": len(cloud), "voxels": r["voxels"], "depth": r["depth"],
                        "bytes": r["bytes"], "bytes_per_gaussian": r["bytes"] / len(cloud),
                        "ratio_vs_ply": ply_bytes / r["bytes"], "components": r["components"],
@@ -101,7 +101,7 @@ def main(argv=None):
                        "reference_render_seconds": t_ref}
                 rows.append(row)
                 c = r["components"]
-                print(f"{scene:30s} {variant:6s} {bits:2d} bit {blocks:2d} blk: {r['bytes']:>10,} B  "
+                print(f"{scene:30s} {variant:6s} {bits:2d} bit {row['blocks']:2d} blk: {r['bytes']:>10,} B  "
                       f"{row['bytes_per_gaussian']:6.2f} B/G  {row['ratio_vs_ply']:5.1f}x  "
                       f"PSNR {ev['psnr']:6.2f}  SSIM {ev['ssim']:.4f}  geom {c['geometry']:,} "
                       f"attr {c['attributes']:,} sh {c.get('sh', 0):,}  "

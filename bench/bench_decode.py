@@ -3,7 +3,7 @@
     .venv/bin/python bench/bench_decode.py [--scenes a,b] [--files x.gsz ...] [--repeats 3]
 
 Every shared scene (../shared/data/*.ply) is encoded once with ``gsz-encode --reserve 0.8
---bits 12 --blocks 1`` (cached in bench/.cache/decode/, keyed by the scene's size and mtime; --files adds
+--bits 12 --blocks 1`` (cached in bench/.cache/decode/, keyed by the scene's size and mtime and ENCODE_ARGS; --files adds
 any other .gsz).  For each file and each path (numpy = the reference decoder, what GSZ_NATIVE=0
 gives; native = decoder/_native.c):
 
@@ -36,6 +36,8 @@ SHARED = Path(os.environ.get("GSZ_SHARED", ROOT.parent / "shared")) / "data"
 CACHE = ROOT / "bench" / ".cache" / "decode"
 OUT = ROOT / "bench" / "out" / "decode.json"
 ENCODE_ARGS = ["--reserve", "0.8", "--bits", "12", "--blocks", "1"]   # the fixed default
+#: the cached files' name tag: the encode arguments, so changing them never reuses a stale file
+ENCODE_TAG = "_".join(x.lstrip("-").replace(".", "") for x in ENCODE_ARGS)    # reserve_08_bits_12_...
 
 
 def uptime() -> str:
@@ -47,7 +49,7 @@ def uptime() -> str:
 
 def encoded_file(ply: Path) -> Path:
     st = ply.stat()
-    out = CACHE / f"{ply.stem}_r08_b12_k1_{st.st_size}_{int(st.st_mtime)}.gsz"
+    out = CACHE / f"{ply.stem}_{ENCODE_TAG}_{st.st_size}_{int(st.st_mtime)}.gsz"
     if not out.exists():
         CACHE.mkdir(parents=True, exist_ok=True)
         exe = Path(sys.executable).with_name("gsz-encode")
@@ -172,7 +174,7 @@ def main(argv=None) -> int:
     for r in results:
         for mode, p in r["paths"].items():
             s = p["stages"]
-            print(f"| {Path(r['file']).name.split('_r08')[0]} | {p['gaussians']:,} | {r['bytes'] / 1e6:.2f} | "
+            print(f"| {Path(r['file']).name.split('_' + ENCODE_TAG)[0]} | {p['gaussians']:,} | {r['bytes'] / 1e6:.2f} | "
                   f"{mode} | {p['seconds']:.3f} | {p['cpu_seconds']:.3f} | {p['gaussians_per_second'] / 1e6:.2f} | "
                   f"{s['container']:.3f} | {s['geometry']:.3f} | {s['attributes']:.3f} | {s['sh']:.3f} | "
                   f"{s['finish']:.3f} |" + (f" {s['octree_encode']:.3f} |" if a.encode else ""))
