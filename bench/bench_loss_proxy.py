@@ -62,7 +62,8 @@ def main(argv=None):
     from gsz.encoder.cameras import load_cameras
     from gsz.encoder.evaluate import evaluate, render_views
     from gsz.encoder.pipeline import EncodeOptions, attribute_chunks, compute_train_importance, prepare_stage
-    from gsz.encoder.search import _attribute_tables, _group_meta_bytes, _split_bits, channel_weights
+    from gsz.encoder.search import channel_weights
+    from gsz.encoder.search.tables import attribute_tables, group_meta_bytes, split_bits
 
     rows = []
     for scene in a.scenes.split(","):
@@ -77,11 +78,11 @@ def main(argv=None):
         cams = load_cameras(None, cloud, n_train=6, n_test=1, width=640).train[:6]
         refs = render_views(cloud, cams)
         weights = channel_weights(cloud, cams[:2])
-        loss_u, rate, shapes = _attribute_tables(stage, 80, None)
-        loss_w, _, _ = _attribute_tables(stage, 80, weights)
+        loss_u, rate, shapes = attribute_tables(stage, 80, None)
+        loss_w, _, _ = attribute_tables(stage, 80, weights)
         # the attribute share of the budget: what is left after geometry, SH and metadata
         sh_bytes = stage.sh.shape[0] * 1.5 if stage.sh.shape[1] else 0
-        attr_bits = 8.0 * (budget_file - stage.geometry_bytes - sh_bytes - _group_meta_bytes(shapes) - 600)
+        attr_bits = 8.0 * (budget_file - stage.geometry_bytes - sh_bytes - group_meta_bytes(shapes) - 600)
         m = stage.num_points
         order = stage.order
         pos = voxel_centres(stage.vox.ijk[order], stage.vox.origin, stage.vox.side, stage.depth).astype(np.float32)
@@ -97,7 +98,7 @@ def main(argv=None):
             picks.append((f"random weights {i}", allocate(loss_u * f[chan][:, None], rate, attr_bits)))
         results = []
         for name, pick in picks:
-            payloads, dec, _ = attribute_chunks(stage, _split_bits(pick, shapes), 80)
+            payloads, dec, _ = attribute_chunks(stage, split_bits(pick, shapes), 80)
             c = GaussianCloud(positions=pos, scales=dec.scales, rotations=dec.rotations,
                               opacities=dec.opacities, sh_dc=dec.sh_dc, sh_rest=sh_rest,
                               sh_degree=cloud.sh_degree)

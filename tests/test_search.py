@@ -210,12 +210,12 @@ def test_dc_colour_channels_render_independently():
 def test_assigner_gives_nearest_codewords():
     """Codeword indices reused across taus are nearest codewords of each voxel's own vector."""
     from gsz.encoder.pipeline import prepare_stage
-    from gsz.encoder.search import _Assigner
+    from gsz.encoder.search.sh_model import Assigner
     from gsz.encoder.vq import assign
     c = sample("sh3", 3000)
     imp = np.random.default_rng(0).random(len(c))
     cb = np.random.default_rng(2).normal(0, 0.3, (64, c.sh_rest[0].size)).astype(np.float32)
-    a = _Assigner(c)
+    a = Assigner(c)
     for tau in (1.0, 0.7, 0.4):
         st = prepare_stage(c, imp, tau)
         idx = a(st, cb)

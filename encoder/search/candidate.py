@@ -1,0 +1,73 @@
+"""What one encode of the search produced: a calibration round's file (:class:`Encoded`) and a
+compared candidate (:class:`Candidate`, the encode plus its train-view score)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gsz.decoder.cloud import GaussianCloud
+
+from .sh_model import ShPlan
+from .tables import concat_bits
+
+
+@dataclass(eq=False)
+class Encoded:
+    """One real encode of a stage under one bit allocation."""
+
+    data: bytes
+    cloud: GaussianCloud          # the decoded scene (what the file decodes to)
+    pick: np.ndarray              # the solver's choice per group (bit-width - 1)
+    layer_bits: list              # per layer (raht_bits [7, B_l], scale_bits [3, B_l])
+    kept_bits: list               # per layer the kept SH vectors' widths [D, B_l], or None (SH_BITS)
+    sh_bytes: int
+    attr_stats: dict
+    attr_bytes: int
+    meta_bytes: int
+    predicted_bytes: float
+    loss: float
+    # set on the round a tau's calibration settles on
+    rounds: list = field(default_factory=list)
+    sh_plan: ShPlan | None = None
+    attributes_saturated: bool = False   # every attribute group at its best width, bytes left
+
+    @property
+    def raht_bits(self) -> np.ndarray:
+        """[7, sum B_l]: every layer's RAHT groups side by side."""
+        return concat_bits(self.layer_bits)[0]
+
+    @property
+    def scale_bits(self) -> np.ndarray:
+        """[3, sum B_l]: every layer's scale groups side by side."""
+        return concat_bits(self.layer_bits)[1]
+
+    def mean_attribute_bits(self) -> float:
+        return float(np.mean(np.concatenate([self.raht_bits.ravel(), self.scale_bits.ravel()])))
+
+
+@dataclass(eq=False)
+class Candidate:
+    """An encoded (reserve, depth, layer split) and its score on the train views."""
+
+    train_psnr: float
+    reserve: float
+    depth: int
+    first_layer: float
+    view_psnr: list               # per train view
+    encoded: Encoded
+    layer0_too_late: bool = False  # a re-split variant of it was tried (layers.resplit_layer0)
+
+    @property
+    def rank(self) -> tuple:
+        """Candidates compare by train PSNR, ties to the larger reserve."""
+        return (self.train_psnr, self.reserve)
+
+    @property
+    def data(self) -> bytes:
+        return self.encoded.data
+
+
+def best_of(candidates) -> Candidate:
+    """The best candidate (the first of equals, as max() picks)."""
+    return max(candidates, key=lambda c: c.rank)

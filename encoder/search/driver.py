@@ -1,0 +1,284 @@
+"""The size search's driver: one :class:`BudgetSearch` per call of ``encode_to_budget``.
+
+Order of work: importance once; the SH codebooks (worker thread) beside the largest tau's stage,
+the train-view references and the channel weights; up to ``max_candidates`` taus spread over the
+feasible range; the depth walk from the best; tau refined at the walk's depth; layer 0 re-split
+for layered files; the best candidate on train views wins.
+"""
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+
+import numpy as np
+
+from ..pipeline import (EncodeOptions, EncodeOptionsError, EncodeResult, Stage, assemble,
+                        attribute_chunks, check_layer_options, compute_train_importance,
+                        prepare_stage, sh_chunk, sh_set_blocks, voxelize_stage)
+from ..progress import Progress
+from .candidate import Candidate, best_of
+from .codebooks import Codebooks
+from .depth_walk import walk_depth
+from .judge import EVAL_DROP_MARGIN_DB, Judge
+from .layers import finalists, resplit_layer0
+from .options import SH_BITS, BudgetError, SearchOptions
+from .report import search_report
+from .sh_model import Assigner, ShModel, ShStageStats
+from .tables import search_meta, size_bounds
+from .tau import encode_tau
+
+
+def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None = None,
+                     importance: np.ndarray | None = None, cameras=None,
+                     progress: Progress | None = None) -> EncodeResult:
+    """Encode ``cloud`` into at most ``target_bytes`` bytes with the best train-view fidelity.
+
+    Returns EncodeResult(data, cloud, report); report has target, actual bytes, the chosen
+    reserve/codebook/keep, the bit-width of every group, predicted vs actual size per calibration
+    round, candidates with their train PSNR, and seconds per stage.  Raises BudgetError with the
+    smallest reachable size when the budget cannot be met.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    # every candidate's octree is coded on this thread while the caller computes the candidate's
+    # SH statistics and rate tables (flowers: ~1.4 s of each ~10 s candidate)
+    with _search_threads(), ThreadPoolExecutor(max_workers=1, thread_name_prefix="gsz-geom") as pool:
+        search = BudgetSearch(cloud, target_bytes, options or SearchOptions(), progress, pool)
+        return search.run(importance, cameras)
+
+
+@contextlib.contextmanager
+def _search_threads():
+    """torch's own maths single-threaded for the search, the renderer on every core.
+
+    The search's torch work is many small ops (quantising one channel set block by block, SH
+    k-means chunks); on the shared 2-core machine two OpenMP threads stall at every barrier
+    when another job holds a core (measured: quantize_groups of a 24 x 170k SH set 1.1 s with 2
+    threads vs 0.03-0.05 s with 1; 47 such calls cost 32 s of a flowers search).  The renderer
+    hands out tiles dynamically, so it keeps the cores torch had.  Results do not depend on
+    either thread count."""
+    import torch
+
+    from ..render import render_threads
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        with render_threads(old):
+            yield
+    finally:
+        torch.set_num_threads(old)
+
+
+class BudgetSearch:
+    """The state of one search: its stages (cached per tau, depth and layer split), codebooks,
+    judge and candidates, and the records the report shows."""
+
+    def __init__(self, cloud, target_bytes: int, sopts: SearchOptions, progress: Progress | None,
+                 geometry_pool):
+        def bad(msg):
+            raise EncodeOptionsError(msg)
+        check_layer_options(sopts.layers, sopts.first_layer, bad)
+        # the importance pass's options, checked by their own rules (beta, train views, width)
+        self.eopts = EncodeOptions(train_views=sopts.train_views, importance_width=sopts.importance_width,
+                                   beta=sopts.beta, seed=sopts.seed).validate()
+        self.sopts, self.cloud, self.geometry_pool = sopts, cloud, geometry_pool
+        self.progress = progress or Progress(quiet=True)
+        self.target = int(target_bytes)
+        if self.target <= 0:
+            raise BudgetError(self.target, 1)
+        cloud.validate()
+        self.taus = sorted(set(float(t) for t in sopts.reserves), reverse=True)
+        self.importance = self.depth = self.judge = None
+        self.codebooks: list = []
+        self.assigner = Assigner(cloud) if cloud.sh_degree > 0 else None
+        self._stages: dict = {}
+        self._voxelized: dict = {}
+        self.candidates: list[Candidate] = []
+        self.evaluated: set = set()       # (tau, depth) tried
+        self.log: list = []               # every tau's calibration
+        self.screened: list = []          # exact-attribute bounds rendered or inferred
+        self.dropped: list = []           # candidates dropped after their hardest views
+        self.t0 = self.c0 = None
+
+    # --- stages -------------------------------------------------------------------------------
+    def vox_for(self, tau, d=None):
+        """(kept, voxelized) of ``tau`` at depth ``d`` (default: the position-error depth)."""
+        key = (tau, self.depth if d is None else d)
+        if key not in self._voxelized:
+            self._voxelized[key] = voxelize_stage(self.cloud, self.importance, tau, depth=key[1],
+                                                  progress=self.progress)
+        return self._voxelized[key]
+
+    def stage_for(self, tau, d=None, fl=None) -> Stage:
+        """The prepared stage (geometry coded) of ``tau`` at depth ``d`` with layer-0 share ``fl``."""
+        d = self.depth if d is None else d
+        fl = self.sopts.first_layer if fl is None else fl
+        if (tau, d, fl) not in self._stages:
+            self._stages[(tau, d, fl)] = prepare_stage(
+                self.cloud, self.importance, tau, depth=d, layers=self.sopts.layers, first_layer=fl,
+                progress=self.progress, voxelized=self.vox_for(tau, d), pool=self.geometry_pool)
+        return self._stages[(tau, d, fl)]
+
+    # --- the run ------------------------------------------------------------------------------
+    def run(self, importance=None, cameras=None) -> EncodeResult:
+        from ..voxelize import DEFAULT_REL_ERROR, choose_depth
+        self.t0, self.c0 = time.perf_counter(), time.process_time()
+        if importance is None:
+            importance = compute_train_importance(self.cloud, self.eopts, cameras=cameras,
+                                                  progress=self.progress)
+        self.importance = importance
+        self.depth = choose_depth(self.cloud.positions, rel_error=DEFAULT_REL_ERROR)
+        lo1, hi1 = self._set_up(cameras)
+        for tau in self._feasible(lo1, hi1):
+            self.try_tau(tau)
+        walk_depth(self)
+        self.refine_tau()
+        resplit_layer0(self)
+        return self._result()
+
+    def _set_up(self, cameras) -> tuple[float, float]:
+        """Codebooks (worker thread) beside the largest tau's stage and its size bounds, the
+        judge's references and the channel weights.  Returns the size bounds."""
+        kept_top, vox_top = self.vox_for(self.taus[0])
+        codebooks = None
+        if self.cloud.sh_degree > 0:
+            codebooks = Codebooks(self.sopts, kept_top, vox_top, self.assigner, self.progress)
+        with codebooks or contextlib.nullcontext():
+            top = self.stage_for(self.taus[0])
+            with self.progress.stage("tables", f"tau {self.taus[0]}: size bounds"):
+                bounds = size_bounds(top, self.sopts.blocks)
+            self.judge = Judge(self.cloud, self.sopts, self.progress, cameras)
+            if codebooks is not None:
+                self.codebooks = codebooks.result()
+        return bounds
+
+    def _feasible(self, lo1: float, hi1: float) -> list:
+        """The taus whose size range (scaled from the largest tau's) can contain the target,
+        at most ``max_candidates`` spread over them."""
+        taus, n, target = self.taus, len(self.cloud), self.target
+        feasible = []
+        for tau in taus:
+            f = (math.ceil(tau * n) / n) / (math.ceil(taus[0] * n) / n)
+            lo, hi = lo1 * f, hi1 * f
+            if lo <= target and (hi >= target or not feasible):
+                feasible.append(tau)
+        if not feasible:
+            # even the smallest tau at 1 bit is estimated above the target: check exactly
+            feasible = [taus[-1]]
+        if len(feasible) > self.sopts.max_candidates:
+            pos = np.linspace(0, len(feasible) - 1, self.sopts.max_candidates).round().astype(int)
+            feasible = [feasible[i] for i in sorted(set(pos))]
+        self.progress.log(f"target {target:,} bytes; candidate reserve ratios {feasible}")
+        return feasible
+
+    def best(self) -> Candidate:
+        return best_of(self.candidates)
+
+    def cannot_win(self, tau, d) -> bool:
+        """True when even exact attributes at (tau, depth d) render no better than the best
+        candidate so far (train views): then no allocation there can win and its encode is
+        skipped.  Checked only below the best tau or shallower than the best depth (fewer
+        Gaussians / coarser positions: the bound falls, and above the best it would almost
+        never prune); monotone in tau at one depth, so a tau below one that failed at the same
+        depth fails without a render."""
+        if not self.sopts.screen or not self.candidates:
+            return False
+        best = self.best()
+        if tau >= best.reserve and d >= best.depth:
+            return False
+        inferred, partial = False, 0
+        for s in self.screened:
+            if s["skipped"] and s["reserve"] >= tau and s["depth"] == d:
+                bound, inferred = s["bound_psnr"], True     # an upper bound of tau's own
+                break
+        else:
+            with self.progress.stage("screen", f"tau {tau}, depth {d}: exact-attribute bound"):
+                bound, partial = self.judge.screen(self.vox_for(tau, d)[1].cloud, best.view_psnr)
+        skip = bound <= best.train_psnr and not partial         # a partial mean only ever lets through
+        self.screened.append({"reserve": tau, "depth": d, "bound_psnr": bound, "inferred": inferred,
+                              "views": 0 if inferred else (partial or len(self.judge.cameras)),
+                              "best_psnr": best.train_psnr, "skipped": skip})
+        if skip:
+            what = "a larger tau's exact attributes reach" if inferred else "exact attributes reach"
+            self.progress.log(f"tau {tau}, depth {d}: {what} only {bound:.2f} dB <= {best.train_psnr:.2f} dB "
+                              f"(tau {best.reserve}, depth {best.depth}): skipped")
+        return skip
+
+    def sh_models(self, stage: Stage) -> list:
+        """One SH model per codebook of the stage (none without SH)."""
+        models = []
+        if self.codebooks:
+            with self.progress.stage("sh-model", f"tau {stage.reserve}: kept-vector statistics"):
+                base = ShStageStats(stage, self.sopts.blocks)
+        for cb in self.codebooks:
+            with self.progress.stage("sh-model", f"tau {stage.reserve}, codebook {len(cb)}"):
+                models.append(ShModel(stage, cb, self.sopts.blocks, base, self.assigner(stage, cb)))
+        return models
+
+    def try_tau(self, tau, d=None, fl=None, min_keep: int = 0) -> None:
+        """Encode (tau, depth d, layer split fl), score it on the train views and add it to the
+        candidates (unless screening skips it or its hardest views drop it)."""
+        sopts, progress = self.sopts, self.progress
+        d = self.depth if d is None else d
+        fl = sopts.first_layer if fl is None else fl
+        self.evaluated.add((tau, d))
+        regular = fl == sopts.first_layer and not min_keep
+        if regular and self.cannot_win(tau, d):
+            return
+        stage = self.stage_for(tau, d, fl)
+        enc = encode_tau(stage, self.target, sopts, self.sh_models(stage), progress, self.log,
+                         self.judge.weights, min_keep=min_keep)
+        if enc is None:
+            progress.log(f"tau {tau}: budget not reachable")
+            return
+        # re-split / kept-layer-0 variants may be chosen despite a lower PSNR: render them fully
+        rival = self.best().view_psnr if self.candidates and regular else None
+        with progress.stage("eval", f"tau {tau}, depth {d}"):
+            p, views, partial = self.judge.score(enc.cloud, rival)
+        if partial:
+            progress.log(f"tau {tau}, depth {d}: {len(enc.data):,} bytes, {partial} hardest train views "
+                         f"{EVAL_DROP_MARGIN_DB:g}+ dB below the best candidate's: dropped")
+            self.dropped.append({"reserve": tau, "depth": d, "bytes": len(enc.data), "views": partial,
+                                 "partial_psnr": p})
+            return
+        progress.log(f"tau {tau}, depth {d}: {len(enc.data):,} bytes, train PSNR {p:.2f} dB")
+        self.candidates.append(Candidate(p, tau, d, fl, views, enc))
+
+    def refine_tau(self) -> None:
+        """The grid neighbours of the best candidate's tau (at its depth), while they improve."""
+        taus = self.taus
+        for _ in range(self.sopts.refine_steps):
+            if not self.candidates:
+                return
+            best = self.best()
+            i, d = taus.index(best.reserve), best.depth
+            nbrs = [taus[j] for j in (i - 1, i + 1)
+                    if 0 <= j < len(taus) and (taus[j], d) not in self.evaluated]
+            if not nbrs:
+                return
+            for tau in nbrs:
+                self.try_tau(tau, d)
+
+    def _result(self) -> EncodeResult:
+        if not self.candidates:
+            raise BudgetError(self.target, self._smallest_file())
+        chosen = finalists(self.candidates, self.sopts)
+        chosen.sort(key=lambda c: (-c.train_psnr, -c.reserve))
+        report = search_report(self, chosen[0])
+        if "note" in report:
+            self.progress.log(report["note"])
+        return EncodeResult(data=chosen[0].data, cloud=chosen[0].encoded.cloud, report=report)
+
+    def _smallest_file(self) -> int:
+        """Exact size of the smallest file the search can make (the smallest tau, 1 bit
+        everywhere, the smallest codebook, no kept SH)."""
+        stage = self.stage_for(self.taus[-1])
+        codebook = self.codebooks[-1] if self.codebooks else None
+        sh = sh_rest = None
+        if codebook is not None:
+            sh, sh_rest, _ = sh_chunk(stage, codebook, 0, SH_BITS, self.sopts.blocks,
+                                      cb_blocks=sh_set_blocks(len(codebook), self.sopts.blocks))
+        attr, decoded, _ = attribute_chunks(stage, 1, self.sopts.blocks)
+        data, _, _ = assemble(stage, attr, decoded, sh, sh_rest, search_meta(stage, 0, {"sh_keep": 0}))
+        return len(data)

@@ -1,0 +1,105 @@
+"""The candidate judge: every candidate is scored on the same train views with gsz-eval's
+protocol (8-bit renders, per-view PSNR, plain mean); test views are never used for choices."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..cameras import load_cameras
+from .options import SearchOptions
+from .sensitivity import channel_weights
+
+def eval_cameras(cloud, sopts: SearchOptions, cameras=None) -> list:
+    """The train views candidates are compared on: ``eval_views`` of the caller's train cameras
+    spread evenly over them (downscaled to ``eval_width`` where wider), or generated views at
+    ``eval_width`` when there are none."""
+    from ..evaluate import pick_evenly
+    if cameras:
+        return [c.scaled(sopts.eval_width) if c.width > sopts.eval_width else c
+                for c in pick_evenly(list(cameras), max(sopts.eval_views, 1))]
+    return load_cameras(None, cloud, n_train=max(sopts.eval_views, 1), n_test=1,
+                        width=sopts.eval_width).train[:sopts.eval_views]
+
+
+#: A candidate's train views are rendered hardest first (lowest PSNR of the best candidate so
+#: far); once at least EVAL_MIN_VIEWS of them trail the best's renders of the same views by more
+#: than EVAL_DROP_MARGIN_DB on average, the candidate is dropped without rendering the rest (the
+#: remaining, easier views would have to make up that deficit).  This mostly saves the renders of
+#: the depth walk's losing steps.
+EVAL_MIN_VIEWS = 3
+EVAL_DROP_MARGIN_DB = 1.0
+
+
+def train_psnr(refs, cloud, cameras, best_views=None) -> tuple[float, list, int]:
+    """(mean PSNR over the views rendered, per-view PSNRs (None where not rendered), 0 when every
+    view was rendered else how many were) with gsz-eval's protocol (8-bit renders, per-view PSNR,
+    plain mean) -- all the search compares candidates by; SSIM would cost more than the renders.
+    With ``best_views`` (the best candidate's per-view PSNRs) the candidate may be dropped early,
+    see EVAL_DROP_MARGIN_DB."""
+    from ..evaluate import render_views
+    from ..metrics import psnr
+    if best_views is None:
+        imgs = render_views(cloud, cameras)
+        views = [psnr(r, i) for r, i in zip(refs, imgs)]
+        return float(np.mean(views)), views, 0
+    views = [None] * len(cameras)
+    diffs = []
+    for i in np.argsort(np.asarray(best_views), kind="stable"):
+        views[i] = psnr(refs[i], render_views(cloud, [cameras[i]])[0])
+        diffs.append(views[i] - best_views[i])
+        if EVAL_MIN_VIEWS <= len(diffs) < len(cameras) and float(np.mean(diffs)) < -EVAL_DROP_MARGIN_DB:
+            return float(np.mean([v for v in views if v is not None])), views, len(diffs)
+    return float(np.mean(views)), views, 0
+
+
+#: Screening stops rendering a tau's exact-attribute bound, and lets the tau through, once the
+#: views rendered so far (at least SCREEN_MIN_VIEWS) beat the best candidate's renders of the
+#: same views by SCREEN_PASS_MARGIN_DB on average (per-view differences: the views' own
+#: difficulty, which spreads their PSNRs over 10+ dB, cancels).  A let-through tau is encoded
+#: and compared as usual, and a tau that screening would skip cannot win anyway, so this only
+#: trades render time against encodes; it never changes which file is chosen.
+SCREEN_MIN_VIEWS = 2
+SCREEN_PASS_MARGIN_DB = 1.5
+
+
+def screen_psnr(refs, cloud, cameras, best_views) -> tuple[float, int]:
+    """(mean PSNR over the views rendered, 0 when all were rendered, else how many): renders
+    view by view and stops early when the tau clearly passes (see SCREEN_PASS_MARGIN_DB).
+    The views go hardest first (lowest PSNR of the best candidate): there pruning error, which
+    the bound keeps, dominates quantisation error, which it drops, so the bound is tightest."""
+    from ..evaluate import render_views
+    from ..metrics import psnr
+    order = np.argsort(np.asarray(best_views), kind="stable")
+    vals, diffs = [], []
+    for i in order:
+        vals.append(psnr(refs[i], render_views(cloud, [cameras[i]])[0]))
+        diffs.append(vals[-1] - best_views[i])
+        if SCREEN_MIN_VIEWS <= len(vals) < len(cameras) and float(np.mean(diffs)) > SCREEN_PASS_MARGIN_DB:
+            return float(np.mean(vals)), len(vals)
+    return float(np.mean(vals)), 0
+
+
+class Judge:
+    """The train views, their reference renders and the channel weights of one search."""
+
+    def __init__(self, cloud, sopts: SearchOptions, progress, cameras=None):
+        from ..metrics import quantize_8bit
+        from ..render import render
+        self.cameras = eval_cameras(cloud, sopts, cameras)
+        with progress.stage("eval-reference", f"{len(self.cameras)} train views"):
+            # float renders (the first two also serve as the sensitivity's base), 8-bit as
+            # render_views makes them
+            ref_float = [render(cloud, c).image for c in self.cameras]
+            self.refs = [quantize_8bit(np.asarray(img)) for img in ref_float]
+        self.weights = None
+        if sopts.weight_channels:
+            with progress.stage("sensitivity", "per-channel rendering weights of Omega"):
+                self.weights = channel_weights(cloud, self.cameras[:2], seed=sopts.seed,
+                                               base_images=ref_float[:2])
+
+    def score(self, cloud, best_views=None) -> tuple[float, list, int]:
+        """:func:`train_psnr` on this search's views."""
+        return train_psnr(self.refs, cloud, self.cameras, best_views)
+
+    def screen(self, cloud, best_views) -> tuple[float, int]:
+        """:func:`screen_psnr` on this search's views."""
+        return screen_psnr(self.refs, cloud, self.cameras, best_views)

@@ -1,0 +1,82 @@
+"""What the size search can be asked for: its options and the error for a budget it cannot meet."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from gsz.decoder.errors import GszError
+
+from ..cameras import DEFAULT_VIEW_WIDTH
+from ..pipeline import DEFAULT_FIRST_LAYER, DEFAULT_LAYERS, MANY_BLOCKS
+
+#: bit-width of the SH codebook and the kept exact SH vectors (the paper's setting), except where
+#: a budget above the 8-bit quality ceiling lets the kept vectors' groups join the allocation
+SH_BITS = 8
+
+
+class BudgetError(GszError, ValueError):
+    """The requested budget cannot be met (names the smallest reachable size)."""
+
+    def __init__(self, target: int, minimum: int, path=None):
+        self.target = int(target)
+        self.minimum = int(minimum)
+        super().__init__(f"size budget {self.target:,} bytes is below the smallest reachable file "
+                         f"for this scene, {self.minimum:,} bytes", path)
+
+
+@dataclass
+class SearchOptions:
+    """Knobs of the search (defaults are what the benchmarks use).
+
+    reserves        tau grid, descending
+    max_candidates  taus spread over the feasible range, encoded and compared by train PSNR
+    refine_steps    rounds of also trying the grid neighbours of the best tau so far
+    depth_steps     octree levels away from the position-error default the search may go
+                    (either way); after the tau search at the default depth it walks the depth
+                    from the best candidate while train PSNR improves, then refines tau there
+    max_extra_depth cap on levels deeper than the default (the budget-saturated case)
+    weight_channels weight Omega per channel by measured rendering sensitivity (channel_weights)
+    tolerance       accepted shortfall below the target (fraction)
+    max_rounds      calibration rounds per tau
+    solver          "fast" (convex hull + repair) or "cbc" (PuLP, the paper's ILP)
+    eval_views      train views rendered to compare candidates: generated ones, or as many of
+                    the caller's cameras spread evenly over them; eval_width their width at
+                    most.  The default is gsz-eval's view width: at lower resolutions the
+                    loss of small Gaussians hides below a pixel, and candidates that prune
+                    more win on train views and lose on test views (plaza 12x, flowers 27x at
+                    640 px: about 1 dB of test PSNR; bench/RESULTS.md)
+    layers          importance-ordered layers of the file (progressive streaming); the bit
+                    allocation runs over the groups of every layer at once
+    first_layer     fraction of the Gaussians in layer 0 (when layers > 1)
+    layer0_share    wanted fraction of the file bytes before layer 0 is decodable: when the
+                    chosen file's layer 0 ends after more than 1.5x this, the layers are
+                    re-split with a proportionally smaller layer 0 and that candidate re-encoded
+    screen          before encoding a tau below the best so far, render its exact-attribute
+                    (pruned + voxelised) cloud and skip the tau when that bound is no better
+                    than the best candidate's train PSNR
+    overlap         train the SH codebooks on a worker thread during the set-up
+    beta            exponent of the importance's volume term (EncodeOptions.beta)
+    """
+
+    reserves: tuple = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)
+    max_candidates: int = 3
+    depth_steps: int = 3
+    max_extra_depth: int = 3
+    refine_steps: int = 3
+    weight_channels: bool = True
+    tolerance: float = 0.005
+    max_rounds: int = 8
+    solver: str = "fast"
+    blocks: int = MANY_BLOCKS
+    codebook: int | None = None
+    eval_views: int = 6
+    eval_width: int = DEFAULT_VIEW_WIDTH
+    train_views: int = 24
+    importance_width: int = DEFAULT_VIEW_WIDTH
+    vq_iters: int | None = None
+    layers: int = DEFAULT_LAYERS
+    first_layer: float = DEFAULT_FIRST_LAYER
+    layer0_share: float = 0.1
+    screen: bool = True
+    overlap: bool = True
+    seed: int = 0
+    beta: float = 0.1

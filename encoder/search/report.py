@@ -1,0 +1,63 @@
+"""The size search's report: what was chosen, why, and what every stage cost."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from gsz.decoder.layout import DIRECT_CHANNELS, RAHT_CHANNELS
+
+from ..pipeline import layer_report
+from .candidate import Candidate
+from .options import SH_BITS
+
+
+def search_report(search, chosen: Candidate) -> dict:
+    """JSON-ready report of ``search`` (a finished BudgetSearch) that chose ``chosen``."""
+    enc, target, tau = chosen.encoded, search.target, chosen.reserve
+    stage = search.stage_for(tau, chosen.depth, chosen.first_layer)
+    sh_plan, data = enc.sh_plan, chosen.data
+    eval_cams = search.judge.cameras
+    report = {
+        "mode": "size-search", "target_bytes": target, "bytes": len(data),
+        "deviation": (len(data) - target) / target, "reserve": tau, "depth": stage.depth,
+        "input_gaussians": len(search.cloud), "voxels": stage.num_points,
+        "bytes_per_gaussian": len(data) / stage.num_points, "sh_degree": search.cloud.sh_degree,
+        "codebook_size": int(sh_plan.stats["codebook_size"]) if sh_plan else 0,
+        "sh_keep": int(sh_plan.keep) if sh_plan else 0,
+        "layers": layer_report(data),
+        "layer_blocks": [int(b.shape[1]) for b, _ in enc.layer_bits],
+        "bits": {"raht": enc.raht_bits.tolist(), "scales": enc.scale_bits.tolist(),
+                 "raht_channels": list(RAHT_CHANNELS), "scale_channels": list(DIRECT_CHANNELS),
+                 "sh": SH_BITS if sh_plan else None,
+                 # per layer: the kept exact SH vectors' group widths [D][B_l] where they were
+                 # allocated (budgets above the SH_BITS quality ceiling), else None (SH_BITS)
+                 "sh_kept": [None if b is None else b.tolist() for b in enc.kept_bits]},
+        "calibration": enc.rounds,
+        "calibration_all": search.log,
+        "first_layer": chosen.first_layer,
+        "candidates": [{"reserve": c.reserve, "depth": c.depth, "first_layer": c.first_layer,
+                        "bytes": len(c.data), "train_psnr": c.train_psnr, "train_view_psnr": c.view_psnr,
+                        "layer0_too_late": c.layer0_too_late}
+                       for c in sorted(search.candidates, key=lambda c: -c.reserve)],
+        "screened": search.screened,
+        "dropped": search.dropped,
+        "train_psnr": chosen.train_psnr, "channel_weights": search.judge.weights,
+        "beta": float(search.sopts.beta),
+        "eval_views": [c.name for c in eval_cams],
+        "eval_size": [int(eval_cams[0].width), int(eval_cams[0].height)] if eval_cams else None,
+        "components": {"geometry": stage.geometry_bytes, "attributes": enc.attr_bytes,
+                       **enc.attr_stats, "sh": enc.sh_bytes, "metadata": enc.meta_bytes},
+        "seconds": dict(search.progress.seconds), "total_seconds": time.perf_counter() - search.t0,
+        # CPU seconds of this process (all its threads): on a shared machine the wall clock
+        # depends on the other jobs, this mostly does not
+        "cpu_seconds": time.process_time() - search.c0,
+    }
+    if len(data) < target * (1.0 - search.sopts.tolerance):
+        bits_all = np.concatenate([enc.raht_bits.ravel(), enc.scale_bits.ravel()]
+                                  + [b.ravel() for b in enc.kept_bits if b is not None])
+        report["note"] = (f"file is {100 * (1 - len(data) / target):.2f} % below the target: "
+                          + ("the budget exceeds the maximum-quality size of this scene at the chosen reserve "
+                             "ratio (every group at its best bit-width)" if bits_all.min() >= 12 or tau == 1.0
+                             else "calibration did not reach the tolerance within the round limit"))
+    return report

@@ -1,0 +1,238 @@
+"""The SH side of a candidate: estimated bytes and SSE of the higher-degree SH as functions of the
+codebook and the count of most important vectors kept exact, and the exact payloads of a choice."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from gsz.decoder.groups import blocks_for
+
+from ..pipeline import ShPayloads, Stage, sh_set_blocks
+from .options import SH_BITS
+
+#: Fractions of the Gaussians whose SH vectors are kept exact (most important first), tried
+#: jointly with the bit allocation.
+KEEP_FRACTIONS = (0.0, 0.0025, 0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.32)
+#: Keep fractions tried only when the largest of KEEP_FRACTIONS wins (budgets near or above the
+#: scene's quality ceiling): their statistics cover every vector and cost ~3x more to compute.
+KEEP_FRACTIONS_HIGH = (0.64, 1.0)
+
+
+@dataclass
+class ShPlan:
+    """The SH payloads of one (codebook, keep-count) choice and what they were estimated at."""
+
+    keep: int
+    chunk: list               # SHVQ payloads with every kept vector at SH_BITS
+    sh_rest: np.ndarray
+    stats: dict
+    est_bytes: float
+    est_loss: float
+    payloads: ShPayloads      # the same with the kept vectors' widths open (calibration.spend_saturated)
+
+
+def row_sse(x: np.ndarray, ref, step: int = 16384) -> np.ndarray:
+    """float64 [N]: sum over each row of (x - ref)^2, x float32 [N, D], ``ref(s, e)`` the float64
+    rows s..e of the reference.  In row chunks: the same values as the whole-array expression
+    (each row's sum is its own) at ~1/3 of the time (no N x D float64 temporaries; flowers:
+    0.33 -> 0.12 s per codebook and stage)."""
+    out = np.empty(x.shape[0], np.float64)
+    for s in range(0, x.shape[0], step):
+        d = x[s:s + step].astype(np.float64)
+        d -= ref(s, s + d.shape[0])
+        d *= d
+        d.sum(1, out=out[s:s + d.shape[0]])
+    return out
+
+
+class ShStageStats:
+    """What the SH estimates need from a stage whatever the codebook: importance order, the
+    error and rate of the kept (exact, SH_BITS) vectors for every keep-count up to the largest
+    on the KEEP_FRACTIONS grid (:meth:`extend` covers every vector, for KEEP_FRACTIONS_HIGH).
+    Computed once per stage and shared by its codebooks."""
+
+    def __init__(self, stage: Stage, blocks: int):
+        x = stage.sh
+        self.stage, self.blocks = stage, blocks
+        self.order = np.lexsort((np.arange(x.shape[0]), -stage.importance))   # importance rank
+        self._compute(max(1, int(round(KEEP_FRACTIONS[-1] * x.shape[0]))))
+
+    def extend(self) -> None:
+        """Statistics for every keep-count up to all vectors (idempotent)."""
+        m = self.stage.sh.shape[0]
+        if len(self.cum_keep) <= m:
+            # the error of every vector; the rate per kept vector stays the estimate from the
+            # most important 32 % (the costly part, and the bits per vector barely move)
+            self._compute(max(1, m), rate=False)
+
+    def _compute(self, p_max: int, rate: bool = True) -> None:
+        from gsz.decoder.quant import dequantize_groups, split_lengths
+        from gsz.kernels.quantize import quantize_groups
+
+        from ..rate import rate_matrix
+        x = self.stage.sh
+        d, blocks = x.shape[1], self.blocks
+        top = x[self.order[:p_max]]
+        bk = blocks_for(p_max, sh_set_blocks(p_max, blocks))
+        sym, mn, mx = quantize_groups(top.T, bk, np.full((d, bk), SH_BITS))
+        top_q = dequantize_groups(sym, mn, mx, np.full((d, bk), SH_BITS), split_lengths(p_max, bk)).T
+        err_keep = row_sse(top, lambda s, e: top_q[s:e])
+        self.cum_keep = np.concatenate([[0.0], np.cumsum(err_keep)])
+        if not rate:
+            return
+        # only the SH_BITS column is used: computing that width alone (plus the coarser grids
+        # its binned-table candidates read) gives the same value at ~1/3 of the cost
+        self.bits_per_kept = float(rate_matrix(top.T, bk, (SH_BITS, SH_BITS))[:, :, SH_BITS - 1].sum()) / p_max
+
+
+class Assigner:
+    """Nearest-codeword index of every voxel's SH vector, per codebook, reused across taus.
+
+    Nearly every voxel holds a single input Gaussian (flowers: 99.5 %) whose vector is that
+    Gaussian's own, so the index is computed once per input Gaussian and codebook (on first
+    need) and looked up for every later stage; merged voxels (and any vector that is not
+    bit-identical to its source's) are assigned afresh.  Deterministic: the same stages in the
+    same order give the same indices."""
+
+    def __init__(self, cloud):
+        n = len(cloud)
+        self.sh = np.ascontiguousarray(cloud.sh_rest.reshape(n, -1), dtype=np.float32)
+        self.known = {}                       # id(codebook) -> (codebook, index [N], known [N])
+        self._last = None                     # (source, x, reusable) of the last stage asked about
+
+    def _entry(self, codebook):
+        entry = self.known.get(id(codebook))
+        if entry is None or entry[0] is not codebook:
+            entry = (codebook, np.zeros(self.sh.shape[0], np.int32), np.zeros(self.sh.shape[0], bool))
+            self.known[id(codebook)] = entry
+        return entry
+
+    def _reusable(self, source: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Voxels (ascending) whose vector is bit-identical to their single source Gaussian's
+        (remembered for the last stage asked about: each stage asks once per codebook)."""
+        last = self._last
+        if last is not None and last[0] is source and last[1] is x:
+            return last[2]
+        single = np.flatnonzero(source >= 0)
+        out = single[np.all(x[single] == self.sh[source[single]], axis=1)]
+        self._last = (source, x, out)
+        return out
+
+    def _known(self, src: np.ndarray, codebook: np.ndarray) -> np.ndarray:
+        """index[src] after assigning those of the Gaussians src not assigned yet."""
+        from ..vq import assign
+        _, index, known = self._entry(codebook)
+        need = src[~known[src]]
+        if need.size:
+            index[need] = assign(self.sh[need], codebook)
+            known[need] = True
+        return index[src]
+
+    def prime(self, source: np.ndarray, x: np.ndarray, codebook: np.ndarray) -> None:
+        """Do now what a stage with these ``source`` / ``x`` (Stage.source, Stage.sh) will need
+        (the worker thread that trained the codebook calls it while the main thread codes
+        that stage); the same Gaussians in the same order, so the same indices."""
+        self._known(source[self._reusable(source, x)], codebook)
+
+    def __call__(self, stage: Stage, codebook: np.ndarray) -> np.ndarray:
+        from ..vq import assign
+        x = stage.sh
+        out = np.empty(x.shape[0], np.int32)
+        if stage.source is None or x.shape[1] != self.sh.shape[1]:
+            out[:] = assign(x, codebook)
+            return out
+        reuse = self._reusable(stage.source, x)
+        out[reuse] = self._known(stage.source[reuse], codebook)
+        fresh = np.ones(x.shape[0], bool)
+        fresh[reuse] = False
+        if fresh.any():
+            out[fresh] = assign(x[fresh], codebook)
+        return out
+
+
+class ShModel:
+    """Estimated SH bytes and SSE as functions of the keep-count P (one VQ assignment, cumulative
+    sums over importance order), and exact encoding of the chosen P."""
+
+    def __init__(self, stage: Stage, codebook: np.ndarray, blocks: int, base: ShStageStats,
+                 index: np.ndarray):
+        from gsz.decoder.quant import dequantize_groups, split_lengths
+        from gsz.kernels.quantize import quantize_groups
+
+        from ..rate import rate_matrix
+        from ..vq import compact
+        self.stage, self.blocks = stage, blocks
+        self.raw_codebook, self.index = codebook, index
+        x = stage.sh
+        m, d = x.shape
+        cb, idx = compact(codebook, index)
+        self.codebook = cb
+        b = blocks_for(cb.shape[0], sh_set_blocks(cb.shape[0], blocks))
+        self.cb_blocks = b
+        sym, mn, mx = quantize_groups(cb.T, b, np.full((d, b), SH_BITS))
+        cb_q = dequantize_groups(sym, mn, mx, np.full((d, b), SH_BITS), split_lengths(cb.shape[0], b)).T
+        err_vq = row_sse(x, lambda s, e: cb_q[idx[s:e]])
+        self.order = base.order
+        self.cum_vq = np.concatenate([[0.0], np.cumsum(err_vq[base.order])])
+        self.base = base
+        counts = np.bincount(idx, minlength=cb.shape[0]).astype(np.float64)
+        p = counts[counts > 0] / m
+        self.index_bits = float(-(p * np.log2(p)).sum())
+        self.codebook_bytes = (float(rate_matrix(cb.T, b, (SH_BITS, SH_BITS))[:, :, SH_BITS - 1].sum()) / 8
+                               + 9 * d * b + 32)
+        self.m, self.d = m, d
+
+    def keeps(self, min_keep: int = 0, fractions=KEEP_FRACTIONS):
+        """Keep-counts to try: the ``fractions`` grid at or above ``min_keep``, and min_keep."""
+        lo = min(self.m, int(min_keep))
+        return sorted({lo} | {k for k in (min(self.m, int(round(f * self.m))) for f in fractions)
+                              if k >= lo})
+
+    def estimate(self, keep: int) -> tuple[float, float]:
+        m = self.m
+        q = keep / m
+        h2 = 0.0 if q in (0.0, 1.0) else -(q * math.log2(q) + (1 - q) * math.log2(1 - q))
+        base = self.base
+        if keep >= len(base.cum_keep):
+            base.extend()
+        nbytes = (self.codebook_bytes + (keep * base.bits_per_kept + (m - keep) * self.index_bits
+                  + (m * h2 if keep else 0)) / 8 + (9 * self.d * sh_set_blocks(keep, self.blocks) if keep else 0)
+                  + 64 * len(self.stage.layers))
+        loss = (self.cum_vq[-1] - self.cum_vq[keep]) + base.cum_keep[min(keep, len(base.cum_keep) - 1)]
+        return nbytes, loss
+
+    def encode(self, keep: int) -> ShPlan:
+        # the compacted codebook's row order is the raw one's, so the raw codebook with the
+        # stage's assignment gives exactly what sh_chunk would compute itself
+        payloads = ShPayloads(self.stage, self.raw_codebook, keep, SH_BITS, self.blocks,
+                              cb_blocks=self.cb_blocks, index=self.index)
+        chunk, sh_rest, stats = payloads.payloads()
+        nb, loss = self.estimate(keep)
+        return ShPlan(keep, chunk, sh_rest, stats, nb, loss, payloads)
+
+
+@dataclass
+class ShSource:
+    """The SH vectors and importance a codebook is trained on (a Stage's fields)."""
+    sh: np.ndarray
+    importance: np.ndarray
+    num_points: int
+
+
+def kept_tables(plan: ShPlan, weight: float) -> list:
+    """Per layer with kept exact SH vectors: (layer, loss [D, B, 16] = SSE times the SH
+    channel weight, rate [D, B, 16] with +inf below SH_BITS) of their groups."""
+    from gsz.kernels.quantize import quantize_all_bits
+
+    from ..rate import rate_matrix
+    out = []
+    for li, (sel, kb) in enumerate(plan.payloads.kept_sets):
+        if sel.size:
+            x = plan.payloads.kept_vectors(li)
+            b = blocks_for(sel.size, kb)
+            loss = quantize_all_bits(x, b)[3] * weight
+            rate = rate_matrix(x, b, (SH_BITS, 16))
+            out.append((li, loss, rate))
+    return out
