@@ -631,6 +631,7 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
         "merged_fraction": stage.vox.merged_fraction, "sh_degree": cloud.sh_degree, "components": sizes,
         "sh": {k: v for k, v in sh_stats.items() if not k.endswith("bytes")},
         "seconds": dict(progress.seconds), "total_seconds": time.perf_counter() - t_start,
+        "memory": progress.memory_report(),
         "options": options_json, "layers": layer_report(data),
     }
     return EncodeResult(data=data, cloud=out_cloud, report=report)

@@ -156,7 +156,11 @@ def calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh
         history.append({"round": rnd + 1, "solver_budget_bytes": round(budget_bytes),
                         "predicted_bytes": round(enc.predicted_bytes), "actual_bytes": actual})
         if actual <= target and (best is None or actual > len(best.data)):
+            if best is not None:
+                best.release()               # only the best round's scene is rendered
             best = enc
+        elif enc is not best:
+            enc.release()
         if lo_ok <= actual <= target:
             break
         if actual > target:

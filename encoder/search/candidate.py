@@ -8,7 +8,6 @@ import numpy as np
 
 from gsz.decoder.cloud import GaussianCloud
 
-from .sh_model import ShPlan
 from .tables import concat_bits
 
 
@@ -17,7 +16,7 @@ class Encoded:
     """One real encode of a stage under one bit allocation."""
 
     data: bytes
-    cloud: GaussianCloud          # the decoded scene (what the file decodes to)
+    cloud: GaussianCloud | None   # the decoded scene; released once scored (see release())
     pick: np.ndarray              # the solver's choice per group (bit-width - 1)
     layer_bits: list              # per layer (raht_bits [7, B_l], scale_bits [3, B_l])
     kept_bits: list               # per layer the kept SH vectors' widths [D, B_l], or None (SH_BITS)
@@ -27,10 +26,20 @@ class Encoded:
     meta_bytes: int
     predicted_bytes: float
     loss: float
-    # set on the round a tau's calibration settles on
+    # set on the round a tau's calibration settles on (tau.encode_tau)
     rounds: list = field(default_factory=list)
-    sh_plan: ShPlan | None = None
     attributes_saturated: bool = False   # every attribute group at its best width, bytes left
+    sh_keep: int | None = None    # exact SH vectors kept; None without SH
+    codebook_size: int = 0
+    depth: int = 0
+    num_points: int = 0           # Gaussians (voxels) in the file
+    layer0_points: int = 0
+    geometry_bytes: int = 0
+
+    def release(self) -> None:
+        """Drop the decoded scene: a search keeps many encodes, and the file's bytes decode
+        to it again where it is needed (the chosen one)."""
+        self.cloud = None
 
     @property
     def raht_bits(self) -> np.ndarray:

@@ -48,7 +48,7 @@ def walk_depth(search) -> None:
 
 
 def _shares_voxels(search, tau, d) -> bool:
-    return search.vox_for(tau, d)[1].merged_fraction >= MERGED_FRACTION_EXTRA_DEPTH
+    return search.merged_fraction(tau, d) >= MERGED_FRACTION_EXTRA_DEPTH
 
 
 def _room(search, step: int, d_next: int, lo_d: int, hi_d: int) -> bool:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
+from collections import OrderedDict
 
 import numpy as np
 
@@ -70,6 +71,30 @@ def _search_threads():
         torch.set_num_threads(old)
 
 
+#: Prepared stages and voxel grids the search keeps: the one being encoded and, for voxels, the
+#: one screened just before it (both are recomputed, identically, if asked for again).
+STAGES_KEPT = 1
+VOXELIZED_KEPT = 2
+
+
+class _Lru:
+    """The ``capacity`` most recently stored values by key."""
+
+    def __init__(self, capacity: int):
+        self.capacity, self._items = capacity, OrderedDict()
+
+    def get(self, key):
+        if key in self._items:
+            self._items.move_to_end(key)
+        return self._items.get(key)
+
+    def put(self, key, value) -> None:
+        self._items[key] = value
+        self._items.move_to_end(key)
+        while len(self._items) > self.capacity:
+            self._items.popitem(last=False)
+
+
 class BudgetSearch:
     """The state of one search: its stages (cached per tau, depth and layer split), codebooks,
     judge and candidates, and the records the report shows."""
@@ -92,8 +117,11 @@ class BudgetSearch:
         self.importance = self.depth = self.judge = None
         self.codebooks: list = []
         self.assigner = Assigner(cloud) if cloud.sh_degree > 0 else None
-        self._stages: dict = {}
-        self._voxelized: dict = {}
+        # Stages and voxel grids are recomputed when needed again (deterministic, so the file does
+        # not change): keeping every candidate's grew memory by ~1 GB per candidate at 1.2 M.
+        self._stages = _Lru(STAGES_KEPT)
+        self._voxelized = _Lru(VOXELIZED_KEPT)
+        self._merged: dict = {}           # (tau, depth) -> fraction of Gaussians sharing a voxel
         self.candidates: list[Candidate] = []
         self.evaluated: set = set()       # (tau, depth) tried
         self.log: list = []               # every tau's calibration
@@ -105,20 +133,30 @@ class BudgetSearch:
     def vox_for(self, tau, d=None):
         """(kept, voxelized) of ``tau`` at depth ``d`` (default: the position-error depth)."""
         key = (tau, self.depth if d is None else d)
-        if key not in self._voxelized:
-            self._voxelized[key] = voxelize_stage(self.cloud, self.importance, tau, depth=key[1],
-                                                  progress=self.progress)
-        return self._voxelized[key]
+        vox = self._voxelized.get(key)
+        if vox is None:
+            vox = voxelize_stage(self.cloud, self.importance, tau, depth=key[1], progress=self.progress)
+            self._voxelized.put(key, vox)
+            self._merged[key] = vox[1].merged_fraction
+        return vox
+
+    def merged_fraction(self, tau, d) -> float:
+        """Fraction of the Gaussians kept at ``tau`` that share a voxel at depth ``d``."""
+        if (tau, d) not in self._merged:
+            self.vox_for(tau, d)
+        return self._merged[(tau, d)]
 
     def stage_for(self, tau, d=None, fl=None) -> Stage:
         """The prepared stage (geometry coded) of ``tau`` at depth ``d`` with layer-0 share ``fl``."""
         d = self.depth if d is None else d
         fl = self.sopts.first_layer if fl is None else fl
-        if (tau, d, fl) not in self._stages:
-            self._stages[(tau, d, fl)] = prepare_stage(
-                self.cloud, self.importance, tau, depth=d, layers=self.sopts.layers, first_layer=fl,
-                progress=self.progress, voxelized=self.vox_for(tau, d), pool=self.geometry_pool)
-        return self._stages[(tau, d, fl)]
+        stage = self._stages.get((tau, d, fl))
+        if stage is None:
+            stage = prepare_stage(self.cloud, self.importance, tau, depth=d, layers=self.sopts.layers,
+                                  first_layer=fl, progress=self.progress, voxelized=self.vox_for(tau, d),
+                                  pool=self.geometry_pool)
+            self._stages.put((tau, d, fl), stage)
+        return stage
 
     # --- the run ------------------------------------------------------------------------------
     def run(self, importance=None, cameras=None) -> EncodeResult:
@@ -237,11 +275,13 @@ class BudgetSearch:
         with progress.stage("eval", f"tau {tau}, depth {d}"):
             p, views, partial = self.judge.score(enc.cloud, rival)
         if partial:
+            enc.release()
             progress.log(f"tau {tau}, depth {d}: {len(enc.data):,} bytes, {partial} hardest train views "
                          f"{EVAL_DROP_MARGIN_DB:g}+ dB below the best candidate's: dropped")
             self.dropped.append({"reserve": tau, "depth": d, "bytes": len(enc.data), "views": partial,
                                  "partial_psnr": p})
             return
+        enc.release()
         progress.log(f"tau {tau}, depth {d}: {len(enc.data):,} bytes, train PSNR {p:.2f} dB")
         self.candidates.append(Candidate(p, tau, d, fl, views, enc))
 
@@ -265,10 +305,12 @@ class BudgetSearch:
             raise BudgetError(self.target, self._smallest_file())
         chosen = finalists(self.candidates, self.sopts)
         chosen.sort(key=lambda c: (-c.train_psnr, -c.reserve))
+        from gsz.decoder import decode
         report = search_report(self, chosen[0])
         if "note" in report:
             self.progress.log(report["note"])
-        return EncodeResult(data=chosen[0].data, cloud=chosen[0].encoded.cloud, report=report)
+        # the decoder is the truth of what the file holds (candidates released their scenes)
+        return EncodeResult(data=chosen[0].data, cloud=decode(chosen[0].data), report=report)
 
     def _smallest_file(self) -> int:
         """Exact size of the smallest file the search can make (the smallest tau, 1 bit

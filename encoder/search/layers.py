@@ -41,9 +41,9 @@ def resplit_layer0(search) -> None:
                             f"layers with {100 * fl:.2f} % of the Gaussians in layer 0")
         n_before = len(search.candidates)
         search.try_tau(best.reserve, best.depth, fl)
-        n0 = search.stage_for(best.reserve, best.depth, best.first_layer).layers[0].num_points
-        plan = best.encoded.sh_plan
-        if plan is not None and plan.keep < n0:
+        n0 = best.encoded.layer0_points
+        keep = best.encoded.sh_keep
+        if keep is not None and keep < n0:
             search.progress.log(f"... and keeping layer 0's {n0:,} SH vectors exact (the codebook "
                                 f"then travels with layer 1)")
             search.try_tau(best.reserve, best.depth, best.first_layer, min_keep=n0)

@@ -15,21 +15,20 @@ from .options import SH_BITS
 def search_report(search, chosen: Candidate) -> dict:
     """JSON-ready report of ``search`` (a finished BudgetSearch) that chose ``chosen``."""
     enc, target, tau = chosen.encoded, search.target, chosen.reserve
-    stage = search.stage_for(tau, chosen.depth, chosen.first_layer)
-    sh_plan, data = enc.sh_plan, chosen.data
+    sh, data = enc.sh_keep is not None, chosen.data
     eval_cams = search.judge.cameras
     report = {
         "mode": "size-search", "target_bytes": target, "bytes": len(data),
-        "deviation": (len(data) - target) / target, "reserve": tau, "depth": stage.depth,
-        "input_gaussians": len(search.cloud), "voxels": stage.num_points,
-        "bytes_per_gaussian": len(data) / stage.num_points, "sh_degree": search.cloud.sh_degree,
-        "codebook_size": int(sh_plan.stats["codebook_size"]) if sh_plan else 0,
-        "sh_keep": int(sh_plan.keep) if sh_plan else 0,
+        "deviation": (len(data) - target) / target, "reserve": tau, "depth": enc.depth,
+        "input_gaussians": len(search.cloud), "voxels": enc.num_points,
+        "bytes_per_gaussian": len(data) / enc.num_points, "sh_degree": search.cloud.sh_degree,
+        "codebook_size": enc.codebook_size,
+        "sh_keep": enc.sh_keep if sh else 0,
         "layers": layer_report(data),
         "layer_blocks": [int(b.shape[1]) for b, _ in enc.layer_bits],
         "bits": {"raht": enc.raht_bits.tolist(), "scales": enc.scale_bits.tolist(),
                  "raht_channels": list(RAHT_CHANNELS), "scale_channels": list(DIRECT_CHANNELS),
-                 "sh": SH_BITS if sh_plan else None,
+                 "sh": SH_BITS if sh else None,
                  # per layer: the kept exact SH vectors' group widths [D][B_l] where they were
                  # allocated (budgets above the SH_BITS quality ceiling), else None (SH_BITS)
                  "sh_kept": [None if b is None else b.tolist() for b in enc.kept_bits]},
@@ -46,9 +45,10 @@ def search_report(search, chosen: Candidate) -> dict:
         "beta": float(search.sopts.beta),
         "eval_views": [c.name for c in eval_cams],
         "eval_size": [int(eval_cams[0].width), int(eval_cams[0].height)] if eval_cams else None,
-        "components": {"geometry": stage.geometry_bytes, "attributes": enc.attr_bytes,
+        "components": {"geometry": enc.geometry_bytes, "attributes": enc.attr_bytes,
                        **enc.attr_stats, "sh": enc.sh_bytes, "metadata": enc.meta_bytes},
         "seconds": dict(search.progress.seconds), "total_seconds": time.perf_counter() - search.t0,
+        "memory": search.progress.memory_report(),
         # CPU seconds of this process (all its threads): on a shared machine the wall clock
         # depends on the other jobs, this mostly does not
         "cpu_seconds": time.process_time() - search.c0,

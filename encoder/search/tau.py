@@ -42,8 +42,13 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
     if res is None:
         return None                   # calibrate logged why
     log.append({"reserve": stage.reserve, "bytes": len(res.best.data), "rounds": res.history})
-    return dataclasses.replace(res.best, rounds=res.history, sh_plan=res.sh_plan,
-                               attributes_saturated=saturated)
+    plan = res.sh_plan
+    return dataclasses.replace(res.best, rounds=res.history, attributes_saturated=saturated,
+                               sh_keep=None if plan is None else int(plan.keep),
+                               codebook_size=0 if plan is None else int(plan.stats["codebook_size"]),
+                               depth=stage.depth, num_points=stage.num_points,
+                               layer0_points=stage.layers[0].num_points,
+                               geometry_bytes=stage.geometry_bytes)
 
 
 def choose_sh(sh_models: list, loss, rate, room: float, weights, min_keep: int) -> tuple[ShModel, int]:
