@@ -1,4 +1,4 @@
-"""The optional C accelerator (decoder/_native.c) against the NumPy reference: identical clouds
+"""The optional C accelerator (decoder/csrc/) against the NumPy reference: identical clouds
 and identical encoder bytes, the same accept/reject decision on hostile input, the GSZ_NATIVE=0
 switch and a working package when the extension is missing."""
 import contextlib
