@@ -3,21 +3,6 @@
  * payload itself is rans_encode.c's bank_encode). */
 #include "octree.h"
 
-int symout_reserve(SymOut *o, int64_t extra, Err *e)
-{
-    if (o->len + extra <= o->cap) return 0;
-    int64_t cap = o->cap ? o->cap : 1 << 16;
-    while (cap < o->len + extra) cap *= 2;
-    uint8_t *b = realloc(o->bits, (size_t)cap);
-    if (!b) return fail_nomem(e);
-    o->bits = b;
-    uint8_t *m = realloc(o->models, (size_t)cap);
-    if (!m) return fail_nomem(e);
-    o->models = m;
-    o->cap = cap;
-    return 0;
-}
-
 int octree_encode_run(const OctTables *tb, int depth, int64_t num_points, const uint8_t *known,
                       int64_t known_len, const int64_t *sizes, int64_t nsizes, SymOut *out,
                       uint64_t **codes_out, int64_t *count_out, Err *e)

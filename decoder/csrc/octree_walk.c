@@ -292,6 +292,22 @@ void helper_init(Helper *h)
 #endif
 }
 
+/* Room for `extra` more recorded decisions (encoder mode). */
+static int symout_reserve(SymOut *o, int64_t extra, Err *e)
+{
+    if (o->len + extra <= o->cap) return 0;
+    int64_t cap = o->cap ? o->cap : 1 << 16;
+    while (cap < o->len + extra) cap *= 2;
+    uint8_t *b = realloc(o->bits, (size_t)cap);
+    if (!b) return fail_nomem(e);
+    o->bits = b;
+    uint8_t *m = realloc(o->models, (size_t)cap);
+    if (!m) return fail_nomem(e);
+    o->models = m;
+    o->cap = cap;
+    return 0;
+}
+
 /* Make *p hold at least `need` bytes (contents not kept); buffers are reused across levels so
  * that their pages are faulted in once, not once per level. */
 static int ensure(void **p, size_t *cap, size_t need, Err *e)
