@@ -1,4 +1,4 @@
-"""Build hook for the optional C accelerator ``gsz.decoder._native`` (decoder/_native.c).
+"""Build hook for the optional C accelerator ``gsz.decoder._native`` (decoder/csrc/).
 
 Everything else about the package is declared in pyproject.toml.  The extension is optional:
 when no C compiler is available the build prints a warning, the install still succeeds and gsz
@@ -6,6 +6,11 @@ decodes with its NumPy reference path (``gsz.decoder.native_available()`` is the
 """
 from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
+
+# one C file per stage plus the module glue (decoder/csrc/gsz_common.h describes the layout)
+NATIVE_SOURCES = [f"decoder/csrc/{name}.c" for name in (
+    "common", "octree_walk", "octree_decode", "octree_encode", "rans_decode", "rans_encode",
+    "model_set", "raht", "assemble", "rate", "module")]
 
 
 class BuildExt(build_ext):
@@ -25,6 +30,7 @@ class BuildExt(build_ext):
 
 
 setup(
-    ext_modules=[Extension("gsz.decoder._native", sources=["decoder/_native.c"], optional=True)],
+    ext_modules=[Extension("gsz.decoder._native", sources=NATIVE_SOURCES,
+                           include_dirs=["decoder/csrc"], optional=True)],
     cmdclass={"build_ext": BuildExt},
 )

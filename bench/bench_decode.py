@@ -5,7 +5,7 @@
 Every shared scene (../shared/data/*.ply) is encoded once with ``gsz-encode --reserve 0.8
 --bits 12 --blocks 1`` (cached in bench/.cache/decode/, keyed by the scene's size and mtime and ENCODE_ARGS; --files adds
 any other .gsz).  For each file and each path (numpy = the reference decoder, what GSZ_NATIVE=0
-gives; native = decoder/_native.c):
+gives; native = decoder/csrc/):
 
 * whole ``gsz.decoder.decode(path)``: best wall time of --repeats runs and the process CPU time
   of that run (both threads; on an idle 2-core machine wall < CPU when geometry and attributes

@@ -1,7 +1,7 @@
 """gsz.decoder: the numpy-only core (data model, PLY I/O, .gsz bitstream reader).
 
 Importing this package never imports torch.  ``native_available()`` says whether the optional C
-accelerator (``decoder/_native.c``, bit-identical output) is built and enabled; ``GSZ_NATIVE=0``
+accelerator (``decoder/csrc/``, bit-identical output) is built and enabled; ``GSZ_NATIVE=0``
 in the environment forces the NumPy reference path; ``decoder_path()`` is "native" or "numpy".
 """
 from .cloud import GaussianCloud, sh_rest_count

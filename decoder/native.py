@@ -1,7 +1,7 @@
 """Switch between the NumPy reference decoder and the optional C accelerator ``_native``.
 
 The NumPy modules (``octree``, ``rans``, ``raht``) are the normative reference; the C module
-(``decoder/_native.c``, compiled by ``pip install`` when a C compiler exists) implements the same
+(``decoder/csrc/``, compiled by ``pip install`` when a C compiler exists) implements the same
 integer arithmetic and gives bit-identical output, about 10x faster.  It is used when
 
 * it was built and imports (a stale build with another ABI number is ignored), and
@@ -18,7 +18,7 @@ import os
 
 import numpy as np
 
-#: ABI number the Python side expects (GSZ_NATIVE_ABI in _native.c).
+#: ABI number the Python side expects (GSZ_NATIVE_ABI in csrc/gsz_common.h).
 ABI = 7
 
 _module = None
@@ -97,7 +97,7 @@ def octree_tables(precision: int) -> tuple:
     COUNT_LIMIT and MIX_WEIGHT.  The C code hard-codes only the context layout, checked here."""
     from . import octree as o
     if (o.NUM_COARSE, o.NUM_FINE) != (_module.NUM_COARSE, _module.NUM_FINE):
-        raise AssertionError("octree context layout differs between Python and _native.c")
+        raise AssertionError("octree context layout differs between Python and csrc/octree.h")
     ms = o._bank_model_set(int(precision))
     t = ms.build()
     if not (np.all(t["sym_count"] == 2) and np.all(ms.prec == precision)

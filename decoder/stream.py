@@ -29,8 +29,8 @@ import numpy as np
 from .cloud import GaussianCloud
 from .container import (CHUNK_REQUIRED, DEFAULT_MAX_GAUSSIANS, HEADER_SIZE, MAGIC, parse_header,
                         parse_table, table_size)
-from .decode import (LayerState, _guard, check_header_counts, concat_clouds, decode_layer, open_gsz,
-                     plan_layers)
+from .layer import (LayerState, check_header_counts, concat_clouds, decode_layer, guard, open_gsz,
+                    plan_layers)
 from .errors import GszError, GszFormatError, GszTruncatedWarning
 from .layout import KNOWN_CHUNKS
 
@@ -138,7 +138,7 @@ class StreamDecoder:
             return []
         self._buf += piece
         self._received += len(piece)
-        return _guard(self._advance, self.source)
+        return guard(self._advance, self.source)
 
     def finish(self, *, warn: bool = True, source: str | None = None) -> StreamResult:
         """Declare the end of the stream.  When it ended before every (requested) layer was

@@ -1,4 +1,4 @@
-"""The optional C accelerator (decoder/_native.c) against the NumPy reference: identical clouds
+"""The optional C accelerator (decoder/csrc/) against the NumPy reference: identical clouds
 and identical encoder bytes, the same accept/reject decision on hostile input, the GSZ_NATIVE=0
 switch and a working package when the extension is missing."""
 import contextlib
@@ -238,7 +238,7 @@ def test_fuzzed_files_overlapped_decode_same_outcome(monkeypatch):
     """The two-thread layer decode (forced on for these small files) gives the sequential
     native decode's outcome: the identical cloud, or the same error message (errors keep the
     sequential order: geometry, attributes, SH, then the first non-finite field)."""
-    D = sys.modules["gsz.decoder.decode"]
+    D = sys.modules["gsz.decoder.layer"]
     if D._cores() < 2:
         pytest.skip("the overlap needs two CPUs")
     outcomes = {"ok": 0, "error": 0}
@@ -263,7 +263,7 @@ def test_non_finite_fields_reported_in_order(monkeypatch, overlap):
     coefficients): the first non-finite field in the order positions, scales, rotations,
     opacities, sh_dc, sh_rest is named, with the same message on every path."""
     import struct
-    D = sys.modules["gsz.decoder.decode"]
+    D = sys.modules["gsz.decoder.layer"]
     if overlap and D._cores() < 2:
         pytest.skip("the overlap needs two CPUs")
     monkeypatch.setattr(D, "OVERLAP_MIN_POINTS", 1 if overlap else 1 << 40)

@@ -6,7 +6,8 @@ Modules (importing this package imports none of them, so it costs nothing):
   semantics (compute-shader EWA projection + SH, instanced quads, premultiplied blending)
 * :mod:`~gsz.viewer.sorter` -- back-to-front depth sort on a worker thread
 * :mod:`~gsz.viewer.camera_control` -- orbit / pan / zoom / fly camera state (numpy)
-* :mod:`~gsz.viewer.app` -- :class:`ViewerApp`: scenes, compare modes, input events, frames
+* :mod:`~gsz.viewer.state` -- settings, scenes and :class:`ViewState` (the GL-free view state)
+* :mod:`~gsz.viewer.app` -- :class:`ViewerApp` (a ViewState): input events, GL frames
 * :mod:`~gsz.viewer.ui` -- the imgui-bundle panel; :mod:`~gsz.viewer.window` -- glfw window
 * :mod:`~gsz.viewer.budgets` -- background encodes at ``--budgets``
 * :mod:`~gsz.viewer.cli` -- the ``gsz-view`` command (``main``)

@@ -16,9 +16,8 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,16 +27,15 @@ from gsz.decoder.errors import GszError
 from .camera_control import CameraController
 from .gl_renderer import FloatTarget, SplatRenderer, load_shader
 from .sorter import DepthSorter, camera_key
+# MODES, format_bytes, Scene and Settings are re-exported: users import them from here
+from .state import HEAT_FULL_SCALE, MODES, Scene, Settings, ViewState, format_bytes
 
 __all__ = ["Scene", "scene_from_file", "scene_from_bytes", "ViewerApp", "Settings",
            "MouseDown", "MouseUp", "MouseMove", "Scroll", "KeyDown", "KeyUp",
            "MODES", "format_bytes"]
 
-MODES = ("single", "split", "side")
 #: grab distance (pixels) of the split line
 SPLIT_GRAB_PX = 8
-#: full scale of the heat map (same as gsz-eval's error PNG)
-HEAT_FULL_SCALE = 0.1
 
 
 # ------------------------------------------------------------------------------------------------
@@ -82,47 +80,6 @@ class KeyUp:
 # ------------------------------------------------------------------------------------------------
 # scenes
 # ------------------------------------------------------------------------------------------------
-
-def format_bytes(n) -> str:
-    if n is None:
-        return "?"
-    try:
-        from gsz.encoder.sizes import format_size
-        return format_size(int(n))
-    except Exception:
-        return f"{n / 1e6:.2f} MB" if n >= 1e5 else f"{n / 1e3:.1f} kB"
-
-
-@dataclass
-class Scene:
-    """One cloud on screen.
-
-    name        label shown in the UI ("original", "decoded", "2MB" ...)
-    cloud       GaussianCloud
-    file_bytes  size of the file it came from (None if unknown)
-    components  per-component bytes of a .gsz (chunk name -> bytes, from ``inspect()``)
-    """
-
-    name: str
-    cloud: GaussianCloud
-    path: str | None = None
-    file_bytes: int | None = None
-    components: dict = field(default_factory=dict)
-    renderer: SplatRenderer | None = None
-    sorter: DepthSorter | None = None
-    whole: GaussianCloud | None = None      # for a layer prefix / a stream: the whole file's cloud
-    note: str = ""                          # shown after the label (e.g. streaming progress)
-
-    @property
-    def frame_cloud(self) -> GaussianCloud:
-        """The cloud that defines default cameras and the up axis (the whole scene, also when
-        only some layers are shown, so views stay comparable)."""
-        return self.whole if self.whole is not None else self.cloud
-
-    @property
-    def label(self) -> str:
-        return f"{self.name}  {format_bytes(self.file_bytes)}" + (f"  {self.note}" if self.note else "")
-
 
 def _components_of(src) -> dict:
     from gsz.decoder import inspect
@@ -173,26 +130,6 @@ def layer_prefix_scenes(scene: Scene) -> list:
     return out
 
 
-# ------------------------------------------------------------------------------------------------
-# settings
-# ------------------------------------------------------------------------------------------------
-
-@dataclass
-class Settings:
-    mode: str = "single"               # one of MODES
-    show: int = 0                      # single mode: 0 = A, 1 = B (flip toggles)
-    heatmap: bool = False              # error heat map instead of B
-    split: float = 0.5                 # split position, fraction of the width
-    background: tuple = (0.0, 0.0, 0.0)
-    sh_degree: int = 3                 # capped per scene at its own degree
-    scale_modifier: float = 1.0
-    render_scale: float = 1.0          # render at this fraction of the window size
-    fly_speed: float = 1.0             # scene radii per second
-    auto_metrics: bool = True          # PSNR/SSIM of the resting view, computed automatically
-    labels: bool = True
-    show_panel: bool = True            # Tab hides / shows the control panel
-
-
 def _gl_renderer_name(ctx) -> str:
     try:
         return str(ctx.info.get("GL_RENDERER", ""))
@@ -200,7 +137,7 @@ def _gl_renderer_name(ctx) -> str:
         return ""
 
 
-class ViewerApp:
+class ViewerApp(ViewState):
     """Everything but the window.  ``ctx`` = a moderngl context current on this thread.
 
     a, b        Scene (b None for a lone file); b may also arrive later (budget encodes)
@@ -216,9 +153,9 @@ class ViewerApp:
                  threaded_sort: bool = True, budget_jobs=None, screenshot_dir: str = ".",
                  camera_index: int = 0, more_b=(), stream_rate: float | None = None):
         import moderngl
+        super().__init__(settings)
         self.ctx = ctx
         self._mgl = moderngl
-        self.settings = settings or Settings()
         self.threaded_sort = threaded_sort
         self.width, self.height = int(width), int(height)
         self.cameras = cameras
@@ -226,7 +163,7 @@ class ViewerApp:
                            [("train", i, c) for i, c in enumerate(cameras.train)]
         self.camera_index = int(camera_index) % len(self.camera_list)
         first = self.camera_list[self.camera_index][2]
-        centre = self._pivot_distance(a.cloud, first)
+        centre = self.pivot_distance(a.cloud, first)
         self.control = CameraController(first, centre, up)
         self.scene_radius = max(self._scene_radius(a.cloud), 1e-6)
         self.scenes = [a] + ([b] if b is not None else [])
@@ -255,12 +192,7 @@ class ViewerApp:
         self._out_size = None
         self._last_move = time.monotonic()
         self._last_version = self.control.version
-        self._metrics = None                # (key, {"psnr", "ssim"}) of the last finished
-        self._metrics_pending = None
-        self._metrics_lock = threading.Lock()
-        self._metrics_thread = None
         self._frame_key = None              # what the last drawn frame showed
-        self._drawn = {}
         self.stream = None                  # StreamPlayback of a .gsz scene, or None
         self.stream_scene = None
         self.stream_status = None           # last snapshot (without the cloud), for the panel
@@ -282,16 +214,6 @@ class ViewerApp:
         lo, hi, _ = robust_bounds(cloud.positions)
         return 0.5 * float(np.linalg.norm(hi - lo))
 
-    @staticmethod
-    def _pivot_distance(cloud, cam) -> float:
-        """Distance from ``cam`` to the scene centre (the orbit pivot)."""
-        from gsz.encoder.cameras import robust_bounds
-        if len(cloud) == 0:
-            return 1.0
-        lo, hi, _ = robust_bounds(cloud.positions)
-        d = float(np.linalg.norm((lo + hi) / 2 - cam.center))
-        return d if d > 0 else 1.0
-
     def _upload(self, scene: Scene):
         if len(scene.cloud) == 0:           # nothing arrived yet (streaming): drawn as background
             return
@@ -300,27 +222,7 @@ class ViewerApp:
         if scene.sorter is None:
             scene.sorter = DepthSorter(scene.cloud.positions, threaded=self.threaded_sort)
 
-    @property
-    def a(self) -> Scene:
-        return self.scenes[0]
-
-    @property
-    def b(self) -> Scene | None:
-        return self.variants[self.b_index] if 0 <= self.b_index < len(self.variants) else None
-
-    @property
-    def comparing(self) -> bool:
-        return self.b is not None
-
     # -- simulated streaming ---------------------------------------------------------------------
-    def stream_candidate(self) -> Scene | None:
-        """The scene a stream replay applies to: the decoded .gsz (B, else a lone .gsz A)."""
-        for s in ([self.b] if self.b is not None else []) + [self.a]:
-            is_gsz = bool(s.path) and s.path.lower().endswith(".gsz")
-            if is_gsz and (s.whole is None or s is self.stream_scene):   # not a layer prefix
-                return s
-        return None
-
     def start_stream(self, scene: Scene | None = None, rate: float | None = None) -> None:
         """Replay ``scene``'s .gsz through the streaming decoder at ``rate`` bytes/s (None: as
         fast as it decodes): the scene empties, then grows layer by layer as bytes 'arrive'."""
@@ -392,25 +294,6 @@ class ViewerApp:
             self.output = None
 
     # -- state changes ---------------------------------------------------------------------------
-    def set_mode(self, mode: str):
-        if mode not in MODES:
-            raise GszError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
-        self.settings.mode = mode
-
-    def set_b(self, index: int):
-        if 0 <= index < len(self.variants):
-            self.b_index = index
-
-    def snap(self, index: int):
-        """Snap the view to camera ``index`` of :attr:`camera_list` (test views first)."""
-        n = len(self.camera_list)
-        self.camera_index = index % n
-        cam = self.camera_list[self.camera_index][2]
-        self.control.snap_to(cam, self._pivot_distance(self.a.cloud, cam))
-
-    def split_px(self) -> float:
-        return round(self.settings.split * self.width)
-
     def resize(self, width: int, height: int):
         self.width, self.height = max(1, int(width)), max(1, int(height))
 
@@ -639,70 +522,11 @@ class ViewerApp:
         self.stats.update(sort_s=sort_s, preprocess_s=pre_s, draw_s=draw_s, sort_current=current)
 
     @property
-    def fps(self) -> float:
-        """Rendered frames per second over the last 2 s (0 when idle: unchanged views are
-        not re-rendered)."""
-        now = time.perf_counter()
-        f = [t for t in self.frame_times if now - t < 2.0]
-        return (len(f) - 1) / (f[-1] - f[0]) if len(f) > 1 and f[-1] > f[0] else 0.0
-
-    @property
     def needs_redraw(self) -> bool:
         """True while the view changes without new input: a sort for the current camera is
         still running, or fly keys are held.  (Background encodes and PSNR/SSIM results only
         change the panel; the window picks them up at its idle polling rate.)"""
         return not self.stats.get("sort_current", True) or bool(self.held & set("wasdqe"))
-
-    # -- metrics -----------------------------------------------------------------------------------
-    def request_metrics(self, wait: bool = False):
-        """PSNR/SSIM of B against A for the current view, from the two GL renders (clamped,
-        8-bit rounded as gsz-eval does), computed on a worker thread (torch SSIM).  Call it
-        from the GL thread (it reads the renders back); ``wait`` blocks until the numbers
-        are in :meth:`current_metrics`."""
-        drawn = self._drawn
-        if "a" not in drawn or "b" not in drawn:
-            return
-        key = self._drawn_key
-        with self._metrics_lock:
-            done = self._metrics is not None and self._metrics[0] == key
-            running = self._metrics_pending == key
-            if not (done or running):
-                self._metrics_pending = key
-        if done or running:
-            # Join OUTSIDE the lock: the worker takes it to publish its result.
-            if running and wait and self._metrics_thread is not None:
-                self._metrics_thread.join()
-            return
-        img_a = drawn["a"].read()[..., :3]
-        img_b = drawn["b"].read()[..., :3]
-
-        def work():
-            result = None
-            try:
-                from gsz.encoder.metrics import psnr, quantize_8bit, ssim
-                qa, qb = quantize_8bit(img_a), quantize_8bit(img_b)
-                result = {"psnr": float(psnr(qa, qb)), "ssim": float(ssim(qa, qb))}
-            except Exception as e:   # e.g. torch missing: say so in the panel, never hang
-                self.status = f"PSNR/SSIM failed: {type(e).__name__}: {e}"
-            finally:
-                with self._metrics_lock:
-                    if result is not None:
-                        self._metrics = (key, result)
-                    if self._metrics_pending == key:
-                        self._metrics_pending = None
-
-        self._metrics_thread = threading.Thread(target=work, name="gsz-view-metrics", daemon=True)
-        self._metrics_thread.start()
-        if wait:
-            self._metrics_thread.join()
-
-    def current_metrics(self):
-        """{"psnr", "ssim"} for the view last drawn, or None (not computed / view changed)."""
-        with self._metrics_lock:
-            m = self._metrics
-        if m is not None and m[0] == getattr(self, "_drawn_key", None):
-            return m[1]
-        return None
 
     # -- output ------------------------------------------------------------------------------------
     def read_output(self) -> np.ndarray:
@@ -731,21 +555,6 @@ class ViewerApp:
         return path
 
     # -- UI ------------------------------------------------------------------------------------------
-    def labels(self):
-        """[(x, y, text)] overlay labels for the current layout (window pixels, top left)."""
-        if not self.comparing:
-            return [(8, 8, self.a.label)]
-        s = self.settings
-        m = self.current_metrics()
-        mtxt = f"\nPSNR {m['psnr']:.2f} dB  SSIM {m['ssim']:.4f}" if m else ""
-        b_txt = self.b.label + mtxt
-        if s.heatmap:
-            b_txt = f"|{self.a.name} - {self.b.name}|  white = {HEAT_FULL_SCALE:g}" + mtxt
-        if s.mode == "single":
-            return [(8, 8, self.a.label if (s.show == 0 and not s.heatmap) else b_txt)]
-        x_b = (self.width // 2 if s.mode == "side" else self.split_px()) + 8
-        return [(8, 8, self.a.label), (x_b, 8, b_txt)]
-
     def draw_ui(self) -> None:
         """The imgui panel + labels; call between ``imgui.new_frame()`` and ``imgui.render()``."""
         from .ui import draw_panel

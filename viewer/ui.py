@@ -1,4 +1,5 @@
-"""The imgui-bundle control panel and the per-half labels of :class:`gsz.viewer.app.ViewerApp`.
+"""The imgui-bundle control panel and the per-half labels of a :class:`gsz.viewer.state.ViewState`
+(the :class:`gsz.viewer.app.ViewerApp`).
 
 Call :func:`draw_panel` between ``imgui.new_frame()`` and ``imgui.render()``.  Every widget
 writes straight into ``app.settings`` / calls an app method, so whatever the panel can do a
@@ -8,7 +9,7 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from .app import MODES, format_bytes
+from .state import MODES, format_bytes
 
 _MODE_LABELS = {"single": "single / flip (F)", "split": "split (2)", "side": "side by side (3)"}
 

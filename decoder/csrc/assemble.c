@@ -1,0 +1,105 @@
+/* gsz.decoder._native: float32 assembly of the decoded fields -- attribute planes, quaternions
+ * from half-angle trig, voxel centres, SH rest vectors -- with the finiteness checks. */
+#include "stages.h"
+
+int planes_to_f32_run(const double *src, int64_t M, int64_t k, float *out)
+{
+    uint32_t bad = 0;
+    for (int64_t c = 0; c < k; c++) {
+        const double *s = src + c * M;
+        float *o = out + c;
+        for (int64_t i = 0; i < M; i++) {
+            const float f = (float)s[i];
+            uint32_t u;
+            memcpy(&u, &f, 4);
+            bad |= (u & 0x7F800000u) == 0x7F800000u;
+            o[i * k] = f;
+        }
+    }
+    return !bad;
+}
+
+int quat_from_trig_run(const double *c, const double *s, int64_t M, float *q)
+{
+    int bad = 0;
+    /* |w|, |x|, |y|, |z| <= 1 for finite c, s; a non-finite input makes them non-finite */
+    for (int64_t i = 0; i < M; i++) {
+        const double cr = c[i], cp = c[M + i], cy = c[2 * M + i];
+        const double sr = s[i], sp = s[M + i], sy = s[2 * M + i];
+        const double a = cr * cp, b = sr * sp, d = sr * cp, f = cr * sp;
+        const double t0 = a * cy, t1 = b * sy, t2 = d * cy, t3 = f * sy;
+        const double t4 = f * cy, t5 = d * sy, t6 = a * sy, t7 = b * cy;
+        double w = t0 + t1, x = t2 - t3, y = t4 + t5, z = t6 - t7;
+        if (w < 0) { w = -w; x = -x; y = -y; z = -z; }
+        q[4 * i] = (float)w;
+        q[4 * i + 1] = (float)x;
+        q[4 * i + 2] = (float)y;
+        q[4 * i + 3] = (float)z;
+        bad |= !(isfinite(q[4 * i]) && isfinite(q[4 * i + 1]) && isfinite(q[4 * i + 2])
+                 && isfinite(q[4 * i + 3]));
+    }
+    return !bad;
+}
+
+static inline uint64_t compact3(uint64_t v)
+{
+    v &= 0x1249249249249249ULL;
+    v = (v | (v >> 2)) & 0x10C30C30C30C30C3ULL;
+    v = (v | (v >> 4)) & 0x100F00F00F00F00FULL;
+    v = (v | (v >> 8)) & 0x1F0000FF0000FFULL;
+    v = (v | (v >> 16)) & 0x1F00000000FFFFULL;
+    v = (v | (v >> 32)) & 0x1FFFFFULL;
+    return v;
+}
+
+int voxel_positions_run(const uint64_t *codes, int64_t M, int depth, const double org[3],
+                        double side, float *out)
+{
+    uint32_t bad = 0;
+    const double pitch = side / (double)((int64_t)1 << depth);
+    for (int64_t i = 0; i < M; i++) {
+        const uint64_t ijk[3] = {compact3(codes[i] >> 2), compact3(codes[i] >> 1), compact3(codes[i])};
+        for (int a = 0; a < 3; a++) {
+            const double t = ((double)ijk[a] + 0.5) * pitch;
+            const float f = (float)(org[a] + t);
+            uint32_t u;
+            memcpy(&u, &f, 4);
+            bad |= (u & 0x7F800000u) == 0x7F800000u;
+            out[3 * i + a] = f;
+        }
+    }
+    return !bad;
+}
+
+int all_finite_run(const uint32_t *p, int64_t n)
+{
+    uint32_t bad = 0;
+    /* exponent all ones = inf or nan; branch-free so the loop vectorises */
+    for (int64_t i = 0; i < n; i++) bad |= ((p[i] & 0x7F800000u) == 0x7F800000u);
+    return !bad;
+}
+
+int sh_assemble_run(const int64_t *flags, const double *kept, int64_t P, const int64_t *idx,
+                    int64_t nidx, const double *cb, int64_t K, int64_t M, int64_t D, float *out,
+                    Err *e)
+{
+    int64_t kp = 0, ip = 0;
+    for (int64_t i = 0; i < M; i++) {
+        float *dst = out + i * D;
+        const int64_t f = flags ? flags[i] : 0;
+        if (f == 1) {
+            if (kp >= P) return fail(e, "SHVQ chunk: more kept flags set than kept vectors");
+            for (int64_t d = 0; d < D; d++) dst[d] = (float)kept[d * P + kp];
+            kp++;
+        } else if (f == 0) {
+            if (ip >= nidx) return fail(e, "SHVQ chunk: fewer codeword indices than Gaussians");
+            const int64_t j = idx[ip++];
+            if (j < 0 || j >= K) return fail(e, "SHVQ chunk: codeword index out of range");
+            for (int64_t d = 0; d < D; d++) dst[d] = (float)cb[d * K + j];
+        } else {
+            return fail(e, "SHVQ chunk: kept flag outside 0/1");
+        }
+    }
+    if (kp != P || ip != nidx) return fail(e, "SHVQ chunk: kept flags do not match the kept count");
+    return 0;
+}

@@ -1,0 +1,377 @@
+/* gsz.decoder._native: rANS decoding (ENTROPY.md §3.3-4.4) -- a model set's compact decoding
+ * tables (rans.h), the generic symbol loop and the per-block loop of quantised channel sets. */
+#include "rans.h"
+
+/* The d-th largest (1 <= d <= k) of k distinct keys.  Small k: a size-d min-heap; large k: an
+ * MSB-first radix select (12-bit digits over the 60-bit keys, five linear passes). */
+static uint64_t select_dth_largest(const uint64_t *key, int64_t k, int64_t d, uint32_t *hist,
+                                   uint64_t *heap)
+{
+    if (k <= 32) {
+        int64_t hn = 0;
+        for (int64_t i = 0; i < k; i++) {
+            const uint64_t v = key[i];
+            if (hn < d) {
+                int64_t j = hn++;
+                while (j > 0 && heap[(j - 1) / 2] > v) { heap[j] = heap[(j - 1) / 2]; j = (j - 1) / 2; }
+                heap[j] = v;
+            } else if (v > heap[0]) {
+                int64_t j = 0;
+                for (;;) {
+                    const int64_t l = 2 * j + 1, r = l + 1;
+                    int64_t m = j;
+                    uint64_t mv = v;
+                    if (l < hn && heap[l] < mv) { m = l; mv = heap[l]; }
+                    if (r < hn && heap[r] < mv) { m = r; }
+                    if (m == j) break;
+                    heap[j] = heap[m];
+                    j = m;
+                }
+                heap[j] = v;
+            }
+        }
+        return heap[0];
+    }
+    /* MSB-first radix select, 8-bit digits from the highest byte any key uses; after each pass
+     * only the keys under the chosen prefix are kept (into `heap`, k entries of scratch), so
+     * later passes are short; stops as soon as a single key is left (11-bit digits: slower) */
+    uint64_t mx = 0;
+    for (int64_t i = 0; i < k; i++) mx |= key[i];
+    int shift = 0;
+    while (shift < 56 && (mx >> (shift + 8))) shift += 8;
+    const uint64_t *cur = key;
+    int64_t need = d;
+    for (;; shift -= 8) {
+        memset(hist, 0, 256 * sizeof *hist);
+        for (int64_t i = 0; i < k; i++) hist[(cur[i] >> shift) & 255]++;
+        int dg = 255;
+        for (; dg > 0; dg--) {
+            if (need <= (int64_t)hist[dg]) break;
+            need -= hist[dg];
+        }
+        /* keep the keys with digit dg (in place when already in the scratch buffer) */
+        int64_t kk = 0;
+        for (int64_t i = 0; i < k; i++)
+            if ((int)((cur[i] >> shift) & 255) == dg) heap[kk++] = cur[i];
+        cur = heap;
+        k = kk;
+        if (k == 1 || shift == 0) return cur[0];     /* distinct keys: shift 0 leaves one */
+    }
+}
+
+/* One model's present-value count k (ENTROPY.md 3.3), its parameters checked; ci / bi walk the
+ * COARSE arrays.  0 when the model is EMPTY, -1 on a violation. */
+static int64_t mset_count_model(const MsetParams *p, int64_t m, int64_t *ci, int64_t *bi, Err *e)
+{
+    const int64_t t = p->type[m], n = p->prec[m], sp = p->span[m];
+    if (t < 0 || t > 3) return fail(e, "rANS model set: unknown model type");
+    if (t == 0) return 0;
+    if (n < 0 || n > 16 || sp < 0 || sp > 65536)
+        return fail(e, "rANS model set: precision or span out of range");
+    if (p->lo[m] < -((int64_t)1 << 31) || p->lo[m] + sp >= ((int64_t)1 << 31))
+        return fail(e, "rANS model set: value range outside [-2**31, 2**31)");
+    int64_t k = 0;
+    if (t == 1) {
+        if (sp != 0 || n != 0) return fail(e, "rANS model set: single model with a span or precision");
+        k = 1;
+    } else if (t == 3) {
+        if (p->centre[m] < 0 || p->centre[m] > sp || p->rl[m] < 0 || p->rl[m] > 255
+            || p->rr[m] < 0 || p->rr[m] > 255)
+            return fail(e, "rANS model set: laplace parameter out of range");
+        k = sp + 1;
+    } else {
+        if (*ci >= p->ncoarse) return fail(e, "rANS model set: coarse code arrays missing");
+        const int64_t nb = p->nbins[(*ci)++], h = p->bshift[m], g = p->group[m];
+        if (h < 0 || h > 16 || g < 0 || g > 3 || nb < 1 || nb > p->nball - *bi)
+            return fail(e, "rANS model set: coarse parameter out of range");
+        const int64_t *bins = p->bins + *bi, *levels = p->levels + *bi;
+        for (int64_t j = 0; j < nb; j++) {
+            const int64_t b = bins[j], q = levels[j];
+            if ((j == 0 && b != 0) || (j > 0 && b <= bins[j - 1]) || b > (sp >> h)
+                || q < 1 || q > ((int64_t)25 << g))
+                return fail(e, "rANS model set: coarse bins or levels invalid");
+            const int64_t hi = ((b + 1) << h) < sp + 1 ? ((b + 1) << h) : sp + 1;
+            k += hi - (b << h);
+        }
+        if (bins[nb - 1] != (sp >> h)) return fail(e, "rANS model set: coarse bins not covering the range");
+        *bi += nb;
+    }
+    if (k < 1 || k > ((int64_t)1 << n)) return fail(e, "rANS model: more symbols than 2**n");
+    return k;
+}
+
+int rans_tables_count(const MsetParams *p, int64_t max_lut, int64_t *lut_total,
+                      int64_t *sym_total, Err *e)
+{
+    int64_t lt = 0, stot = 0, ci = 0, bi = 0;
+    for (int64_t m = 0; m < p->M; m++) {
+        const int64_t k = mset_count_model(p, m, &ci, &bi, e);
+        if (k < 0) return -1;
+        if (k == 0) continue;
+        lt += (int64_t)1 << p->prec[m];
+        stot += k;
+        if (lt > max_lut) break;
+    }
+    *lut_total = lt;
+    *sym_total = stot;
+    if (lt > max_lut) return fail(e, "rANS: model set needs more LUT entries than this stream allows");
+    if (ci != p->ncoarse || bi != p->nball)
+        return fail(e, "rANS model set: coarse code arrays do not match the models");
+    return 0;
+}
+
+/* Present values (offsets from lo) and their weights of model m (ENTROPY.md 3.3); returns
+ * their number k.  ci / bi walk the COARSE arrays. */
+static int64_t mset_weights(const MsetParams *p, int64_t m, int64_t *ci, int64_t *bi, int64_t *off,
+                            int64_t *w)
+{
+    const int64_t t = p->type[m], sp = p->span[m];
+    int64_t k = 0;
+    if (t == 1) {
+        off[0] = 0;
+        w[0] = 1;
+        k = 1;
+    } else if (t == 2) {
+        const int64_t nb = p->nbins[(*ci)++], h = p->bshift[m], g = p->group[m];
+        for (int64_t j = 0; j < nb; j++) {
+            const int64_t b = p->bins[*bi + j], qm = p->levels[*bi + j] - 1;
+            const int64_t wt = (((int64_t)1 << g) + (qm & (((int64_t)1 << g) - 1))) << (qm >> g);
+            const int64_t hi = ((b + 1) << h) < sp + 1 ? ((b + 1) << h) : sp + 1;
+            for (int64_t x = b << h; x < hi; x++) { off[k] = x; w[k] = wt; k++; }
+        }
+        *bi += nb;
+    } else {
+        /* 3.5: sequential binary64 products, W_d = floor(v_d * 2^24) */
+        const int64_t c = p->centre[m];
+        k = sp + 1;
+        for (int64_t i = 0; i < k; i++) off[i] = i;
+        w[c] = (int64_t)1 << 24;
+        for (int side = 0; side < 2; side++) {
+            const int64_t u = side == 0 ? p->rl[m] : p->rr[m];
+            const int64_t r = 65536 - (((16 + (u & 15)) << 16) >> ((u >> 4) + 5));
+            const double rho = (double)r / 65536.0;
+            const int64_t len = side == 0 ? c : sp - c;
+            double vd = 1.0;
+            for (int64_t d = 1; d <= len; d++) {
+                vd = vd * rho;
+                w[side == 0 ? c - d : c + d] = (int64_t)floor(vd * 16777216.0);
+            }
+        }
+    }
+    return k;
+}
+
+/* Scratch of rans_tables_fill (one model at a time: at most 2^16 + 1 present values). */
+typedef struct {
+    int64_t *w, *fr, *off;
+    uint64_t *key, *heap;
+    uint32_t *hist;
+} MsetScratch;
+
+/* Normalisation (3.4) of model m's k weights to 2^n and its table entries at lpos / spos. */
+static int mset_normalise(const MsetParams *p, int64_t m, int64_t k, const MsetScratch *s,
+                          const MsetTables *o, int64_t lpos, int64_t spos, Err *e)
+{
+    int64_t *w = s->w, *fr = s->fr;
+    const int64_t T = (int64_t)1 << p->prec[m];
+    int64_t W = 0;
+    for (int64_t i = 0; i < k; i++) W += w[i];
+    if (W == 0) {
+        for (int64_t i = 0; i < k; i++) w[i] = 1;
+        W = k;
+    }
+    const int64_t R = T - k;
+    int64_t sumf = 0;
+    for (int64_t i = 0; i < k; i++) {
+        const int64_t prod = w[i] * R;          /* < 2^60 */
+        fr[i] = 1 + prod / W;
+        sumf += fr[i];
+        /* remainder (< 2^44), then the complemented index: distinct keys whose
+         * descending order is "largest remainder first, ties by lower index" */
+        s->key[i] = ((uint64_t)(prod % W) << 16) | (uint64_t)(0xFFFF - i);
+    }
+    const int64_t dshort = T - sumf;
+    if (dshort < 0 || dshort >= k) return fail(e, "rANS model: normalisation out of range");
+    if (dshort > 0) {
+        const uint64_t thr = select_dth_largest(s->key, k, dshort, s->hist, s->heap);
+        for (int64_t i = 0; i < k; i++) fr[i] += s->key[i] >= thr;
+    }
+    int64_t cum = 0;
+    for (int64_t i = 0; i < k; i++) {
+        o->fc[spos + i] = ((uint32_t)cum << 16) | (uint32_t)(fr[i] - 1);
+        o->val[spos + i] = (int32_t)(p->lo[m] + s->off[i]);
+        for (int64_t z = 0; z < fr[i]; z++) o->lut[lpos + cum + z] = (uint16_t)i;
+        cum += fr[i];
+    }
+    return 0;
+}
+
+int rans_tables_fill(const MsetParams *p, const MsetTables *o, Err *e)
+{
+    MsetScratch s;
+    s.w = malloc(65537 * sizeof *s.w);
+    s.fr = malloc(65537 * sizeof *s.fr);
+    s.off = malloc(65537 * sizeof *s.off);
+    s.key = malloc(65537 * sizeof *s.key);
+    s.heap = malloc(65537 * sizeof *s.heap);
+    s.hist = malloc(4096 * sizeof *s.hist);
+    if (!s.w || !s.fr || !s.off || !s.key || !s.heap || !s.hist) fail_nomem(e);
+    int64_t lpos = 0, spos = 0, ci = 0, bi = 0;
+    for (int64_t m = 0; !e->failed && m < p->M; m++) {
+        o->lut_base[m] = lpos;
+        o->sym_base[m] = spos;
+        if (p->type[m] == 0) { o->mprec[m] = PREC_EMPTY; continue; }
+        o->mprec[m] = (uint8_t)p->prec[m];
+        const int64_t k = mset_weights(p, m, &ci, &bi, s.off, s.w);
+        if (mset_normalise(p, m, k, &s, o, lpos, spos, e) < 0) break;
+        lpos += (int64_t)1 << p->prec[m];
+        spos += k;
+    }
+    free(s.w); free(s.fr); free(s.off); free(s.key); free(s.heap); free(s.hist);
+    return e->failed ? -1 : 0;
+}
+
+/* One decode step (ENTROPY.md 4.3) with model m; the value in *out.  0 or -1 (error set). */
+static inline int rans_step(const RTab *t, RState *s, int64_t m, int64_t *out, Err *e)
+{
+    if (m < 0 || m >= t->nmodels) return fail(e, "rANS: model id outside the model set");
+    const unsigned n = t->mprec[m];
+    if (n == PREC_EMPTY) return fail(e, "rANS: symbol refers to an empty model");
+    uint64_t x = (uint64_t)s->st[s->lane];
+    const uint64_t slot = x & (((uint64_t)1 << n) - 1);
+    const int64_t li = t->lbase[m] + (int64_t)slot;
+    if (li < 0 || li >= t->lut_len) return fail(e, "rANS: decoding table index out of range");
+    const int64_t g = t->sbase[m] + t->lut[li];
+    if (g < 0 || g >= t->nsym) return fail(e, "rANS: decoding table entry out of range");
+    const uint32_t ent = t->fc[g];
+    x = (uint64_t)((ent & 0xFFFF) + 1) * (x >> n) + slot - (ent >> 16);
+    const uint64_t need = x < 65536u;      /* branch-free renormalisation, as in oct_bin_decode */
+    if (s->w >= s->nwords) {
+        if (need) return fail(e, "rANS: payload truncated (word stream exhausted)");
+    } else {
+        const uint64_t wv = rd_u16(s->words + 2 * s->w);
+        x = (x << (need << 4)) | (wv & (0 - need));
+        s->w += (int64_t)need;
+    }
+    s->st[s->lane] = (int64_t)x;
+    if (++s->lane == s->lanes) s->lane = 0;
+    *out = t->val[g];
+    return 0;
+}
+
+int rans_decode_run(const RTab *t, RState *s, const int64_t *mids, int64_t *out, int64_t count,
+                    Err *e)
+{
+    for (int64_t j = 0; j < count; j++)
+        if (rans_step(t, s, mids[j], out + j, e) < 0) return -1;
+    return 0;
+}
+
+typedef struct { int bad_k, bad_q, overrun; } BlockOut;
+
+/* One block of a channel set: `len` symbols, all with one model (its LUT and present values
+ * already offset to the model; klimit = how many present values follow).  Written branch-free
+ * (renormalisation by arithmetic select); specialised on `deq` by the two wrappers below.
+ * Problems are collected in *bo and reported after the block. */
+static inline __attribute__((always_inline)) void
+decode_block_body(const uint16_t *restrict lut, const uint32_t *restrict fc,
+                  const int32_t *restrict val, int64_t klimit, unsigned n, RState *s, int64_t len,
+                  double *restrict fout, int64_t *restrict iout, double step, double l0,
+                  int64_t qm, const int deq, BlockOut *bo)
+{
+    static const uint8_t zero_word[2] = {0, 0};
+    const uint64_t mask = ((uint64_t)1 << n) - 1;
+    int64_t *restrict st = s->st;
+    const int64_t lanes = s->lanes, nwords = s->nwords;
+    const uint8_t *restrict words = nwords ? s->words : zero_word;
+    const int64_t wlast = nwords ? nwords - 1 : 0;
+    int64_t lane = s->lane, w = s->w;
+    int bad_k = 0, bad_q = 0, over = 0;
+    for (int64_t j = 0; j < len; j++) {
+        uint64_t x = (uint64_t)st[lane];
+        const uint64_t slot = x & mask;
+        const int64_t kk = lut[slot];
+        bad_k |= kk >= klimit;
+        const int64_t ki = kk < klimit ? kk : 0;
+        const uint32_t ent = fc[ki];
+        x = (uint64_t)((ent & 0xFFFF) + 1) * (x >> n) + slot - (ent >> 16);
+        /* renormalise: read the next word (clamped inside the stream) and take it or not */
+        const uint64_t need = x < 65536u;
+        const uint64_t wv = rd_u16(words + 2 * (w < wlast ? w : wlast));
+        x = (x << (need << 4)) | (wv & (0 - need));
+        over |= (int)(need & (uint64_t)(w >= nwords));
+        w += (int64_t)need;
+        st[lane] = (int64_t)x;
+        lane = lane + 1 == lanes ? 0 : lane + 1;
+        const int64_t value = val[ki];
+        if (deq) {
+            bad_q |= (value < 0) | (value > qm);
+            const double prod = step * (double)value;
+            fout[j] = prod + l0;
+        } else {
+            iout[j] = value;
+        }
+    }
+    s->lane = lane;
+    s->w = w;
+    bo->bad_k |= bad_k;
+    bo->bad_q |= bad_q;
+    bo->overrun |= over;
+}
+
+static __attribute__((noinline)) void
+decode_block_deq(const uint16_t *lut, const uint32_t *fc, const int32_t *val, int64_t klimit,
+                 unsigned n, RState *s, int64_t len, double *fout, double step, double l0,
+                 int64_t qm, BlockOut *bo)
+{
+    decode_block_body(lut, fc, val, klimit, n, s, len, fout, NULL, step, l0, qm, 1, bo);
+}
+
+static __attribute__((noinline)) void
+decode_block_raw(const uint16_t *lut, const uint32_t *fc, const int32_t *val, int64_t klimit,
+                 unsigned n, RState *s, int64_t len, int64_t *iout, BlockOut *bo)
+{
+    decode_block_body(lut, fc, val, klimit, n, s, len, NULL, iout, 0.0, 0.0, 0, 0, bo);
+}
+
+/* Block b of channel c (len symbols from element i0 on): one model for the whole block,
+ * checked once, then a tight loop. */
+static int decode_one_block(const RTab *t, RState *s, const RBlocks *bl, int64_t c, int64_t b,
+                            int64_t i0, int64_t len, Err *e)
+{
+    const int64_t g = c * bl->B + b, m = bl->tab[g];
+    if (m < 0 || m >= t->nmodels) return fail(e, "rANS: model id outside the model set");
+    const unsigned n = t->mprec[m];
+    if (n == PREC_EMPTY) return fail(e, "rANS: symbol refers to an empty model");
+    const uint64_t mask = ((uint64_t)1 << n) - 1;
+    const int64_t lb = t->lbase[m], sb = t->sbase[m];
+    if (lb < 0 || lb + (int64_t)mask >= t->lut_len || sb < 0 || sb >= t->nsym)
+        return fail(e, "rANS: decoding table index out of range");
+    BlockOut bo = {0, 0, 0};
+    if (bl->steps)
+        decode_block_deq(t->lut + lb, t->fc + sb, t->val + sb, t->nsym - sb, n, s, len,
+                         bl->fout + c * bl->L + i0, bl->steps[g], bl->lo[g], bl->qmax[g], &bo);
+    else
+        decode_block_raw(t->lut + lb, t->fc + sb, t->val + sb, t->nsym - sb, n, s, len,
+                         bl->iout + c * bl->L + i0, &bo);
+    if (bo.overrun) return fail(e, "rANS: payload truncated (word stream exhausted)");
+    if (bo.bad_k) fail(e, "rANS: decoding table entry out of range");
+    if (!e->failed && bo.bad_q) fail(e, "quantisation symbol outside 0..2^q - 1 of its group");
+    return e->failed ? -1 : 0;
+}
+
+int rans_decode_blocks_run(const RTab *t, RState *s, const RBlocks *bl, Err *e)
+{
+    const int64_t base = bl->L / bl->B, extra = bl->L % bl->B;
+    for (int64_t c = 0; c < bl->C; c++) {
+        int64_t i = 0;
+        for (int64_t b = 0; b < bl->B; b++) {
+            /* split_lengths: the first L mod B blocks hold one element more */
+            const int64_t len = base + (b < extra);
+            i += len;
+            if (len == 0) continue;
+            if (decode_one_block(t, s, bl, c, b, i - len, len, e) < 0) return -1;
+        }
+    }
+    return 0;
+}

@@ -1,0 +1,58 @@
+/* gsz.decoder._native: the smaller stages -- inverse RAHT (raht.c), float32 assembly
+ * (assemble.c), the encoder's rate statistics (rate.c). */
+#ifndef GSZ_STAGES_H
+#define GSZ_STAGES_H
+
+#include "gsz_common.h"
+
+#if defined(__GNUC__) && !defined(_WIN32)
+#pragma GCC visibility push(hidden)
+#endif
+
+/* ------------------------------------------------------------------ raht.c (TRANSFORMS.md §2) */
+typedef struct { int32_t left, right; double g1, g2; } RPair;
+
+typedef struct {
+    int64_t n;            /* leaves */
+    int nlev;             /* non-empty binary levels */
+    int64_t *lvl_start;   /* [nlev + 1]: pairs of non-empty level L (finest first) */
+    RPair *pairs;         /* [n - 1] */
+} RTree;
+
+void raht_static_init(void);
+/* The tree of n leaves with strictly ascending Morton codes c0 (< 2^(3 depth)). */
+int rtree_build(const uint64_t *c0, int64_t n, int depth, RTree **out, Err *e);
+void rtree_free(RTree *t);
+/* Inverse RAHT of channels c0..c0+k-1: dc [C], ac [C, n-1], out v [k, n] (see raht_apply). */
+void raht_inverse(const RTree *t, const double *dc, const double *ac, int64_t c0, int64_t k,
+                  double *v, int half);
+
+/* ------------------------------------------------------------------ assemble.c (float32 out) */
+/* Each returns 1 when every value written is finite. */
+int planes_to_f32_run(const double *src, int64_t M, int64_t k, float *out);
+int quat_from_trig_run(const double *c, const double *s, int64_t M, float *q);
+int voxel_positions_run(const uint64_t *codes, int64_t M, int depth, const double org[3],
+                        double side, float *out);
+int all_finite_run(const uint32_t *p, int64_t n);
+/* SH rest vectors (flags NULL when no vector is kept); GszFormatError on a bad flag / index. */
+int sh_assemble_run(const int64_t *flags, const double *kept, int64_t P, const int64_t *idx,
+                    int64_t nidx, const double *cb, int64_t K, int64_t M, int64_t D, float *out,
+                    Err *e);
+
+/* ------------------------------------------------------------------ rate.c (encoder) */
+#define RATE_BITS 16                 /* gsz.decoder.quant.MAX_BITS: the out arrays' q axis */
+#define RATE_SHIFTS 5                /* rate.MAX_BINSHIFT: the binned candidates' h = 1..5 */
+
+typedef struct {
+    double *k, *payload, *gap, *gap2, *level, *laplace, *binned;
+} RateOut;
+
+/* group_stats' loop over q_first..hi for nb sorted blocks of blen values; -1 out of memory. */
+int rate_group_stats_run(const float *x, int64_t nb, int64_t blen, const double *tab,
+                         int q_first, int hi, double rho_min, double rho_max, const RateOut *o);
+
+#if defined(__GNUC__) && !defined(_WIN32)
+#pragma GCC visibility pop
+#endif
+
+#endif
