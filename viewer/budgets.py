@@ -66,6 +66,11 @@ class _ProgressSink:
     def log(self, msg: str) -> None:
         self._set(str(msg))
 
+    def memory_report(self) -> dict:
+        """The process peak only (this sink does not track stages)."""
+        from gsz.encoder.progress import memory_mb
+        return {"peak_rss_mb": round(memory_mb()[1], 1), "stages": {}}
+
     def stage(self, name: str, detail: str = ""):
         from contextlib import contextmanager
 
