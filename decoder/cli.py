@@ -22,8 +22,21 @@ def decode_main(argv=None) -> int:
                    help="decode only the first K importance layers (default: all)")
     p.add_argument("--partial", action="store_true",
                    help="decode the complete layers of a truncated file (with a warning) instead of failing")
+    p.add_argument("--tiles", default=None, metavar="I,J,...",
+                   help="decode only these spatial tiles (indices as gsz-info lists them)")
+    p.add_argument("--region", type=float, nargs=6, default=None,
+                   metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
+                   help="decode only the Gaussians inside this box (and only the tiles that meet it)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     a = p.parse_args(argv)
+    tiles = region = None
+    if a.tiles is not None:
+        try:
+            tiles = [int(v) for v in a.tiles.split(",") if v.strip()]
+        except ValueError:
+            return _fail("gsz-decode", GszError(f"--tiles must be comma-separated tile indices, got {a.tiles!r}"))
+    if a.region is not None:
+        region = (a.region[:3], a.region[3:])
     import warnings
 
     from .decode import decode
@@ -36,7 +49,7 @@ def decode_main(argv=None) -> int:
         t0 = time.perf_counter()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", GszTruncatedWarning)
-            cloud = decode(a.input, layers=a.layers, partial=a.partial)
+            cloud = decode(a.input, layers=a.layers, partial=a.partial, tiles=tiles, region=region)
         dt = time.perf_counter() - t0
         for w in caught:
             if issubclass(w.category, GszTruncatedWarning):
@@ -88,10 +101,18 @@ def info_main(argv=None) -> int:
     print(f"frame       {frames.get(info['frame'], info['frame'])}")
     print("bbox        " + " .. ".join("(" + ", ".join(f"{v:.4g}" for v in b) + ")"
                                      for b in (info["bbox_min"], info["bbox_max"])))
-    print(f"{'chunk':6} {'offset':>10} {'bytes':>12} {'share':>7}  layer  description")
+    tiled = len(info["tiles"]) > 1
+    print(f"{'chunk':6} {'offset':>10} {'bytes':>12} {'share':>7}  layer" + ("  tile" if tiled else "")
+          + "  description")
     for c in info["chunks"]:
         print(f"{c['type']:6} {c['offset']:>10,} {c['bytes']:>12,} {100 * c['bytes'] / info['bytes']:6.2f}%"
-              f"  {c['layer']:>5}  {c['name']}{'' if c['required'] else ' (optional)'}")
+              f"  {c['layer']:>5}" + (f"  {c['tile']:>4}" if tiled else "")
+              + f"  {c['name']}{'' if c['required'] else ' (optional)'}")
+    if tiled:
+        print(f"{'tile':6} {'gaussians':>12} {'bytes':>12}  {'layers':>6}  bounding box")
+        for r in info["tiles"]:
+            box = " .. ".join("(" + ", ".join(f"{v:.4g}" for v in b) + ")" for b in (r["bbox_min"], r["bbox_max"]))
+            print(f"{r['tile']:<6} {r['gaussians']:>12,} {r['bytes']:>12,}  {len(r['parts']):>6}  {box}")
     if len(info["layers"]) > 1:
         print(f"{'layer':6} {'gaussians':>12} {'cumulative':>12} {'offset':>10} {'bytes':>12} {'decodable at':>14}")
         for r in info["layers"]:

@@ -20,7 +20,11 @@ from .errors import GszFormatError, GszTruncatedError
 
 MAGIC = b"\x89GSZ\r\n\x1a\n"
 VERSION_MAJOR = 1
-VERSION_MINOR = 1
+#: the newest minor version this decoder knows (1.2 added spatial tiles); an encoder writes the
+#: lowest minor whose features the file uses, so a one-tile file stays a 1.1 file
+VERSION_MINOR = 2
+MINOR_LAYERS = 1
+MINOR_TILES = 2
 HEADER_SIZE = 64
 CHUNK_ENTRY_SIZE = 24
 
@@ -36,6 +40,7 @@ FRAME_RUB = 2      # x right, y up, z back (OpenGL / SPZ)
 #: Chunk flag bits.
 CHUNK_REQUIRED = 0x1       # a decoder that does not know this type must reject the file
 LAYER_SHIFT = 8            # bits 8..15: layer index (0 = base layer)
+TILE_SHIFT = 16            # bits 16..31: tile index (1.2; 0 in a file without a TILE chunk)
 
 _HEADER = struct.Struct("<8sHHIQBBHI6fII")
 assert _HEADER.size == HEADER_SIZE
@@ -51,7 +56,7 @@ class FileHeader:
     flags: int = 0
     bbox_min: tuple = (0.0, 0.0, 0.0)
     bbox_max: tuple = (0.0, 0.0, 0.0)
-    version: tuple = (VERSION_MAJOR, VERSION_MINOR)
+    version: tuple = (VERSION_MAJOR, MINOR_LAYERS)
 
 
 @dataclass
@@ -64,6 +69,10 @@ class Chunk:
     @property
     def layer(self) -> int:
         return (self.flags >> LAYER_SHIFT) & 0xFF
+
+    @property
+    def tile(self) -> int:
+        return (self.flags >> TILE_SHIFT) & 0xFFFF
 
 
 @dataclass
@@ -89,7 +98,8 @@ def write_container(header: FileHeader, chunks: list) -> bytes:
     """Serialise a header and chunks to bytes (deterministic)."""
     if len(chunks) > MAX_CHUNKS:
         raise ValueError(f"too many chunks ({len(chunks)} > {MAX_CHUNKS})")
-    head = _HEADER.pack(MAGIC, VERSION_MAJOR, VERSION_MINOR, HEADER_SIZE, int(header.num_gaussians),
+    major, minor = header.version
+    head = _HEADER.pack(MAGIC, int(major), int(minor), HEADER_SIZE, int(header.num_gaussians),
                         int(header.sh_degree), int(header.frame), int(header.flags), len(chunks),
                         *[float(v) for v in header.bbox_min], *[float(v) for v in header.bbox_max], 0, 0)
     head = head[:-4] + struct.pack("<I", zlib.crc32(head[:-4]))
@@ -178,4 +188,39 @@ def read_container(buf, *, known_types=None, strict_length: bool = True) -> Cont
     end = entries[-1][4] + entries[-1][2] if entries else pos
     if strict_length and len(mv) != end:
         raise GszFormatError(f"{len(mv) - end} unexpected trailing bytes after the last chunk")
+    return Container(header=header, chunks=chunks)
+
+
+def read_container_from_file(f, size: int, *, wanted, known_types=None) -> Container:
+    """Parse and checksum-verify the header, the chunk table and only the chunks for which
+    ``wanted(type, flags)`` is true, reading them from the open binary file ``f`` of ``size``
+    bytes with seeks (a region of a large tiled file costs its own bytes, not the file's).
+    The table's declared end must equal ``size`` (truncation and trailing bytes are rejected as
+    by :func:`read_container`); chunks not read are not checksummed."""
+    head = f.read(HEADER_SIZE)
+    header = parse_header(head)
+    n = _num_chunks(head)
+    table = head + f.read(table_size(n))
+    entries, pos = parse_table(table, n)
+    end = entries[-1][4] + entries[-1][2] if entries else pos
+    if size < end:
+        raise GszTruncatedError(f"truncated: the chunk table declares {end} bytes, file has {size}")
+    if size > end:
+        raise GszFormatError(f"{size - end} unexpected trailing bytes after the last chunk")
+    chunks = []
+    for i, (ctype, cflags, length, crc, offset) in enumerate(entries):
+        if known_types is not None and ctype not in known_types:
+            if cflags & CHUNK_REQUIRED:
+                raise GszFormatError(f"required chunk type {ctype.decode()} is not supported by this decoder")
+            continue
+        if not wanted(ctype, cflags):
+            chunks.append(Chunk(type=ctype, data=memoryview(b""), flags=cflags, offset=offset))
+            continue
+        f.seek(offset)
+        data = f.read(length)
+        if len(data) != length:
+            raise GszTruncatedError(f"truncated: chunk {i} ({ctype.decode()}) ends past the end of the file")
+        if zlib.crc32(data) != crc:
+            raise GszFormatError(f"chunk {i} ({ctype.decode()}) checksum mismatch (file corrupt)")
+        chunks.append(Chunk(type=ctype, data=memoryview(data), flags=cflags, offset=offset))
     return Container(header=header, chunks=chunks)

@@ -6,6 +6,7 @@ I/O problems) whose message names the file.
 from __future__ import annotations
 
 import json
+import os
 import struct
 
 import numpy as np
@@ -14,14 +15,17 @@ from .cloud import GaussianCloud
 from .container import DEFAULT_MAX_GAUSSIANS, Container, read_container
 from .errors import GszError, GszFormatError, GszTruncatedError
 # LAYER_DATA_CHUNKS, open_gsz and the layer names stay importable from here (their old home)
-from .layer import (LAYER_DATA_CHUNKS, LayerState, check_header_counts, concat_clouds,  # noqa: F401
-                    decode_layer, guard, load_bytes, open_gsz, plan_layers)
-from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHVQ, KNOWN_CHUNKS
+from .layer import (LAYER_DATA_CHUNKS, LayerState, _cores, check_header_counts,  # noqa: F401
+                    concat_clouds, decode_layer, guard, load_bytes, open_gsz, plan_layers, plan_parts,
+                    tile_table)
+from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHVQ, CHUNK_TILE, KNOWN_CHUNKS
+from .tiles import check_region, select_tiles
 from .stream import StreamDecoder
 
 #: Chunk type names for reports.
 CHUNK_NAMES = {CHUNK_GEOM: "geometry (octree)", CHUNK_ATTR: "attributes (RAHT + scales)",
-               CHUNK_SHVQ: "SH (codebook + kept + indices)", CHUNK_META: "metadata (JSON)"}
+               CHUNK_SHVQ: "SH (codebook + kept + indices)", CHUNK_META: "metadata (JSON)",
+               CHUNK_TILE: "tile table"}
 
 
 def read_meta(container: Container) -> dict:
@@ -38,29 +42,82 @@ def read_meta(container: Container) -> dict:
         return {}
 
 
+def _decode_tile(container: Container, parts: list, header, state: LayerState, overlap: bool) -> list:
+    """The clouds of one tile's ``parts`` (its layers in order; they share the tile's codebook)."""
+    with np.errstate(over="ignore", invalid="ignore"):     # errstate is per thread
+        return [decode_layer({t: container.chunks[i].data for t, i in p.chunks.items()}, header, state,
+                             overlap=overlap) for p in parts]
+
+
+def decode_parts(container: Container, plan, tiles: list, chosen: list, count: int,
+                 threads: int | None = None) -> list:
+    """Decode the first ``count`` layers of the ``chosen`` tiles; the parts' clouds in decoded
+    order ((layer, tile) ascending).  Tiles decode in parallel threads (the native path releases
+    the GIL); the error reported is the one of the first failing tile, as a sequential decode
+    would report it."""
+    h = container.header
+    tiled = plan.tile_chunk is not None
+    states = {t: LayerState(limit=tiles[t].num_gaussians, what=f"tile {t}'s" if tiled else "the header's")
+              for t in chosen}
+    by_tile = {t: [p for p in plan.parts if p.tile == t and p.layer < count] for t in chosen}
+    workers = min(len(chosen), threads or _cores())
+    if workers <= 1:
+        clouds = {t: _decode_tile(container, by_tile[t], h, states[t], True) for t in chosen}
+    else:
+        from concurrent.futures import ThreadPoolExecutor
+        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="gsz-tile") as pool:
+            futures = {t: pool.submit(_decode_tile, container, by_tile[t], h, states[t], False)
+                       for t in chosen}
+            for t in chosen:                        # the first failing tile's error
+                if futures[t].exception() is not None:
+                    raise futures[t].exception()
+            clouds = {t: futures[t].result() for t in chosen}
+    for t in chosen:
+        if count == plan.num_layers and states[t].decoded_points != tiles[t].num_gaussians:
+            raise GszFormatError(
+                f"tile {t}: layers hold {states[t].decoded_points} Gaussians, the TILE chunk says "
+                f"{tiles[t].num_gaussians}" if tiled else
+                f"layers hold {states[t].decoded_points} Gaussians, header says {h.num_gaussians}")
+    order = sorted(((p.layer, p.tile), k) for t in chosen for k, p in enumerate(by_tile[t]))
+    return [clouds[t][k] for (_, t), k in order]
+
+
 def decode_container(container: Container, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS,
-                     layers: int | None = None) -> GaussianCloud:
-    """Decode the first ``layers`` layers (all when None) of a parsed, verified container."""
+                     layers: int | None = None, tiles=None, region=None) -> GaussianCloud:
+    """Decode the first ``layers`` layers (all when None) of a parsed, verified container,
+    only the ``tiles`` / the tiles meeting ``region`` when given (see :func:`decode`)."""
     h = container.header
     check_header_counts(h, max_gaussians)
-    plan = plan_layers(container.chunks, h.sh_degree)
-    count = len(plan) if layers is None else int(layers)
-    if not 1 <= count <= len(plan):
-        raise GszFormatError(f"asked for {count} layers, the file has {len(plan)}")
-    state = LayerState()
-    parts = [decode_layer({t: container.chunks[i].data for t, i in plan[li].items()}, h, state)
-             for li in range(count)]
-    if count == len(plan) and state.decoded_points != h.num_gaussians:
-        raise GszFormatError(f"layers hold {state.decoded_points} Gaussians, header says {h.num_gaussians}")
-    return concat_clouds(parts)
+    plan = plan_parts(container.chunks, h.sh_degree)
+    count = plan.num_layers if layers is None else int(layers)
+    if not 1 <= count <= plan.num_layers:
+        raise GszFormatError(f"asked for {count} layers, the file has {plan.num_layers}")
+    table = tile_table(container.chunks[plan.tile_chunk].data if plan.tile_chunk is not None else None,
+                       plan, h)
+    try:
+        chosen = select_tiles(table, tiles, region)
+    except ValueError as e:
+        raise GszError(str(e)) from None
+    cloud = concat_clouds(decode_parts(container, plan, table, chosen, count), h.sh_degree)
+    if region is not None:
+        lo, hi = (np.asarray(v, np.float32) for v in check_region(region))
+        inside = np.all((cloud.positions >= lo) & (cloud.positions <= hi), axis=1)
+        if not inside.all():
+            cloud = cloud.subset(np.flatnonzero(inside))
+    return cloud
 
 
 def decode(src, *, layers: int | None = None, partial: bool = False,
-           max_gaussians: int = DEFAULT_MAX_GAUSSIANS) -> GaussianCloud:
+           max_gaussians: int = DEFAULT_MAX_GAUSSIANS, tiles=None, region=None) -> GaussianCloud:
     """Decode a .gsz file (path or bytes) into a :class:`GaussianCloud`.
 
     layers      decode only the first ``layers`` importance layers (None: all); the Gaussians
-                come out layer after layer, each layer in Morton order
+                come out layer after layer, within a layer tile after tile, each part in
+                Morton order
+    tiles       decode only these spatial tiles (indices, see ``inspect(...)["tiles"]``; a file
+                without tiles has the one tile 0); None: all
+    region      ((min_x, min_y, min_z), (max_x, max_y, max_z)): decode only the tiles whose
+                bounding box meets the box and return the Gaussians inside it
     partial     accept a truncated file: decode its complete layers and emit one
                 :class:`GszTruncatedWarning` (the default raises GszFormatError instead)
 
@@ -68,10 +125,22 @@ def decode(src, *, layers: int | None = None, partial: bool = False,
     verified before any payload is interpreted) and GszError when the file cannot be read.
     ``max_gaussians`` bounds what a hostile header can make the decoder allocate.
     """
-    data, path = load_bytes(src)
+    path = None if isinstance(src, (bytes, bytearray, memoryview)) else os.fspath(src)
     if layers is not None and int(layers) < 1:
         raise GszError(f"layers must be >= 1, got {layers}", path)
+    if region is not None:
+        try:
+            check_region(region)
+        except ValueError as e:
+            raise GszError(str(e), path) from None
+    if path is not None and (tiles is not None or region is not None) and not partial:
+        return guard(lambda: _decode_tiles_from_file(path, layers=layers, tiles=tiles, region=region,
+                                                     max_gaussians=max_gaussians), path)
+    data, path = load_bytes(src)
     if partial:
+        if tiles is not None or region is not None:
+            raise GszError("partial decoding reads whole layers: it takes no tiles or region", path)
+
         def run_partial():
             dec = StreamDecoder(max_gaussians=max_gaussians, max_layers=layers)
             dec.feed(data)
@@ -87,44 +156,101 @@ def decode(src, *, layers: int | None = None, partial: bool = False,
     def run():
         with np.errstate(over="ignore", invalid="ignore"):
             return decode_container(read_container(data, known_types=KNOWN_CHUNKS),
-                                    max_gaussians=max_gaussians, layers=layers)
+                                    max_gaussians=max_gaussians, layers=layers, tiles=tiles, region=region)
     return guard(run, path)
 
 
+def _decode_tiles_from_file(path: str, *, layers, tiles, region, max_gaussians) -> GaussianCloud:
+    """decode() of some tiles of a file on disk: reads the header, the chunk table, the TILE
+    chunk and the chosen parts' chunks only (their checksums verified), not the rest."""
+    import os
+
+    from .container import TILE_SHIFT, read_container_from_file
+
+    with open_gsz(path) as f:
+        size = os.fstat(f.fileno()).st_size
+
+        def chosen_tiles():
+            f.seek(0)
+            c = read_container_from_file(f, size, wanted=lambda t, fl: t == CHUNK_TILE, known_types=KNOWN_CHUNKS)
+            check_header_counts(c.header, max_gaussians)
+            plan = plan_parts(c.chunks, c.header.sh_degree)
+            table = tile_table(c.chunks[plan.tile_chunk].data if plan.tile_chunk is not None else None,
+                               plan, c.header)
+            try:
+                return set(select_tiles(table, tiles, region))
+            except ValueError as e:
+                raise GszError(str(e)) from None
+        keep = chosen_tiles()
+        f.seek(0)
+        c = read_container_from_file(
+            f, size, known_types=KNOWN_CHUNKS,
+            wanted=lambda t, fl: t == CHUNK_TILE or (t in LAYER_DATA_CHUNKS and (fl >> TILE_SHIFT) & 0xFFFF in keep))
+    with np.errstate(over="ignore", invalid="ignore"):
+        return decode_container(c, max_gaussians=max_gaussians, layers=layers, tiles=sorted(keep), region=region)
+
+
 def inspect(src) -> dict:
-    """Header fields, chunk table and metadata of a .gsz file (checksums verified), as a dict."""
+    """Header fields, chunk table, layers, tiles and metadata of a .gsz file (checksums
+    verified), as a dict."""
     data, path = load_bytes(src)
 
     def run():
         c = read_container(data)
         h = c.header
+        plan = plan_parts(c.chunks, h.sh_degree)
         return {
             "file": path, "bytes": len(data), "version": f"{h.version[0]}.{h.version[1]}",
             "num_gaussians": h.num_gaussians, "sh_degree": h.sh_degree, "frame": h.frame,
             "flags": h.flags, "bbox_min": list(h.bbox_min), "bbox_max": list(h.bbox_max),
             "chunks": [{"type": ch.type.decode("ascii"), "name": CHUNK_NAMES.get(ch.type, "unknown"),
-                        "offset": ch.offset, "bytes": len(ch.data), "layer": ch.layer,
+                        "offset": ch.offset, "bytes": len(ch.data), "layer": ch.layer, "tile": ch.tile,
                         "required": bool(ch.flags & 1)} for ch in c.chunks],
-            "layers": layer_table(c),
+            "layers": layer_table(c, plan),
+            "tiles": tile_rows(c, plan),
             "meta": read_meta(c),
         }
     return guard(run, path)
 
 
-def layer_table(container: Container) -> list[dict]:
-    """Per layer: Gaussians, byte range of its chunks, and ``decodable_at`` -- the file prefix
-    (bytes) after which this layer and every layer before it can be decoded."""
-    h = container.header
-    plan = plan_layers(container.chunks, h.sh_degree)
+def _part_points(container: Container, part) -> int:
+    geom = container.chunks[part.chunks[CHUNK_GEOM]].data
+    return int(struct.unpack_from("<Q", geom, 33)[0]) if len(geom) >= 41 else 0
+
+
+def layer_table(container: Container, plan=None) -> list[dict]:
+    """Per layer (all tiles): Gaussians, byte range of its chunks, and ``decodable_at`` -- the
+    file prefix (bytes) after which this layer and every layer before it can be decoded."""
+    plan = plan or plan_parts(container.chunks, container.header.sh_degree)
     rows, total = [], 0
-    for li, got in enumerate(plan):
-        chs = [container.chunks[i] for i in got.values()]
-        geom = container.chunks[got[CHUNK_GEOM]].data
-        m = struct.unpack_from("<Q", geom, 33)[0] if len(geom) >= 41 else 0
+    for li in range(plan.num_layers):
+        chs = [container.chunks[i] for p in plan.layer_parts(li) for i in p.chunks.values()]
+        m = sum(_part_points(container, p) for p in plan.layer_parts(li))
         total += m
-        start = min(ch.offset for ch in chs)
-        end = max(ch.offset + len(ch.data) for ch in chs)
         rows.append({"layer": li, "gaussians": int(m), "cumulative_gaussians": int(total),
-                     "offset": int(start), "bytes": int(sum(len(ch.data) for ch in chs)),
-                     "decodable_at": int(end)})
+                     "offset": int(min(ch.offset for ch in chs)),
+                     "bytes": int(sum(len(ch.data) for ch in chs)),
+                     "decodable_at": int(max(ch.offset + len(ch.data) for ch in chs))})
+    return rows
+
+
+def tile_rows(container: Container, plan=None) -> list[dict]:
+    """Per spatial tile: bounding box, Gaussians, bytes, and per layer its part's byte range
+    (``decodable_at``: the prefix after which that part can be decoded)."""
+    h = container.header
+    plan = plan or plan_parts(container.chunks, h.sh_degree)
+    table = tile_table(container.chunks[plan.tile_chunk].data if plan.tile_chunk is not None else None,
+                       plan, h)
+    rows = []
+    for t, info in enumerate(table):
+        parts = []
+        for p in (p for p in plan.parts if p.tile == t):
+            chs = [container.chunks[i] for i in p.chunks.values()]
+            parts.append({"layer": p.layer, "gaussians": _part_points(container, p),
+                          "offset": int(min(ch.offset for ch in chs)),
+                          "bytes": int(sum(len(ch.data) for ch in chs)),
+                          "decodable_at": int(max(ch.offset + len(ch.data) for ch in chs))})
+        rows.append({"tile": t, "bbox_min": list(info.bbox_min), "bbox_max": list(info.bbox_max),
+                     "gaussians": info.num_gaussians, "bytes": sum(r["bytes"] for r in parts),
+                     "parts": parts})
     return rows

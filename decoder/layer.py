@@ -20,10 +20,10 @@ from . import native
 from .attributes import (attributes_from_coefficients, native_half_angles, native_opacity_dc,
                          native_rotations, native_scales, native_tree, parse_attributes)
 from .cloud import GaussianCloud
-from .container import LAYER_SHIFT, Chunk
+from .container import LAYER_SHIFT, TILE_SHIFT, Chunk
 from .errors import GszError, GszFormatError
 from .geometry import read_geometry_header
-from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHVQ
+from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHVQ, CHUNK_TILE
 from .sh import read_sh
 
 
@@ -66,55 +66,145 @@ def guard(fn, path):
         raise GszFormatError(f"malformed data ({type(e).__name__}: {e})", path) from None
 
 
-#: Chunk types that carry one layer's data (GSZ.md §5).
+#: Chunk types that carry one part's data (GSZ.md §4.1).
 LAYER_DATA_CHUNKS = (CHUNK_GEOM, CHUNK_ATTR, CHUNK_SHVQ)
 
 
-def plan_layers(entries, sh_degree: int) -> list[dict]:
-    """Check the layer structure of a chunk table and return, per layer, {type: entry index}.
+@dataclass
+class Part:
+    """The data chunks of one (layer, tile) pair: {type: entry index}."""
+    layer: int
+    tile: int
+    chunks: dict
+
+    @property
+    def last(self) -> int:
+        """Entry index of the part's last data chunk (the part is decodable after it)."""
+        return max(self.chunks.values())
+
+
+@dataclass
+class Plan:
+    """The checked part structure of a chunk table.
+
+    parts        [Part] in file order, which is the decoded order: (layer, tile) ascending
+    num_layers   L; num_tiles T (1 without a TILE chunk)
+    tile_chunk   entry index of the TILE chunk, None when the file has none
+    """
+    parts: list
+    num_layers: int
+    num_tiles: int
+    tile_chunk: int | None
+
+    def layer_parts(self, layer: int) -> list:
+        return [p for p in self.parts if p.layer == layer]
+
+    def layer_ends(self) -> list:
+        """Per layer, the entry index after which every part of it has arrived."""
+        return [max(p.last for p in self.layer_parts(li)) for li in range(self.num_layers)]
+
+
+def _where(layer: int, tile: int, tiled: bool) -> str:
+    return f"layer {layer}, tile {tile}" if tiled else f"layer {layer}"
+
+
+def plan_parts(entries, sh_degree: int) -> Plan:
+    """Check the layer and tile structure of a chunk table (GSZ.md §4.1, §4.2).
 
     entries     [(type, flags, ...)] in file order (``Container.chunks`` or ``parse_table`` rows)
-    rules       every layer 0..L-1 has exactly one GEOM and one ATTR, and one SHVQ iff the SH
-                degree is > 0; data chunks appear in non-decreasing layer order, so a layer is
-                complete once its last data chunk has arrived (GSZ.md §5).
+    rules       data chunks in non-decreasing (layer, tile) order; every part has one GEOM, one
+                ATTR and one SHVQ iff the SH degree is > 0; layers 0..L-1 without gaps; layer 0
+                holds every tile 0..T-1 and a tile in layer k was in layer k-1; a TILE chunk
+                (at most one) precedes every data chunk, and tile bits are 0 without it.
     """
-    layers: list[dict] = []
-    last = 0
+    parts: list = []
+    tile_chunk = None
     for i, e in enumerate(entries):
         ctype, flags = (e.type, e.flags) if isinstance(e, Chunk) else (e[0], e[1])
+        if ctype == CHUNK_TILE:
+            if tile_chunk is not None:
+                raise GszFormatError(f"two TILE chunks (chunks {tile_chunk} and {i})")
+            if parts:
+                raise GszFormatError(f"the TILE chunk (chunk {i}) follows a data chunk")
+            tile_chunk = i
+            continue
         if ctype not in LAYER_DATA_CHUNKS:
             continue
         name = ctype.decode("ascii")
-        layer = (flags >> LAYER_SHIFT) & 0xFF
+        layer, tile = (flags >> LAYER_SHIFT) & 0xFF, (flags >> TILE_SHIFT) & 0xFFFF
+        tiled = tile_chunk is not None
         if ctype == CHUNK_SHVQ and sh_degree == 0:
             raise GszFormatError(f"SHVQ chunk in a file of SH degree 0 (chunk {i})")
-        if layer < last:
-            raise GszFormatError(f"chunk {i} ({name}) of layer {layer} follows a chunk of layer {last}")
-        if layer > len(layers):
-            raise GszFormatError(f"chunk {i} ({name}) belongs to layer {layer}, but layer {len(layers)} "
-                                 "has no chunks")
-        if layer == len(layers):
-            layers.append({})
-        if ctype in layers[layer]:
-            raise GszFormatError(f"layer {layer} has two {name} chunks")
-        layers[layer][ctype] = i
-        last = layer
-    if not layers:
+        if tile and not tiled:
+            raise GszFormatError(f"chunk {i} ({name}) belongs to tile {tile}, but the file has no TILE chunk")
+        prev = parts[-1] if parts else Part(0, 0, {})
+        if layer < prev.layer:
+            raise GszFormatError(f"chunk {i} ({name}) of layer {layer} follows a chunk of layer {prev.layer}")
+        if layer > prev.layer + (1 if parts else 0):
+            raise GszFormatError(f"chunk {i} ({name}) belongs to layer {layer}, but layer "
+                                 f"{prev.layer + (1 if parts else 0)} has no chunks")
+        if layer == prev.layer and tile < prev.tile:
+            raise GszFormatError(f"chunk {i} ({name}) of tile {tile} follows a chunk of tile {prev.tile} "
+                                 f"in layer {layer}")
+        if not parts or (layer, tile) != (prev.layer, prev.tile):
+            parts.append(Part(layer, tile, {}))
+        got = parts[-1].chunks
+        if ctype in got:
+            raise GszFormatError(f"{_where(layer, tile, tiled)} has two {name} chunks")
+        got[ctype] = i
+    if not parts:
         raise GszFormatError(f"missing required chunk {CHUNK_GEOM.decode()}")
+    tiled = tile_chunk is not None
     need = LAYER_DATA_CHUNKS if sh_degree > 0 else (CHUNK_GEOM, CHUNK_ATTR)
-    for li, got in enumerate(layers):
+    for p in parts:
         for ctype in need:
-            if ctype not in got:
+            if ctype not in p.chunks:
                 raise GszFormatError(f"missing required chunk {ctype.decode()}"
-                                     + (f" for layer {li}" if li else ""))
-    return layers
+                                     + (f" for {_where(p.layer, p.tile, tiled)}" if p.layer or tiled else ""))
+    num_layers = parts[-1].layer + 1
+    present = [{p.tile for p in parts if p.layer == li} for li in range(num_layers)]
+    num_tiles = len(present[0])
+    if present[0] != set(range(num_tiles)):
+        missing = min(set(range(max(present[0]) + 1)) - present[0])
+        raise GszFormatError(f"tile {missing} has no chunks in layer 0")
+    for li in range(1, num_layers):
+        extra = present[li] - present[li - 1]
+        if extra:
+            raise GszFormatError(f"tile {min(extra)} has chunks in layer {li} but none in layer {li - 1}")
+    return Plan(parts=parts, num_layers=num_layers, num_tiles=num_tiles, tile_chunk=tile_chunk)
+
+
+def plan_layers(entries, sh_degree: int) -> list[dict]:
+    """Per layer {type: entry index} of a file without tiles (what the test-vector and bench
+    tools walk); a tiled file is rejected here -- use :func:`plan_parts`."""
+    plan = plan_parts(entries, sh_degree)
+    if plan.num_tiles > 1:
+        raise GszFormatError("the file has several tiles: plan its parts with plan_parts")
+    return [p.chunks for p in plan.parts]
+
+
+def tile_table(container_or_tile_data, plan: Plan, header) -> list:
+    """[TileInfo] of a planned file: its TILE chunk (checked against the plan), or one tile
+    spanning the header's bounding box when the file has none."""
+    from .tiles import TileInfo, parse_tile_table
+    if plan.tile_chunk is None:
+        return [TileInfo(tuple(header.bbox_min), tuple(header.bbox_max), int(header.num_gaussians))]
+    tiles = parse_tile_table(container_or_tile_data, header.num_gaussians)
+    if len(tiles) != plan.num_tiles:
+        raise GszFormatError(f"TILE chunk lists {len(tiles)} tiles, the chunk table has {plan.num_tiles}")
+    return tiles
 
 
 @dataclass
 class LayerState:
-    """What decoding layer l+1 needs from the layers before it."""
+    """What decoding the next layer of one tile needs from the layers before it.
+
+    limit      Gaussians this tile's parts may hold in all (the header's count without tiles)
+    what       how messages name the limit ("the header's", "tile 3's")"""
+    limit: int
+    what: str = "the header's"
     decoded_points: int = 0
-    codebook: np.ndarray | None = None      # layer 0's SH codebook [D, K_cb]
+    codebook: np.ndarray | None = None      # the tile's SH codebook [D, K_cb], once seen
 
 
 #: Layers with at least this many Gaussians decode their geometry on a worker thread while the
@@ -168,19 +258,21 @@ def _read_attributes_and_sh(chunks: dict, header, state: LayerState, m: int):
     return dc, ac, direct, sh_rest, codebook
 
 
-def decode_layer(chunks: dict, header, state: LayerState) -> GaussianCloud:
-    """Decode one layer from its chunk payloads {type: bytes-like}; updates ``state``.
+def decode_layer(chunks: dict, header, state: LayerState, *, overlap: bool = True) -> GaussianCloud:
+    """Decode one part (a layer of a tile) from its chunk payloads {type: bytes-like}; updates
+    ``state``.
 
     The geometry and the attribute/SH entropy decoding are independent until the inverse RAHT
     (which needs the voxels' Morton codes): with the native accelerator they run on two threads
-    (the C loops release the GIL, see :func:`_decode_layer_overlapped`).  Errors are raised in
-    the sequential order: a corrupt geometry is reported before a corrupt attribute chunk."""
-    room = header.num_gaussians - state.decoded_points
+    (the C loops release the GIL, see :func:`_decode_layer_overlapped`); ``overlap=False`` when
+    the caller already decodes several tiles at once.  Errors are raised in the sequential
+    order: a corrupt geometry is reported before a corrupt attribute chunk."""
+    room = state.limit - state.decoded_points
     if room <= 0:
-        raise GszFormatError(f"layers hold more Gaussians than the header's {header.num_gaussians}")
+        raise GszFormatError(f"layers hold more Gaussians than {state.what} {state.limit}")
     gh = read_geometry_header(chunks[CHUNK_GEOM], max_points=room)
     m = gh.num_points
-    if native.enabled() and m >= OVERLAP_MIN_POINTS and _cores() >= 2:
+    if overlap and native.enabled() and m >= OVERLAP_MIN_POINTS and _cores() >= 2:
         cloud = _decode_layer_overlapped(chunks, header, state, gh)
     else:
         codes = gh.decode_codes()
@@ -288,8 +380,14 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
                          sh_degree=header.sh_degree)
 
 
-def concat_clouds(parts: list) -> GaussianCloud:
-    """The Gaussians of ``parts`` one after the other (layer order)."""
+def concat_clouds(parts: list, sh_degree: int | None = None) -> GaussianCloud:
+    """The Gaussians of ``parts`` one after the other (decoded order); an empty cloud of
+    ``sh_degree`` when there are none."""
+    if not parts:
+        k = (sh_degree + 1) ** 2 - 1
+        z = lambda *shape: np.zeros(shape, np.float32)  # noqa: E731
+        return GaussianCloud(positions=z(0, 3), scales=z(0, 3), rotations=z(0, 4), opacities=z(0),
+                             sh_dc=z(0, 3), sh_rest=z(0, k, 3), sh_degree=sh_degree)
     if len(parts) == 1:
         return parts[0]
     return GaussianCloud(**{name: np.concatenate([getattr(p, name) for p in parts])

@@ -1,14 +1,15 @@
-"""Streaming, progressive decoding: feed bytes as they arrive, get a cloud per completed layer.
+"""Streaming, progressive decoding: feed bytes as they arrive, get an update per completed part.
 
     dec = StreamDecoder()
     for piece in response.iter_content(65536):          # any sizes, down to 1 byte
         for update in dec.feed(piece):
-            show(update.cloud)                          # cumulative: layers 0..update.layer
+            show(update.cloud)                          # cumulative: every part so far
     result = dec.finish()                               # result.truncated: did the file end early?
 
-A layered .gsz (GSZ.md §5) stores importance-ordered layers one after the other; layer ``l`` is
-decodable as soon as the header, the chunk table and every chunk up to layer ``l``'s last data
-chunk have arrived.  Every chunk's CRC-32 is verified the moment it is complete, before it is
+A layered .gsz (GSZ.md §4.1) stores importance-ordered layers one after the other, and a tiled
+one (§4.2) every layer as one part per spatial tile (layer 0 of every tile first); a part is
+decodable as soon as the header, the chunk table and its chunks have arrived, and an update
+says which layer of which tile completed.  Every chunk's CRC-32 is verified the moment it is complete, before it is
 interpreted, so a stream that is cut anywhere yields exactly its complete layers: truncation is
 never an exception here, only ``StreamResult.truncated`` plus one :class:`GszTruncatedWarning`
 from :meth:`StreamDecoder.finish`.  Corrupt bytes (checksum mismatch, bad magic, malformed
@@ -30,27 +31,39 @@ from .cloud import GaussianCloud
 from .container import (CHUNK_REQUIRED, DEFAULT_MAX_GAUSSIANS, HEADER_SIZE, MAGIC, parse_header,
                         parse_table, table_size)
 from .layer import (LayerState, check_header_counts, concat_clouds, decode_layer, guard, open_gsz,
-                    plan_layers)
+                    plan_parts, tile_table)
 from .errors import GszError, GszFormatError, GszTruncatedWarning
 from .layout import KNOWN_CHUNKS
 
 
-@dataclass
 class StreamUpdate:
-    """One completed layer.
+    """One completed part: a layer of a spatial tile (a file without tiles has one tile, so
+    there every update is a whole layer).
 
-    cloud            cumulative GaussianCloud of layers 0..layer (layer order, Morton within)
-    layer            index of the layer that just completed
-    layers_total     number of layers in the file
+    cloud            cumulative GaussianCloud of every part decoded so far (decoded order:
+                     layer after layer, tile after tile within a layer); built on first access
+    part             the Gaussians this update added (layer ``layer`` of tile ``tile``)
+    layer, tile      which part just completed
+    layers_total     number of layers in the file; tiles_total: number of tiles
+    layer_complete   every tile of ``layer`` is now decoded
     bytes_received   stream bytes consumed when it completed
-    complete         True for the file's last layer (or the last one asked for)
+    complete         True for the last part asked for
     """
 
-    cloud: GaussianCloud
-    layer: int
-    layers_total: int
-    bytes_received: int
-    complete: bool
+    def __init__(self, *, cumulative, part, layer, tile, layers_total, tiles_total, layer_complete,
+                 bytes_received, complete):
+        self._cumulative = cumulative
+        self.part, self.layer, self.tile = part, layer, tile
+        self.layers_total, self.tiles_total = layers_total, tiles_total
+        self.layer_complete, self.bytes_received, self.complete = layer_complete, bytes_received, complete
+
+    @property
+    def cloud(self) -> GaussianCloud:
+        return self._cumulative()
+
+    def __repr__(self) -> str:
+        return (f"StreamUpdate(layer={self.layer}, tile={self.tile}, gaussians={len(self.part)}, "
+                f"bytes_received={self.bytes_received}, complete={self.complete})")
 
 
 @dataclass
@@ -98,18 +111,28 @@ class StreamDecoder:
         self._received = 0
         self._entries = None        # [(type, flags, length, crc, offset)]
         self._expected = None
-        self._plan = None           # per layer {type: entry index}
-        self._layer_end = []        # per layer: index of its last data chunk
+        self._plan = None           # layer.Plan
         self._next = 0              # next chunk table entry to complete
-        self._payloads = {}         # entry index -> bytes (data chunks of layers not yet decoded)
-        self._state = LayerState()
-        self._cloud = None
+        self._payloads = {}         # entry index -> bytes (chunks of parts not yet decoded)
+        self._states = None         # tile -> LayerState (once the tile table is known)
+        self._tiles = None          # [TileInfo]
+        self._parts = []            # decoded parts' clouds, decoded order
+        self._joined = (0, None)    # (parts, cloud): the last cumulative cloud built
         self._layers_done = 0
 
     # ------------------------------------------------------------------ public API
     @property
     def layers_total(self) -> int | None:
-        return None if self._plan is None else len(self._plan)
+        return None if self._plan is None else self._plan.num_layers
+
+    @property
+    def tiles_total(self) -> int | None:
+        return None if self._plan is None else self._plan.num_tiles
+
+    @property
+    def tiles(self) -> list | None:
+        """[TileInfo] (bounding box, Gaussians) once the tile table has arrived."""
+        return self._tiles
 
     @property
     def layers_decoded(self) -> int:
@@ -117,8 +140,8 @@ class StreamDecoder:
 
     @property
     def cloud(self) -> GaussianCloud | None:
-        """Cumulative cloud of the layers decoded so far."""
-        return self._cloud
+        """Cumulative cloud of the parts decoded so far."""
+        return self._cumulative(len(self._parts)) if self._parts else None
 
     @property
     def bytes_received(self) -> int:
@@ -128,7 +151,7 @@ class StreamDecoder:
         """Per layer, the stream length after which it is decodable (None before the table)."""
         if self._plan is None:
             return None
-        return [self._entries[i][4] + self._entries[i][2] for i in self._layer_end]
+        return [self._entries[i][4] + self._entries[i][2] for i in self._plan.layer_ends()]
 
     def feed(self, data) -> list[StreamUpdate]:
         """Consume the next bytes of the stream; returns one update per layer completed by them
@@ -149,14 +172,14 @@ class StreamDecoder:
                      or (self.max_layers is None and self._received < self._expected))
         ends = self.layer_ends()
         nxt = ends[self._layers_done] if ends is not None and self._layers_done < len(ends) else None
-        res = StreamResult(cloud=self._cloud, layers_decoded=self._layers_done,
+        res = StreamResult(cloud=self.cloud, layers_decoded=self._layers_done,
                            layers_total=self.layers_total, bytes_received=self._received,
                            bytes_expected=self._expected, truncated=truncated, next_layer_end=nxt)
         if truncated and warn:
             name = source or self.source
             total = "?" if self._expected is None else f"{self._expected:,}"
             layers = "?" if self.layers_total is None else self.layers_total
-            got = 0 if self._cloud is None else len(self._cloud)
+            got = sum(len(p) for p in self._parts)
             warnings.warn(GszTruncatedWarning(
                 f"{name + ': ' if name else ''}truncated .gsz stream: {self._received:,} of {total} bytes; "
                 f"decoded {self._layers_done} of {layers} layers ({got:,} Gaussians)"), stacklevel=2)
@@ -166,8 +189,36 @@ class StreamDecoder:
     def _wanted_layers(self) -> int | None:
         if self._plan is None:
             return None
-        n = len(self._plan)
+        n = self._plan.num_layers
         return n if self.max_layers is None else min(n, self.max_layers)
+
+    def _cumulative(self, k: int) -> GaussianCloud:
+        """The first k decoded parts as one cloud (the newest such cloud is kept)."""
+        if self._joined[0] != k:
+            self._joined = (k, concat_clouds(self._parts[:k], self.header.sh_degree))
+        return self._joined[1]
+
+    def _read_table(self) -> None:
+        n = int.from_bytes(self._buf[28:32], "little")
+        if len(self._buf) < HEADER_SIZE + table_size(n):
+            return
+        entries, end = parse_table(self._buf, n)
+        for ctype, cflags, *_rest in entries:
+            if ctype not in KNOWN_CHUNKS and cflags & CHUNK_REQUIRED:
+                raise GszFormatError(f"required chunk type {ctype.decode()} is not supported by this decoder")
+        self._plan = plan_parts(entries, self.header.sh_degree)
+        self._entries = entries
+        self._expected = entries[-1][4] + entries[-1][2] if entries else end
+        if self._plan.tile_chunk is None:
+            self._set_tiles(None)
+        del self._buf[:end]
+        self._base = end
+
+    def _set_tiles(self, data) -> None:
+        self._tiles = tile_table(data, self._plan, self.header)
+        tiled = self._plan.tile_chunk is not None
+        self._states = {t: LayerState(limit=info.num_gaussians, what=f"tile {t}'s" if tiled else "the header's")
+                        for t, info in enumerate(self._tiles)}
 
     def _advance(self) -> list[StreamUpdate]:
         if self.header is None:
@@ -178,23 +229,14 @@ class StreamDecoder:
             self.header = parse_header(self._buf)
             check_header_counts(self.header, self.max_gaussians)
         if self._entries is None:
-            n = int.from_bytes(self._buf[28:32], "little")
-            if len(self._buf) < HEADER_SIZE + table_size(n):
+            self._read_table()
+            if self._entries is None:
                 return []
-            entries, end = parse_table(self._buf, n)
-            for i, (ctype, cflags, *_rest) in enumerate(entries):
-                if ctype not in KNOWN_CHUNKS and cflags & CHUNK_REQUIRED:
-                    raise GszFormatError(f"required chunk type {ctype.decode()} is not supported by this decoder")
-            self._plan = plan_layers(entries, self.header.sh_degree)
-            self._layer_end = [max(got.values()) for got in self._plan]
-            self._entries = entries
-            self._expected = entries[-1][4] + entries[-1][2] if entries else end
-            del self._buf[:end]
-            self._base = end
         if self._received > self._expected:
             raise GszFormatError(f"{self._received - self._expected} unexpected trailing bytes after the last chunk")
         wanted = self._wanted_layers()
-        needed = {i for li, got in enumerate(self._plan) if li < wanted for i in got.values()}
+        parts = [p for p in self._plan.parts if p.layer < wanted]
+        needed = {i for p in parts for i in p.chunks.values()}
         updates = []
         while self._next < len(self._entries):
             ctype, _flags, length, crc, offset = self._entries[self._next]
@@ -204,31 +246,40 @@ class StreamDecoder:
             piece = bytes(self._buf[offset - self._base:stop - self._base])
             if zlib.crc32(piece) != crc:
                 raise GszFormatError(f"chunk {self._next} ({ctype.decode()}) checksum mismatch (file corrupt)")
-            if self._next in needed:
+            if self._next == self._plan.tile_chunk:
+                self._set_tiles(piece)
+            elif self._next in needed:
                 self._payloads[self._next] = piece
             del self._buf[:stop - self._base]
             self._base = stop
             done = self._next
             self._next += 1
-            li = self._layers_done
-            if li < wanted and done == self._layer_end[li]:
-                updates.append(self._decode_next_layer(wanted))
+            k = len(self._parts)
+            if k < len(parts) and done == parts[k].last:
+                updates.append(self._decode_part(parts, k))
         return updates
 
-    def _decode_next_layer(self, wanted: int) -> StreamUpdate:
-        li = self._layers_done
-        got = self._plan[li]
-        chunks = {t: self._payloads.pop(i) for t, i in got.items()}
+    def _decode_part(self, parts: list, k: int) -> StreamUpdate:
+        part = parts[k]
+        state = self._states[part.tile]
+        chunks = {t: self._payloads.pop(i) for t, i in part.chunks.items()}
         with np.errstate(over="ignore", invalid="ignore"):
-            part = decode_layer(chunks, self.header, self._state)
-        last = li == len(self._plan) - 1
-        if last and self._state.decoded_points != self.header.num_gaussians:
-            raise GszFormatError(f"layers hold {self._state.decoded_points} Gaussians, "
-                                 f"header says {self.header.num_gaussians}")
-        self._cloud = part if self._cloud is None else concat_clouds([self._cloud, part])
-        self._layers_done += 1
-        return StreamUpdate(cloud=self._cloud, layer=li, layers_total=len(self._plan),
-                            bytes_received=self._received, complete=self._layers_done == wanted)
+            cloud = decode_layer(chunks, self.header, state)
+        tile_layers = sum(1 for p in self._plan.parts if p.tile == part.tile)
+        if part.layer == tile_layers - 1 and state.decoded_points != state.limit:
+            raise GszFormatError(
+                f"tile {part.tile}: layers hold {state.decoded_points} Gaussians, the TILE chunk says "
+                f"{state.limit}" if self._plan.tile_chunk is not None else
+                f"layers hold {state.decoded_points} Gaussians, header says {self.header.num_gaussians}")
+        self._parts.append(cloud)
+        layer_complete = k + 1 == len(parts) or parts[k + 1].layer != part.layer
+        if layer_complete:
+            self._layers_done += 1
+        n = len(self._parts)
+        return StreamUpdate(cumulative=lambda n=n: self._cumulative(n), part=cloud, layer=part.layer,
+                            tile=part.tile, layers_total=self._plan.num_layers,
+                            tiles_total=self._plan.num_tiles, layer_complete=layer_complete,
+                            bytes_received=self._received, complete=n == len(parts))
 
 
 def _pieces(source, chunk_size: int):

@@ -46,6 +46,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "best fidelity per byte)")
     p.add_argument("--first-layer", type=float, default=d.first_layer,
                    help="fraction of the Gaussians in layer 0 (with --layers > 1)")
+    p.add_argument("--tile-gaussians", type=int, default=d.tile_gaussians, metavar="N",
+                   help="split a scene of more than N Gaussians (after pruning) into spatial tiles "
+                        "of at most N, each decodable alone; 0: never split")
     p.add_argument("--seed", type=int, default=d.seed, help="RNG seed (VQ)")
     p.add_argument("--json", action="store_true", help="print a JSON report on stdout")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
@@ -71,7 +74,8 @@ def _run_fixed(a, prog) -> dict:
                          codebook=a.codebook, keep=a.keep, blocks=a.blocks, depth=a.depth,
                          rel_error=a.rel_error, beta=a.beta, sh_bits=a.sh_bits,
                          train_views=a.train_views, importance_width=a.importance_width,
-                         layers=a.layers, first_layer=a.first_layer, seed=a.seed).validate()
+                         layers=a.layers, first_layer=a.first_layer, seed=a.seed,
+                         tile_gaussians=a.tile_gaussians or None).validate()
     cloud, cameras = _read_inputs(a, prog)
     result = encode(cloud, opts, cameras=cameras, progress=prog)
     return _finish(a, result, {})
@@ -96,7 +100,7 @@ def _run_search(a, prog) -> dict:
                           blocks=SearchOptions.blocks if a.blocks is None else a.blocks,
                           train_views=a.train_views, beta=a.beta,
                           importance_width=a.importance_width, seed=a.seed,
-                          layers=a.layers, first_layer=a.first_layer,
+                          layers=a.layers, first_layer=a.first_layer, tile_gaussians=a.tile_gaussians or None,
                           codebook=a.codebook if a.codebook != 4096 else None)
     result = encode_to_budget(cloud, target, options=sopts, cameras=cameras, progress=prog)
     r = _finish(a, result, {"target": format_size(target, style)})

@@ -79,6 +79,19 @@ def check_layer_options(layers, first_layer, bad) -> None:
         bad(f"--first-layer must be in (0, 1), got {first_layer}")
 
 
+#: Voxels per spatial tile from which a scene is split (``--tile-gaussians``; see split_tiles):
+#: scenes up to it stay one tile.
+DEFAULT_TILE_GAUSSIANS = 1 << 20
+#: the smallest tile (``--tile-gaussians``): below it the per-tile octree top levels, codebook
+#: and group metadata cost more than tiling gives
+MIN_TILE_GAUSSIANS = 4096
+
+
+def check_tile_option(tile_gaussians, bad) -> None:
+    if tile_gaussians is not None and int(tile_gaussians) < MIN_TILE_GAUSSIANS:
+        bad(f"--tile-gaussians must be >= {MIN_TILE_GAUSSIANS} (or 0 for no tiles), got {tile_gaussians}")
+
+
 def layer_sizes(m: int, layers: int, first_layer: float) -> list[int]:
     """Gaussians per layer: the cumulative share of layers 0..l is
     ``first_layer ** ((L - 1 - l) / (L - 1))`` (10 %, 32 %, 100 % for L = 3), so every layer
@@ -125,6 +138,8 @@ class EncodeOptions:
                      most important Gaussians and decodes on its own (progressive streaming)
     first_layer      fraction of the Gaussians in layer 0 when layers > 1 (later layers grow
                      geometrically, see :func:`layer_sizes`)
+    tile_gaussians   split a scene of more voxels into spatial tiles of at most this many, each
+                     decodable alone (format 1.2); None: never split
     seed             RNG seed (VQ); the same input and options give byte-identical output
     """
 
@@ -142,6 +157,7 @@ class EncodeOptions:
     vq_iters: int | None = None
     layers: int = DEFAULT_LAYERS
     first_layer: float = DEFAULT_FIRST_LAYER
+    tile_gaussians: int | None = DEFAULT_TILE_GAUSSIANS
     seed: int = 0
 
     def validate(self) -> "EncodeOptions":
@@ -170,6 +186,7 @@ class EncodeOptions:
         if int(self.importance_width) < 16:
             bad(f"--importance-width must be >= 16, got {self.importance_width}")
         check_layer_options(self.layers, self.first_layer, bad)
+        check_tile_option(self.tile_gaussians, bad)
         return self
 
 
@@ -201,8 +218,11 @@ class Layer:
     raht_dc    [7] float64 RAHT root coefficients (stored exactly)
     raht_ac    [7, M_l-1] float32 AC coefficients in stream (level) order
     scales     [3, M_l] float32 log-scales in Morton order
-    codes      [M_l] uint64 Morton codes of the layer's voxels (what a decoder rebuilds the
-               RAHT tree from)
+    codes      [M_l] uint64 Morton codes of the layer's voxels on its grid (what a decoder
+               rebuilds the RAHT tree from)
+    layer, tile   which part of the file this is (a file without tiles has only tile 0)
+    grid       (origin [3] float64, side, depth) of the part's GEOM: the stage's grid, or in a
+               tiled file the tile's own cube on the same voxel pitch
     """
 
     index: np.ndarray
@@ -212,6 +232,9 @@ class Layer:
     raht_ac: np.ndarray
     scales: np.ndarray
     codes: np.ndarray
+    layer: int = 0
+    tile: int = 0
+    grid: tuple | None = None
 
     @property
     def geometry(self) -> bytes:
@@ -258,6 +281,21 @@ class Stage:
         return sum(len(l.geometry) for l in self.layers)
 
     @property
+    def num_tiles(self) -> int:
+        return 1 + max(l.tile for l in self.layers)
+
+    @property
+    def layer0_points(self) -> int:
+        """Gaussians in layer 0 (of every tile): what a streaming reader shows first."""
+        return sum(l.num_points for l in self.layers if l.layer == 0)
+
+    def positions(self) -> np.ndarray:
+        """float32 [M, 3] decoded positions in output order (each part on its own grid)."""
+        from gsz.decoder.geometry import voxel_centres
+        return np.concatenate([voxel_centres(part_ijk(self.vox, l.index, l.grid), *l.grid).astype(np.float32)
+                               for l in self.layers])
+
+    @property
     def order(self) -> np.ndarray:
         """Voxel index of every decoded Gaussian (decoders emit layer after layer)."""
         return np.concatenate([l.index for l in self.layers])
@@ -285,6 +323,68 @@ def split_layers(importance: np.ndarray, layers: int, first_layer: float) -> np.
     out = np.empty(m, np.int64)
     out[rank] = np.repeat(np.arange(len(sizes)), sizes)
     return out
+
+
+def split_tiles(codes: np.ndarray, depth: int, limit: int | None) -> list:
+    """Spatial tiles of voxels with ascending Morton ``codes``: [(start, stop)] ranges of at
+    most ``limit`` voxels, each a run of whole octree cells (children of one cell merged while
+    they fit, a cell above the limit split into its children), so every tile is a compact block
+    of the scene.  One tile when the scene fits or ``limit`` is None."""
+    m = int(codes.shape[0])
+    if limit is None or m <= int(limit):
+        return [(0, m)]
+    limit = int(limit)
+    tiles = []
+
+    def cell(lo: int, hi: int, level: int) -> None:
+        if hi - lo <= limit or level >= depth:
+            tiles.append((lo, hi))
+            return
+        shift = np.uint64(3 * (depth - level - 1))
+        child = (codes[lo:hi] >> shift) & np.uint64(7)
+        cuts = lo + np.searchsorted(child, np.arange(9, dtype=np.uint64))
+        run = None
+        for c in range(8):
+            a, b = int(cuts[c]), int(cuts[c + 1])
+            if a == b:
+                continue
+            if b - a > limit:
+                if run is not None:
+                    tiles.append(run)
+                    run = None
+                cell(a, b, level + 1)
+            elif run is not None and b - run[0] <= limit:
+                run = (run[0], b)
+            else:
+                if run is not None:
+                    tiles.append(run)
+                run = (a, b)
+        if run is not None:
+            tiles.append(run)
+
+    cell(0, m, 0)
+    return tiles
+
+
+def part_ijk(vox, idx: np.ndarray, grid: tuple) -> np.ndarray:
+    """[M_l, 3] coordinates of the voxels ``idx`` on ``grid`` (a tile's cube has the stage's
+    pitch, so they are the stage's coordinates shifted by the cube's corner)."""
+    if grid[2] == vox.depth and grid[1] == vox.side:
+        return vox.ijk[idx]
+    shift = np.rint((np.asarray(grid[0]) - np.asarray(vox.origin, np.float64))
+                    * (1 << vox.depth) / vox.side).astype(np.int64)
+    return vox.ijk[idx] - shift
+
+
+def tile_grid(codes: np.ndarray, ijk: np.ndarray, origin, side: float, depth: int):
+    """(origin, side, depth) of a tile's GEOM: the smallest octree cell of the stage's grid that
+    holds the tile's voxels (Morton ``codes`` ascending, coordinates ``ijk``).  Aligned to the
+    stage's octree, so the voxels keep their Morton order on the tile's own grid."""
+    diff = int(codes[0]) ^ int(codes[-1])
+    d = max(1, -(-diff.bit_length() // 3))
+    corner = (ijk[0] >> d) << d
+    pitch = float(side) / float(1 << int(depth))
+    return (np.asarray(origin, np.float64) + corner.astype(np.float64) * pitch, pitch * float(1 << d), d)
 
 
 def voxelize_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, *, depth=None,
@@ -321,14 +421,14 @@ def stage_source(kept: np.ndarray, vox) -> np.ndarray:
 
 def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, *, depth=None,
                   rel_error=None, layers: int = DEFAULT_LAYERS, first_layer: float = DEFAULT_FIRST_LAYER,
-                  progress: Progress | None = None, voxelized=None, pool=None) -> Stage:
-    """Prune to ``reserve``, voxelise, split into importance layers, code each layer's geometry
+                  progress: Progress | None = None, voxelized=None, pool=None,
+                  tile_gaussians: int | None = None) -> Stage:
+    """Prune to ``reserve``, voxelise, split into spatial tiles of at most ``tile_gaussians``
+    voxels (None: one tile) and each tile into importance layers, code each part's geometry
     and transform its attributes.  ``voxelized``: the (kept, Voxelized) of
     :func:`voxelize_stage` for these arguments when the caller already has it.  ``pool``: an
     executor that codes the geometry while the caller goes on (the octree coder runs without
     the GIL; nothing before the file size needs its bytes)."""
-    from .raht import raht_forward
-
     progress = progress or Progress(quiet=True)
     if voxelized is None:
         voxelized = voxelize_stage(cloud, importance, reserve, depth=depth, rel_error=rel_error,
@@ -337,29 +437,51 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
     d = vox.depth
     m = len(vox.ijk)
     source = stage_source(kept, vox)
-    layer_of = split_layers(vox.importance, layers, first_layer)
-    parts = []
+    codes = morton_encode(vox.ijk)
+    tiles = split_tiles(codes, d, tile_gaussians)
+    part_of = []                    # (layer, tile, voxel indices)
+    for t, (lo, hi) in enumerate(tiles):
+        layer_of = split_layers(vox.importance[lo:hi], layers, first_layer)
+        for li in range(int(layer_of.max()) + 1):
+            part_of.append((li, t, lo + np.flatnonzero(layer_of == li)))
+    part_of.sort(key=lambda p: (p[0], p[1]))
+    grids = [(vox.origin, vox.side, d)] if len(tiles) == 1 else \
+        [tile_grid(codes[lo:hi], vox.ijk[lo:hi], vox.origin, vox.side, d) for lo, hi in tiles]
+    parts = [_prepare_part(vox, li, t, idx, grids[t], len(tiles), layers, progress, pool)
+             for li, t, idx in part_of]
     c = vox.cloud
-    for li in range(int(layer_of.max()) + 1):
-        idx = np.flatnonzero(layer_of == li)
-        tag = f"layer {li}, {len(idx)} voxels" if layers > 1 else ""
-        def code_geometry(ijk=vox.ijk[idx], tag=tag):
-            with progress.stage("geometry", tag):
-                return write_geometry(ijk, vox.origin, vox.side, d)
-        geom = pool.submit(code_geometry) if pool is not None else code_geometry()
-        with progress.stage("transform", ("Euler + RAHT, " + tag) if tag else "Euler + RAHT"):
-            codes = morton_encode(vox.ijk[idx])
-            tree = build_raht_tree(codes, d)
-            euler = quaternion_to_euler(c.rotations[idx].astype(np.float64))
-            attrs = np.concatenate([c.opacities[idx].astype(np.float64)[:, None], euler,
-                                    c.sh_dc[idx].astype(np.float64)], axis=1)
-            dc, ac = raht_forward(attrs, tree)
-        parts.append(Layer(index=idx, geometry_job=geom, tree=tree, raht_dc=dc,
-                           raht_ac=np.ascontiguousarray(ac.T, dtype=np.float32),
-                           scales=np.ascontiguousarray(c.scales[idx].T, dtype=np.float32), codes=codes))
     return Stage(reserve=float(reserve), depth=d, vox=vox, layers=parts,
                  sh=c.sh_rest.reshape(m, -1).astype(np.float32), importance=vox.importance,
                  sh_degree=cloud.sh_degree, input_gaussians=len(cloud), source=source)
+
+
+def _prepare_part(vox, li: int, t: int, idx: np.ndarray, grid: tuple, tiles: int, layers: int,
+                  progress: Progress, pool) -> Layer:
+    """One part (layer ``li`` of tile ``t``): its GEOM (on ``pool`` when given) on its grid, the
+    Euler angles and the RAHT of its attributes over its own tree."""
+    from .raht import raht_forward
+
+    origin, side, depth = grid
+    ijk = part_ijk(vox, idx, grid)
+    tag = ", ".join(([f"layer {li}"] if layers > 1 else []) + ([f"tile {t}"] if tiles > 1 else []))
+    tag = f"{tag}, {len(idx)} voxels" if tag else ""
+
+    def code_geometry():
+        with progress.stage("geometry", tag):
+            return write_geometry(ijk, origin, side, depth)
+    geom = pool.submit(code_geometry) if pool is not None else code_geometry()
+    c = vox.cloud
+    with progress.stage("transform", ("Euler + RAHT, " + tag) if tag else "Euler + RAHT"):
+        codes = morton_encode(ijk)
+        tree = build_raht_tree(codes, depth)
+        euler = quaternion_to_euler(c.rotations[idx].astype(np.float64))
+        attrs = np.concatenate([c.opacities[idx].astype(np.float64)[:, None], euler,
+                                c.sh_dc[idx].astype(np.float64)], axis=1)
+        dc, ac = raht_forward(attrs, tree)
+    return Layer(index=idx, geometry_job=geom, tree=tree, raht_dc=dc,
+                 raht_ac=np.ascontiguousarray(ac.T, dtype=np.float32),
+                 scales=np.ascontiguousarray(c.scales[idx].T, dtype=np.float32), codes=codes,
+                 layer=li, tile=t, grid=grid)
 
 
 def attribute_chunk(layer: Layer, raht_bits, scale_bits, blocks: int):
@@ -450,9 +572,10 @@ class ShPayloads:
     search assigns once per stage and codebook), else computed here.
     The ``keep`` most important Gaussians keep their exact vectors (quantised group-wise,
     ``sh_bits`` by default); every other Gaussian takes its nearest codeword (codebook at
-    ``sh_bits``).  The codebook (compacted to the codewords some layer uses) goes with the
-    first layer that has codeword indices (layer 0 when none has), so a layer whose Gaussians
-    all keep their exact vectors does not wait for it; every other layer refers to it."""
+    ``sh_bits``).  Each tile's codebook (compacted to the codewords its layers use) goes with
+    its first layer that has codeword indices (layer 0 when none has), so a layer whose
+    Gaussians all keep their exact vectors does not wait for it; the tile's other layers refer
+    to it."""
 
     def __init__(self, stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks: int,
                  cb_blocks: int | None = None, index: np.ndarray | None = None):
@@ -464,43 +587,57 @@ class ShPayloads:
         self.keep = keep = min(int(keep), m)
         kept = _top_k_mask(stage.importance, keep)
         rest = ~kept
-        idx_all = np.zeros(m, np.int64)
+        near = None
         if rest.any():
-            near = assign(stage.sh[rest], codebook) if index is None else np.asarray(index)[rest]
-            cb, idx = compact(codebook, near)
-            idx_all[rest] = idx
-        else:
-            cb = np.zeros((1, d), np.float32)
-        cb_bytes, cb_rec = write_channel_set(cb.T, sh_bits,
-                                             sh_set_blocks(cb.shape[0], blocks) if cb_blocks is None else cb_blocks)
+            near = np.zeros(m, np.int64)
+            near[rest] = assign(stage.sh[rest], codebook) if index is None else np.asarray(index)[rest]
         self.out = np.empty((m, d), np.float32)
-        self.out[rest] = cb_rec.T[idx_all[rest]]
-        self.stats = {"kept": keep, "codebook_size": int(cb.shape[0]), "codebook_bytes": len(cb_bytes),
-                      "kept_bytes": 0, "index_bytes": 0}
-        kept_counts = [int(kept[l.index].sum()) for l in stage.layers]
-        cb_layer = next((li for li, l in enumerate(stage.layers) if kept_counts[li] < l.num_points), 0)
-        #: per layer: (kept voxel indices in coding order, blocks of their channel set)
-        self.kept_sets = []
-        self._heads, self._tails = [], []
-        for li, layer in enumerate(stage.layers):
-            k_l = kept[layer.index]
-            p = kept_counts[li]
-            self.kept_sets.append((layer.index[k_l], sh_set_blocks(p, blocks)))
-            w = Writer()
-            w.u32(cb.shape[0] if li == cb_layer else 0).u32(p).u16(d)
-            if li == cb_layer:
-                w.bytes(cb_bytes)
-            self._heads.append(w.getvalue())
-            w = Writer()
-            if p:
-                flags = encode_stream(k_l.astype(np.int64), np.zeros(layer.num_points, np.int64), 1)
-                w.blob(flags)
-                self.stats["kept_bytes"] += len(flags) + 8
-            li_idx = idx_all[layer.index[~k_l]]
-            idx_blob = encode_stream(li_idx, np.zeros(li_idx.size, np.int64), 1)
-            w.blob(idx_blob)
-            self.stats["index_bytes"] += len(idx_blob) + 8
-            self._tails.append(w.getvalue())
+        self.stats = {"kept": keep, "codebook_size": 0, "codebook_bytes": 0, "kept_bytes": 0, "index_bytes": 0}
+        #: per part: (kept voxel indices in coding order, blocks of their channel set)
+        self.kept_sets = [None] * len(stage.layers)
+        self._heads, self._tails = [None] * len(stage.layers), [None] * len(stage.layers)
+        for t in range(stage.num_tiles):
+            # every tile carries the codewords its Gaussians use (a tile decodes on its own)
+            parts = [(pi, l) for pi, l in enumerate(stage.layers) if l.tile == t]
+            members = np.concatenate([l.index for _, l in parts])
+            r = members[rest[members]]
+            idx_all = np.zeros(m, np.int64)
+            if r.size:
+                cb, idx = compact(codebook, near[r])
+                idx_all[r] = idx
+            else:
+                cb = np.zeros((1, d), np.float32)
+            cb_bytes, cb_rec = write_channel_set(
+                cb.T, sh_bits, sh_set_blocks(cb.shape[0], blocks) if cb_blocks is None else cb_blocks)
+            self.out[r] = cb_rec.T[idx_all[r]]
+            self.stats["codebook_size"] += int(cb.shape[0])
+            self.stats["codebook_bytes"] += len(cb_bytes)
+            kept_counts = [int(kept[l.index].sum()) for _, l in parts]
+            cb_part = next((pi for (pi, l), p in zip(parts, kept_counts) if p < l.num_points), parts[0][0])
+            for (pi, layer), p in zip(parts, kept_counts):
+                self._code_part(pi, layer, kept, p, idx_all, cb_bytes if pi == cb_part else None,
+                                int(cb.shape[0]), blocks, encode_stream)
+
+    def _code_part(self, pi, layer, kept, p, idx_all, cb_bytes, cb_size, blocks, encode_stream):
+        """Head (codebook when ``cb_bytes``) and tail (kept flags, codeword indices) of part pi."""
+        d = self.d
+        k_l = kept[layer.index]
+        self.kept_sets[pi] = (layer.index[k_l], sh_set_blocks(p, blocks))
+        w = Writer()
+        w.u32(cb_size if cb_bytes is not None else 0).u32(p).u16(d)
+        if cb_bytes is not None:
+            w.bytes(cb_bytes)
+        self._heads[pi] = w.getvalue()
+        w = Writer()
+        if p:
+            flags = encode_stream(k_l.astype(np.int64), np.zeros(layer.num_points, np.int64), 1)
+            w.blob(flags)
+            self.stats["kept_bytes"] += len(flags) + 8
+        li_idx = idx_all[layer.index[~k_l]]
+        idx_blob = encode_stream(li_idx, np.zeros(li_idx.size, np.int64), 1)
+        w.blob(idx_blob)
+        self.stats["index_bytes"] += len(idx_blob) + 8
+        self._tails[pi] = w.getvalue()
 
     @property
     def fixed_bytes(self) -> int:
@@ -533,29 +670,42 @@ class ShPayloads:
 def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: dict):
     """The .gsz bytes and the cloud the decoder will reconstruct.
 
-    attr / sh   per-layer ATTR / SHVQ payloads; decoded, sh_rest in output order"""
+    attr / sh   per-part ATTR / SHVQ payloads; decoded, sh_rest in output order.  A stage of
+                several tiles gets a TILE chunk first and format version 1.2."""
     import zstandard
-    from gsz.decoder.geometry import voxel_centres
+    from gsz.decoder.container import MINOR_LAYERS, MINOR_TILES, TILE_SHIFT, VERSION_MAJOR
+    from gsz.decoder.layout import CHUNK_TILE
+    from gsz.decoder.tiles import TileInfo, pack_tile_table
 
-    vox = stage.vox
     m = stage.num_points
     out_cloud = GaussianCloud(
-        positions=voxel_centres(vox.ijk[stage.order], vox.origin, vox.side, stage.depth).astype(np.float32),
+        positions=stage.positions(),
         scales=decoded.scales, rotations=decoded.rotations, opacities=decoded.opacities,
         sh_dc=decoded.sh_dc, sh_rest=sh_rest if sh is not None else np.zeros((m, 0, 3), np.float32),
         sh_degree=stage.sh_degree)
     chunks = []
-    for li, layer in enumerate(stage.layers):
-        flags = CHUNK_REQUIRED | (li << LAYER_SHIFT)
-        chunks += [Chunk(CHUNK_GEOM, layer.geometry, flags), Chunk(CHUNK_ATTR, attr[li], flags)]
+    tiles = stage.num_tiles
+    if tiles > 1:
+        ends = np.cumsum([l.num_points for l in stage.layers])
+        rows = []
+        for t in range(tiles):
+            sel = np.concatenate([np.arange(e - l.num_points, e) for l, e in zip(stage.layers, ends)
+                                  if l.tile == t])
+            p = out_cloud.positions[sel]
+            rows.append(TileInfo(tuple(p.min(0)), tuple(p.max(0)), len(sel)))
+        chunks.append(Chunk(CHUNK_TILE, pack_tile_table(rows), CHUNK_REQUIRED))
+    for pi, part in enumerate(stage.layers):
+        flags = CHUNK_REQUIRED | (part.layer << LAYER_SHIFT) | (part.tile << TILE_SHIFT)
+        chunks += [Chunk(CHUNK_GEOM, part.geometry, flags), Chunk(CHUNK_ATTR, attr[pi], flags)]
         if sh is not None:
-            chunks.append(Chunk(CHUNK_SHVQ, sh[li], flags))
+            chunks.append(Chunk(CHUNK_SHVQ, sh[pi], flags))
     meta_bytes = zstandard.ZstdCompressor(level=19).compress(
         json.dumps(meta, sort_keys=True, separators=(",", ":"), default=float).encode())
     chunks.append(Chunk(CHUNK_META, meta_bytes, 0))
     header = FileHeader(num_gaussians=m, sh_degree=stage.sh_degree, frame=FRAME_RDF,
                         bbox_min=tuple(out_cloud.positions.min(0)),
-                        bbox_max=tuple(out_cloud.positions.max(0)))
+                        bbox_max=tuple(out_cloud.positions.max(0)),
+                        version=(VERSION_MAJOR, MINOR_TILES if tiles > 1 else MINOR_LAYERS))
     return write_container(header, chunks), out_cloud, len(meta_bytes)
 
 
@@ -597,7 +747,7 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
             raise EncodeOptionsError(f"importance must be {n_in} finite values")
     stage = prepare_stage(cloud, importance, opts.reserve, depth=opts.depth,
                           rel_error=opts.rel_error, layers=opts.layers, first_layer=opts.first_layer,
-                          progress=progress)
+                          progress=progress, tile_gaussians=opts.tile_gaussians)
     m = stage.num_points
     blocks = default_blocks(opts.bits) if opts.blocks is None else int(opts.blocks)
     sh_blocks = default_blocks(opts.sh_bits or opts.bits) if opts.blocks is None else int(opts.blocks)
@@ -612,6 +762,8 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
             keep = int(round(0.01 * m)) if opts.keep is None else int(opts.keep)
             sh, sh_rest, sh_stats = sh_chunk(stage, cb, keep, int(opts.sh_bits or opts.bits), sh_blocks)
     options_json = dict(asdict(opts), depth=stage.depth, blocks=blocks)
+    if stage.num_tiles == 1:       # the option shaped nothing (one-tile files stay 1.1 files)
+        del options_json["tile_gaussians"]
     if cloud.sh_degree > 0 and sh_blocks != blocks:
         options_json["sh_blocks"] = sh_blocks
     with progress.stage("container"):

@@ -40,7 +40,8 @@ def test_vector_layers_decode_as_prefixes(name):
     got = []
     for row in exp["layers"]:
         got += dec.feed(data[dec.bytes_received:row["decodable_at"]])
-        assert len(got) == row["layer"] + 1 and len(got[-1].cloud) == row["cumulative_gaussians"]
+        assert dec.layers_decoded == row["layer"] + 1 and got[-1].layer_complete
+        assert len(dec.cloud) == row["cumulative_gaussians"]
         np.testing.assert_array_equal(got[-1].cloud.positions, full.positions[:row["cumulative_gaussians"]])
     assert exp["layers"][-1]["cumulative_gaussians"] == exp["num_gaussians"]
 

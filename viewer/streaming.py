@@ -89,9 +89,15 @@ class StreamPlayback:
                 with self._lock:
                     self._state["bytes"] = end
                     self._state["layers_total"] = dec.layers_total
+                    self._state["tiles_total"] = dec.tiles_total
+                    if updates:      # tiles show as they decode; one cumulative cloud per feed
+                        u = updates[-1]
+                        self._state.update(cloud=u.cloud, layers=dec.layers_decoded,
+                                           tiles=self._state.get("tiles", 0) + len(updates),
+                                           version=self._state["version"] + 1)
                     for u in updates:
-                        self._state.update(cloud=u.cloud, layers=u.layer + 1, version=self._state["version"] + 1)
-                        self._state["layer_bytes"].append(end)
+                        if u.layer_complete:
+                            self._state["layer_bytes"].append(end)
             dec.finish(warn=False)
         except GszError as e:
             with self._lock:

@@ -15,7 +15,7 @@ from collections import OrderedDict
 import numpy as np
 
 from ..pipeline import (EncodeOptions, EncodeOptionsError, EncodeResult, Stage, assemble,
-                        attribute_chunks, check_layer_options, compute_train_importance,
+                        attribute_chunks, check_layer_options, check_tile_option, compute_train_importance,
                         prepare_stage, sh_chunk, sh_set_blocks, voxelize_stage)
 from ..progress import Progress
 from .candidate import Candidate, best_of
@@ -104,6 +104,7 @@ class BudgetSearch:
         def bad(msg):
             raise EncodeOptionsError(msg)
         check_layer_options(sopts.layers, sopts.first_layer, bad)
+        check_tile_option(sopts.tile_gaussians, bad)
         # the importance pass's options, checked by their own rules (beta, train views, width)
         self.eopts = EncodeOptions(train_views=sopts.train_views, importance_width=sopts.importance_width,
                                    beta=sopts.beta, seed=sopts.seed).validate()
@@ -154,7 +155,7 @@ class BudgetSearch:
         if stage is None:
             stage = prepare_stage(self.cloud, self.importance, tau, depth=d, layers=self.sopts.layers,
                                   first_layer=fl, progress=self.progress, voxelized=self.vox_for(tau, d),
-                                  pool=self.geometry_pool)
+                                  pool=self.geometry_pool, tile_gaussians=self.sopts.tile_gaussians)
             self._stages.put((tau, d, fl), stage)
         return stage
 

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from gsz.decoder.errors import GszError
 
 from ..cameras import DEFAULT_VIEW_WIDTH
-from ..pipeline import DEFAULT_FIRST_LAYER, DEFAULT_LAYERS, MANY_BLOCKS
+from ..pipeline import DEFAULT_FIRST_LAYER, DEFAULT_LAYERS, DEFAULT_TILE_GAUSSIANS, MANY_BLOCKS
 
 #: bit-width of the SH codebook and the kept exact SH vectors (the paper's setting), except where
 #: a budget above the 8-bit quality ceiling lets the kept vectors' groups join the allocation
@@ -47,6 +47,8 @@ class SearchOptions:
     layers          importance-ordered layers of the file (progressive streaming); the bit
                     allocation runs over the groups of every layer at once
     first_layer     fraction of the Gaussians in layer 0 (when layers > 1)
+    tile_gaussians  spatial tiles of at most this many voxels (None: one tile); one bit
+                    allocation spans every tile's groups, so the budget holds for the file
     layer0_share    wanted fraction of the file bytes before layer 0 is decodable: when the
                     chosen file's layer 0 ends after more than 1.5x this, the layers are
                     re-split with a proportionally smaller layer 0 and that candidate re-encoded
@@ -75,6 +77,7 @@ class SearchOptions:
     vq_iters: int | None = None
     layers: int = DEFAULT_LAYERS
     first_layer: float = DEFAULT_FIRST_LAYER
+    tile_gaussians: int | None = DEFAULT_TILE_GAUSSIANS
     layer0_share: float = 0.1
     screen: bool = True
     overlap: bool = True

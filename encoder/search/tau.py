@@ -47,7 +47,7 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
                                sh_keep=None if plan is None else int(plan.keep),
                                codebook_size=0 if plan is None else int(plan.stats["codebook_size"]),
                                depth=stage.depth, num_points=stage.num_points,
-                               layer0_points=stage.layers[0].num_points,
+                               layer0_points=stage.layer0_points,
                                geometry_bytes=stage.geometry_bytes)
 
 

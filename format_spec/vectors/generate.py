@@ -49,6 +49,10 @@ VECTORS = [
     # decodes different occupancy; 1-bit attributes keep the file small
     ("sh0_plant_20k_d13_halving", "houseplant_sh0_20k.ply", 20_000, 0,
      dict(blocks=80, reserve=1.0, bits=1, depth=13)),
+    # spatial tiles (GSZ.md §4.2, format 1.2): the whole 12k jug in tiles of at most 4096 voxels,
+    # two layers each, every tile with its own codebook
+    ("sh1_jug_12k_tiles", "measuring_jug_sh3_12k.ply", 12_000, 1,
+     dict(blocks=80, reserve=1.0, bits=6, codebook=64, keep=200, layers=2, tile_gaussians=4096)),
 ]
 #: vectors whose scales and opacities get seeded Gaussian noise of this sigma before encoding
 NOISED = {"sh0_plant_3000_laplace": 0.05}
@@ -68,12 +72,13 @@ def expected_values(cloud) -> dict:
 
 
 def intermediates(data: bytes) -> list[dict]:
-    """Per layer, the values between the stages of GSZ.md §6-§8 (see GSZ.md §12 for their layout).
+    """Per part (a layer of a tile; per layer without tiles), the values between the stages of
+    GSZ.md §6-§8 (see GSZ.md §12 for their layout).
 
     Computed with the reference decoder's modules, stage by stage, from the committed bytes."""
     from gsz.decoder.bytesio import Reader
     from gsz.decoder.container import read_container
-    from gsz.decoder.decode import plan_layers
+    from gsz.decoder.decode import plan_parts
     from gsz.decoder.geometry import read_geometry
     from gsz.decoder.groups import read_channel_set
     from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHVQ, KNOWN_CHUNKS
@@ -84,9 +89,11 @@ def intermediates(data: bytes) -> list[dict]:
     c = read_container(data, known_types=KNOWN_CHUNKS)
     degree = c.header.sh_degree
     rows = []
-    codebook_size = 0
-    for got in plan_layers(c.chunks, degree):
-        row = {}
+    codebook_size = {}
+    plan = plan_parts(c.chunks, degree)
+    for part in plan.parts:
+        got = part.chunks
+        row = {"layer": part.layer, "tile": part.tile} if plan.tile_chunk is not None else {}
         gdata = c.chunks[got[CHUNK_GEOM]].data
         geom = read_geometry(gdata, max_points=c.header.num_gaussians)
         m = len(geom.ijk)
@@ -112,7 +119,7 @@ def intermediates(data: bytes) -> list[dict]:
             sh = {"K_cb": kcb, "P": p, "D": d}
             if kcb:
                 cb = read_channel_set(r, max_length=kcb)
-                codebook_size = kcb
+                codebook_size[part.tile] = kcb
                 sh["codebook_sha256"] = sha(cb, "<f8")
             if p:
                 kept = read_channel_set(r, max_length=p)
@@ -120,7 +127,7 @@ def intermediates(data: bytes) -> list[dict]:
                 sh["kept_sha256"] = sha(kept, "<f8")
                 sh["flags_sha256"] = sha(flags, "u1")
             idx = decode_stream(r.blob(), np.zeros(m - p, np.int64))
-            sh["codebook_size_used"] = codebook_size
+            sh["codebook_size_used"] = codebook_size.get(part.tile, 0)
             sh["indices_sha256"] = sha(idx, "<u4")
             sh["indices_first"] = idx[:8].tolist()
             row["shvq"] = sh
@@ -133,12 +140,21 @@ def write_json(name: str, data: bytes, opts: dict) -> None:
 
     dec = decode(data)
     exp = expected_values(dec)
+    info = inspect(data)
     exp.update(file=f"{name}.gsz", file_sha256=hashlib.sha256(data).hexdigest(),
                bytes=len(data), encoder_options=opts,
                layers=[{k: r[k] for k in ("layer", "gaussians", "cumulative_gaussians", "decodable_at")}
-                       for r in inspect(data)["layers"]])
-    for row, extra in zip(exp["layers"], intermediates(data)):
-        row.update(extra)
+                       for r in info["layers"]])
+    if len(info["tiles"]) > 1:
+        exp["tiles"] = [{k: r[k] for k in ("tile", "bbox_min", "bbox_max", "gaussians")} for r in info["tiles"]]
+        ends = {(r["tile"], p["layer"]): p for r in info["tiles"] for p in r["parts"]}
+        exp["parts"] = intermediates(data)
+        for row in exp["parts"]:
+            p = ends[(row["tile"], row["layer"])]
+            row.update(gaussians=p["gaussians"], decodable_at=p["decodable_at"])
+    else:
+        for row, extra in zip(exp["layers"], intermediates(data)):
+            row.update(extra)
     (HERE / f"{name}.json").write_text(json.dumps(exp, indent=1) + "\n")
     print(f"{name}: {len(data)} bytes, {len(dec)} Gaussians")
 

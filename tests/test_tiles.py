@@ -1,0 +1,192 @@
+"""Spatial tiles (format 1.2): encoding, decoding a tile or a region alone, streaming, rejects."""
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gsz.decoder import GszError, GszFormatError, StreamDecoder, decode, inspect
+from gsz.decoder.container import (CHUNK_REQUIRED, LAYER_SHIFT, TILE_SHIFT, Chunk, read_container,
+                                   write_container)
+from gsz.decoder.layout import CHUNK_TILE
+from gsz.decoder.tiles import TileInfo, pack_tile_table
+
+from codec_util import FAST, sample
+
+FIELDS = ("positions", "scales", "rotations", "opacities", "sh_dc", "sh_rest")
+
+VEC = Path(__file__).resolve().parent.parent / "format_spec" / "vectors" / "sh1_jug_12k_tiles.gsz"
+
+
+@pytest.fixture(scope="module")
+def tiled():
+    """(cloud, EncodeResult) of the 12k jug sample in tiles of at most 4096 voxels, 2 layers."""
+    from gsz.encoder.pipeline import EncodeOptions, encode
+    cloud = sample("sh3")
+    return cloud, encode(cloud, EncodeOptions(**{**FAST, "layers": 2, "tile_gaussians": 4096}))
+
+
+def _part_rows(info):
+    """Row ranges of every (layer, tile) part in the full decode."""
+    parts = sorted((p["layer"], r["tile"], p["gaussians"]) for r in info["tiles"] for p in r["parts"])
+    rows, start = {}, 0
+    for layer, tile, n in parts:
+        rows[(layer, tile)] = np.arange(start, start + n)
+        start += n
+    return rows
+
+
+def test_tiled_encode_decodes_to_what_the_encoder_predicted(tiled, monkeypatch):
+    _, res = tiled
+    info = inspect(res.data)
+    assert info["version"] == "1.2" and len(info["tiles"]) >= 3
+    assert all(r["gaussians"] <= 4096 for r in info["tiles"])
+    assert sum(r["gaussians"] for r in info["tiles"]) == info["num_gaussians"] == len(res.cloud)
+    assert all(len(r["parts"]) == 2 for r in info["tiles"])
+    for native in ("1", "0"):
+        monkeypatch.setenv("GSZ_NATIVE", native)
+        assert decode(res.data).equals(res.cloud)
+
+
+def test_tile_bounding_boxes_hold_their_gaussians(tiled):
+    _, res = tiled
+    info = inspect(res.data)
+    full = decode(res.data)
+    rows = _part_rows(info)
+    for r in info["tiles"]:
+        sel = np.concatenate([rows[(p["layer"], r["tile"])] for p in r["parts"]])
+        p = full.positions[sel]
+        np.testing.assert_array_equal(p.min(0), np.float32(r["bbox_min"]))
+        np.testing.assert_array_equal(p.max(0), np.float32(r["bbox_max"]))
+
+
+def test_one_tile_decodes_alone_to_its_rows_of_the_full_decode():
+    info = inspect(VEC)
+    full = decode(VEC)
+    rows = _part_rows(info)
+    for t in (0, len(info["tiles"]) - 1):
+        sel = np.concatenate([rows[(p["layer"], t)] for p in info["tiles"][t]["parts"]])
+        for src in (VEC, VEC.read_bytes()):
+            assert decode(src, tiles=[t]).equals(full.subset(sel))
+    # first layer of two tiles: their layer-0 parts, tile order
+    sel = np.concatenate([rows[(0, 0)], rows[(0, 1)]])
+    assert decode(VEC, tiles=[1, 0], layers=1).equals(full.subset(sel))
+
+
+def test_a_tile_decodes_from_a_file_whose_other_tiles_are_corrupt(tmp_path):
+    """From a path, decode(tiles=...) reads and checks only the chosen tile's chunks."""
+    data = bytearray(VEC.read_bytes())
+    c = read_container(bytes(data))
+    victim = next(ch for ch in c.chunks if ch.type == b"ATTR" and ch.tile == 1)
+    data[victim.offset + 10] ^= 0xFF
+    bad = tmp_path / "bad.gsz"
+    bad.write_bytes(bytes(data))
+    assert decode(bad, tiles=[0]).equals(decode(VEC, tiles=[0]))
+    with pytest.raises(GszFormatError, match="checksum"):
+        decode(bad, tiles=[1])
+    with pytest.raises(GszFormatError, match="checksum"):
+        decode(bad)
+
+
+def test_region_decode_returns_exactly_the_gaussians_inside():
+    full = decode(VEC)
+    lo, hi = (-0.05, -0.02, -0.05), (0.02, 0.05, 0.05)
+    inside = np.all((full.positions >= np.float32(lo)) & (full.positions <= np.float32(hi)), axis=1)
+    got = decode(VEC, region=(lo, hi))
+    assert 0 < len(got) < len(full)
+    assert got.equals(full.subset(np.flatnonzero(inside)))
+    assert len(decode(VEC, region=((5, 5, 5), (6, 6, 6)))) == 0
+
+
+def test_bad_tile_requests_are_clear_errors():
+    with pytest.raises(GszError, match="tile 99 does not exist"):
+        decode(VEC, tiles=[99])
+    with pytest.raises(GszError, match="region must be"):
+        decode(VEC, region=((1, 1, 1), (0, 0, 0)))
+
+
+def test_stream_reports_each_tile_and_layer_zero_of_every_tile_first():
+    data = VEC.read_bytes()
+    info = inspect(data)
+    dec = StreamDecoder()
+    ups = []
+    for s in range(0, len(data), 4096):
+        ups += dec.feed(data[s:s + 4096])
+    t = len(info["tiles"])
+    assert [(u.layer, u.tile) for u in ups] == [(l, i) for l in range(2) for i in range(t)]
+    assert [u.layer_complete for u in ups] == [i == t - 1 for l in range(2) for i in range(t)]
+    assert ups[-1].complete and dec.finish().truncated is False
+    assert ups[-1].cloud.equals(decode(data))
+    assert sum(len(u.part) for u in ups) == info["num_gaussians"]
+    # cut inside layer 0: the parts that arrived, flagged truncated
+    cut = info["tiles"][1]["parts"][0]["decodable_at"]
+    dec = StreamDecoder()
+    got = dec.feed(data[:cut])
+    assert [(u.layer, u.tile) for u in got] == [(0, 0), (0, 1)]
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always")
+        res = dec.finish()
+    assert res.truncated and len(res.cloud) == sum(len(u.part) for u in got)
+
+
+def _tiny_tiled(tile_rows=None, tile_first=True, flags_tile=1, counts=None):
+    """A two-tile file built from two one-tile files' chunks (hand-made structure variants)."""
+    data = VEC.read_bytes()
+    c = read_container(data)
+    geo = [ch for ch in c.chunks if ch.type in (b"GEOM", b"ATTR", b"SHVQ") and ch.layer == 0 and ch.tile < 2]
+    info = inspect(data)
+    m = [p["gaussians"] for r in info["tiles"][:2] for p in r["parts"] if p["layer"] == 0]
+    rows = tile_rows or [TileInfo((0, 0, 0), (1, 1, 1), counts[i] if counts else m[i]) for i in range(2)]
+    tile = Chunk(CHUNK_TILE, pack_tile_table(rows), CHUNK_REQUIRED)
+    data_chunks = [Chunk(ch.type, bytes(ch.data), CHUNK_REQUIRED | (min(ch.tile, flags_tile) << TILE_SHIFT))
+                   for ch in geo]
+    chunks = [tile] + data_chunks if tile_first else data_chunks[:3] + [tile] + data_chunks[3:]
+    h = c.header
+    h.num_gaussians = sum(m)
+    return write_container(h, chunks)
+
+
+def test_hand_made_two_tile_file_decodes():
+    data = _tiny_tiled()
+    cloud = decode(data)
+    assert len(cloud) == len(decode(data, tiles=[0])) + len(decode(data, tiles=[1]))
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(tile_first=False), "follows a data chunk"),
+    (dict(flags_tile=0), "has two GEOM chunks"),
+    (dict(counts=[1, 10**6]), "tiles hold"),
+])
+def test_tile_structure_rejects(kwargs, message):
+    data = _tiny_tiled(**kwargs)
+    with pytest.raises(GszFormatError, match=message):
+        decode(data)
+    with pytest.raises(GszFormatError, match=message):
+        StreamDecoder().feed(data)
+
+
+def test_tile_bits_without_a_tile_chunk_are_rejected():
+    data = VEC.read_bytes()
+    c = read_container(data)
+    chunks = [Chunk(ch.type, bytes(ch.data), ch.flags) for ch in c.chunks if ch.type != CHUNK_TILE]
+    c.header.version = (1, 2)
+    with pytest.raises(GszFormatError, match="no TILE chunk"):
+        decode(write_container(c.header, chunks))
+
+
+def test_untiled_files_stay_version_1_1_without_a_tile_chunk():
+    from gsz.encoder.pipeline import EncodeOptions, encode
+    res = encode(sample("sh0", 3000), EncodeOptions(**FAST))
+    info = inspect(res.data)
+    assert info["version"] == "1.1" and len(info["tiles"]) == 1
+    assert all(ch["type"] != "TILE" and ch["tile"] == 0 for ch in info["chunks"])
+
+
+def test_layer_flag_bits_are_separate_from_tile_bits():
+    assert LAYER_SHIFT + 8 == TILE_SHIFT
+
+
+def test_fields_of_a_subset_keep_dtypes():
+    got = decode(VEC, tiles=[0])
+    for f in FIELDS:
+        assert getattr(got, f).dtype == np.float32
