@@ -552,6 +552,40 @@ def sh_set_blocks(entries: int, blocks: int) -> int:
     return max(1, min(int(blocks), int(entries) // 128))
 
 
+def tile_assignment(stage: Stage, codebook: np.ndarray, near: np.ndarray, assign) -> np.ndarray:
+    """The codeword of every voxel [M] in a tiled stage: ``near`` (nearest of all K) with each
+    tile limited to its share of the codebook (:func:`tile_codewords`); ``near`` itself for
+    one tile.  Idempotent, and independent of which vectors are later kept exact."""
+    if stage.num_tiles == 1:
+        return near
+    out = np.asarray(near, np.int64).copy()
+    m = out.shape[0]
+    for t in range(stage.num_tiles):
+        members = np.concatenate([l.index for l in stage.layers if l.tile == t])
+        out[members] = tile_codewords(stage.sh[members], out[members], codebook, len(members) / m, assign)
+    return out
+
+
+def tile_codewords(vectors: np.ndarray, near: np.ndarray, codebook: np.ndarray, share: float,
+                   assign) -> np.ndarray:
+    """Codeword of each of a tile's ``vectors`` when the tile may carry only its ``share`` of
+    the codebook's K words (so T tiles carry about one codebook in all, not T): the tile keeps
+    its most used words (ties: lower index) and the vectors of the others move to their
+    nearest kept word."""
+    k = codebook.shape[0]
+    cap = max(16, int(round(k * share)))
+    counts = np.bincount(near, minlength=k)
+    if np.count_nonzero(counts) <= cap:
+        return near
+    keep = np.sort(np.lexsort((np.arange(k), -counts))[:cap])
+    allowed = np.zeros(k, bool)
+    allowed[keep] = True
+    out = near.copy()
+    move = ~allowed[near]
+    out[move] = keep[assign(vectors[move], codebook[keep])]
+    return out
+
+
 def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks: int,
              cb_blocks: int | None = None, index: np.ndarray | None = None):
     """SHVQ payloads (one per layer), the SH the decoder will reconstruct ([M, K, 3] float32,
@@ -588,7 +622,10 @@ class ShPayloads:
         kept = _top_k_mask(stage.importance, keep)
         rest = ~kept
         near = None
-        if rest.any():
+        if stage.num_tiles > 1:
+            near = tile_assignment(stage, codebook, assign(stage.sh, codebook) if index is None
+                                   else np.asarray(index, np.int64), assign)
+        elif rest.any():
             near = np.zeros(m, np.int64)
             near[rest] = assign(stage.sh[rest], codebook) if index is None else np.asarray(index)[rest]
         self.out = np.empty((m, d), np.float32)

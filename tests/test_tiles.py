@@ -190,3 +190,15 @@ def test_fields_of_a_subset_keep_dtypes():
     got = decode(VEC, tiles=[0])
     for f in FIELDS:
         assert getattr(got, f).dtype == np.float32
+
+
+def test_size_search_holds_one_budget_across_tiles():
+    """One bit allocation over every tile's groups: the whole file meets the target."""
+    from gsz.encoder.search import SearchOptions, encode_to_budget
+    target = 150_000
+    res = encode_to_budget(sample("sh3"), target, options=SearchOptions(
+        tile_gaussians=4096, train_views=6, eval_views=2, eval_width=160, importance_width=160))
+    info = inspect(res.data)
+    assert len(info["tiles"]) >= 3 and info["version"] == "1.2"
+    assert 0.99 * target <= len(res.data) <= target
+    assert decode(res.data).equals(res.cloud)

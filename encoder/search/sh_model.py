@@ -9,7 +9,7 @@ import numpy as np
 
 from gsz.decoder.groups import blocks_for
 
-from ..pipeline import ShPayloads, Stage, sh_set_blocks
+from ..pipeline import ShPayloads, Stage, sh_set_blocks, tile_assignment
 from .options import SH_BITS
 
 #: Fractions of the Gaussians whose SH vectors are kept exact (most important first), tried
@@ -172,7 +172,10 @@ class ShModel:
 
         from ..rate import rate_matrix
         from ..vq import compact
+        from ..vq import assign
         self.stage, self.blocks = stage, blocks
+        # a tiled stage's tiles carry their share of the codewords each (ShPayloads does the same)
+        index = tile_assignment(stage, codebook, index, assign)
         self.raw_codebook, self.index = codebook, index
         x = stage.sh
         m, d = x.shape
@@ -189,9 +192,20 @@ class ShModel:
         counts = np.bincount(idx, minlength=cb.shape[0]).astype(np.float64)
         p = counts[counts > 0] / m
         self.index_bits = float(-(p * np.log2(p)).sum())
-        self.codebook_bytes = (float(rate_matrix(cb.T, b, (SH_BITS, SH_BITS))[:, :, SH_BITS - 1].sum()) / 8
-                               + 9 * d * b + 32)
+        self.codebook_bytes = sum(
+            float(rate_matrix(c.T, bt, (SH_BITS, SH_BITS))[:, :, SH_BITS - 1].sum()) / 8 + 9 * d * bt + 32
+            for c, bt in self._tile_codebooks(cb, idx, blocks))
         self.m, self.d = m, d
+
+    def _tile_codebooks(self, cb: np.ndarray, idx: np.ndarray, blocks: int):
+        """(codebook [K_t, D], blocks) that each tile carries (the compacted one without tiles)."""
+        if self.stage.num_tiles == 1:
+            yield cb, self.cb_blocks
+            return
+        for t in range(self.stage.num_tiles):
+            members = np.concatenate([l.index for l in self.stage.layers if l.tile == t])
+            c = cb[np.unique(idx[members])]
+            yield c, blocks_for(c.shape[0], sh_set_blocks(c.shape[0], blocks))
 
     def keeps(self, min_keep: int = 0, fractions=KEEP_FRACTIONS):
         """Keep-counts to try: the ``fractions`` grid at or above ``min_keep``, and min_keep."""
