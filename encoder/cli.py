@@ -49,6 +49,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tile-gaussians", type=int, default=d.tile_gaussians, metavar="N",
                    help="split a scene of more than N Gaussians (after pruning) into spatial tiles "
                         "of at most N, each decodable alone; 0: never split")
+    p.add_argument("--executor", default=d.executor, metavar="WHERE",
+                   help="where per-tile work runs: local (worker processes), inline, ray (a local "
+                        "Ray, needs gsz[cluster]) or ray://HOST:PORT (an existing cluster); the "
+                        "file is the same whichever")
+    p.add_argument("--workers", type=int, default=None, help="worker processes (default: the machine's cores)")
     p.add_argument("--seed", type=int, default=d.seed, help="RNG seed (VQ)")
     p.add_argument("--json", action="store_true", help="print a JSON report on stdout")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
@@ -75,7 +80,8 @@ def _run_fixed(a, prog) -> dict:
                          rel_error=a.rel_error, beta=a.beta, sh_bits=a.sh_bits,
                          train_views=a.train_views, importance_width=a.importance_width,
                          layers=a.layers, first_layer=a.first_layer, seed=a.seed,
-                         tile_gaussians=a.tile_gaussians or None).validate()
+                         tile_gaussians=a.tile_gaussians or None, executor=a.executor,
+                         workers=a.workers).validate()
     cloud, cameras = _read_inputs(a, prog)
     result = encode(cloud, opts, cameras=cameras, progress=prog)
     return _finish(a, result, {})
@@ -101,6 +107,7 @@ def _run_search(a, prog) -> dict:
                           train_views=a.train_views, beta=a.beta,
                           importance_width=a.importance_width, seed=a.seed,
                           layers=a.layers, first_layer=a.first_layer, tile_gaussians=a.tile_gaussians or None,
+                          executor=a.executor, workers=a.workers,
                           codebook=a.codebook if a.codebook != 4096 else None)
     result = encode_to_budget(cloud, target, options=sopts, cameras=cameras, progress=prog)
     r = _finish(a, result, {"target": format_size(target, style)})

@@ -140,6 +140,9 @@ class EncodeOptions:
                      geometrically, see :func:`layer_sizes`)
     tile_gaussians   split a scene of more voxels into spatial tiles of at most this many, each
                      decodable alone (format 1.2); None: never split
+    executor         where per-tile work runs: "local" worker processes, "inline", "ray" or
+                     "ray://HOST:PORT" (:mod:`gsz.encoder.executor`); the bytes do not depend on it
+    workers          worker processes / local Ray CPUs (None: the machine's cores)
     seed             RNG seed (VQ); the same input and options give byte-identical output
     """
 
@@ -158,6 +161,8 @@ class EncodeOptions:
     layers: int = DEFAULT_LAYERS
     first_layer: float = DEFAULT_FIRST_LAYER
     tile_gaussians: int | None = DEFAULT_TILE_GAUSSIANS
+    executor: str = "local"
+    workers: int | None = None
     seed: int = 0
 
     def validate(self) -> "EncodeOptions":
@@ -187,6 +192,8 @@ class EncodeOptions:
             bad(f"--importance-width must be >= 16, got {self.importance_width}")
         check_layer_options(self.layers, self.first_layer, bad)
         check_tile_option(self.tile_gaussians, bad)
+        from .executor import check_executor
+        check_executor(self.executor, self.workers, bad)
         return self
 
 
@@ -258,6 +265,8 @@ class Stage:
     importance [M] float64 merged importance in voxel order
     source     [M] int64 index into the input cloud of the one Gaussian a voxel holds, -1 where
                several were merged (lets the size search reuse per-Gaussian work across taus)
+    executor   where the per-tile work of a tiled stage runs (:mod:`gsz.encoder.executor`;
+               None: here)
     cache      scratch for work that depends on the stage only (the size search's tables)
     """
 
@@ -270,6 +279,7 @@ class Stage:
     sh_degree: int
     input_gaussians: int
     source: np.ndarray | None = None
+    executor: object = field(default=None, repr=False, compare=False)
     cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
@@ -422,10 +432,11 @@ def stage_source(kept: np.ndarray, vox) -> np.ndarray:
 def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, *, depth=None,
                   rel_error=None, layers: int = DEFAULT_LAYERS, first_layer: float = DEFAULT_FIRST_LAYER,
                   progress: Progress | None = None, voxelized=None, pool=None,
-                  tile_gaussians: int | None = None) -> Stage:
+                  tile_gaussians: int | None = None, executor=None) -> Stage:
     """Prune to ``reserve``, voxelise, split into spatial tiles of at most ``tile_gaussians``
     voxels (None: one tile) and each tile into importance layers, code each part's geometry
-    and transform its attributes.  ``voxelized``: the (kept, Voxelized) of
+    and transform its attributes (a tiled stage's parts on ``executor`` when given, which also
+    codes their attributes later).  ``voxelized``: the (kept, Voxelized) of
     :func:`voxelize_stage` for these arguments when the caller already has it.  ``pool``: an
     executor that codes the geometry while the caller goes on (the octree coder runs without
     the GIL; nothing before the file size needs its bytes)."""
@@ -447,41 +458,101 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
     part_of.sort(key=lambda p: (p[0], p[1]))
     grids = [(vox.origin, vox.side, d)] if len(tiles) == 1 else \
         [tile_grid(codes[lo:hi], vox.ijk[lo:hi], vox.origin, vox.side, d) for lo, hi in tiles]
-    parts = [_prepare_part(vox, li, t, idx, grids[t], len(tiles), layers, progress, pool)
-             for li, t, idx in part_of]
+    parts = _prepare_parts(vox, part_of, grids, layers, progress, pool, executor)
     c = vox.cloud
     return Stage(reserve=float(reserve), depth=d, vox=vox, layers=parts,
                  sh=c.sh_rest.reshape(m, -1).astype(np.float32), importance=vox.importance,
-                 sh_degree=cloud.sh_degree, input_gaussians=len(cloud), source=source)
+                 sh_degree=cloud.sh_degree, input_gaussians=len(cloud), source=source, executor=executor)
+
+
+def _transform(ijk: np.ndarray, depth: int, rotations, opacities, sh_dc):
+    """Morton codes, RAHT tree, RAHT DC [7] and AC [7, M-1] (float32) of one part's voxels."""
+    from .raht import raht_forward
+    codes = morton_encode(ijk)
+    tree = build_raht_tree(codes, depth)
+    euler = quaternion_to_euler(rotations.astype(np.float64))
+    attrs = np.concatenate([opacities.astype(np.float64)[:, None], euler, sh_dc.astype(np.float64)], axis=1)
+    dc, ac = raht_forward(attrs, tree)
+    return codes, tree, dc, np.ascontiguousarray(ac.T, dtype=np.float32)
+
+
+@dataclass
+class PartJob:
+    """Everything coding one part's geometry and transform needs (sent to a worker)."""
+    ijk: np.ndarray
+    grid: tuple
+    rotations: np.ndarray
+    opacities: np.ndarray
+    sh_dc: np.ndarray
+
+
+def code_part(job: PartJob):
+    """(GEOM payload, codes, tree, RAHT DC, RAHT AC) of one part: the executor's unit of work."""
+    origin, side, depth = job.grid
+    geometry = write_geometry(job.ijk, origin, side, depth)
+    return (geometry,) + _transform(job.ijk, depth, job.rotations, job.opacities, job.sh_dc)
+
+
+def _part_job(vox, idx: np.ndarray, grid: tuple) -> PartJob:
+    c = vox.cloud
+    return PartJob(part_ijk(vox, idx, grid), grid, c.rotations[idx], c.opacities[idx], c.sh_dc[idx])
+
+
+def _part_tag(li: int, t: int, n: int, tiles: int, layers: int) -> str:
+    tag = ", ".join(([f"layer {li}"] if layers > 1 else []) + ([f"tile {t}"] if tiles > 1 else []))
+    return f"{tag}, {n} voxels" if tag else ""
 
 
 def _prepare_part(vox, li: int, t: int, idx: np.ndarray, grid: tuple, tiles: int, layers: int,
                   progress: Progress, pool) -> Layer:
-    """One part (layer ``li`` of tile ``t``): its GEOM (on ``pool`` when given) on its grid, the
-    Euler angles and the RAHT of its attributes over its own tree."""
-    from .raht import raht_forward
-
-    origin, side, depth = grid
-    ijk = part_ijk(vox, idx, grid)
-    tag = ", ".join(([f"layer {li}"] if layers > 1 else []) + ([f"tile {t}"] if tiles > 1 else []))
-    tag = f"{tag}, {len(idx)} voxels" if tag else ""
+    """One part (layer ``li`` of tile ``t``) in this process: its GEOM (on the thread ``pool``
+    when given, while the transform runs here), the Euler angles and the RAHT of its attributes
+    over its own tree."""
+    job = _part_job(vox, idx, grid)
+    tag = _part_tag(li, t, len(idx), tiles, layers)
 
     def code_geometry():
         with progress.stage("geometry", tag):
-            return write_geometry(ijk, origin, side, depth)
+            return write_geometry(job.ijk, *job.grid)
     geom = pool.submit(code_geometry) if pool is not None else code_geometry()
-    c = vox.cloud
     with progress.stage("transform", ("Euler + RAHT, " + tag) if tag else "Euler + RAHT"):
-        codes = morton_encode(ijk)
-        tree = build_raht_tree(codes, depth)
-        euler = quaternion_to_euler(c.rotations[idx].astype(np.float64))
-        attrs = np.concatenate([c.opacities[idx].astype(np.float64)[:, None], euler,
-                                c.sh_dc[idx].astype(np.float64)], axis=1)
-        dc, ac = raht_forward(attrs, tree)
-    return Layer(index=idx, geometry_job=geom, tree=tree, raht_dc=dc,
-                 raht_ac=np.ascontiguousarray(ac.T, dtype=np.float32),
-                 scales=np.ascontiguousarray(c.scales[idx].T, dtype=np.float32), codes=codes,
+        codes, tree, dc, ac = _transform(job.ijk, grid[2], job.rotations, job.opacities, job.sh_dc)
+    return Layer(index=idx, geometry_job=geom, tree=tree, raht_dc=dc, raht_ac=ac,
+                 scales=np.ascontiguousarray(vox.cloud.scales[idx].T, dtype=np.float32), codes=codes,
                  layer=li, tile=t, grid=grid)
+
+
+def _prepare_parts(vox, part_of: list, grids: list, layers: int, progress: Progress, pool, executor) -> list:
+    """Every part's Layer; a tiled stage's parts run on ``executor`` (when given)."""
+    tiles = len(grids)
+    if executor is None or tiles == 1:
+        return [_prepare_part(vox, li, t, idx, grids[t], tiles, layers, progress, pool)
+                for li, t, idx in part_of]
+    with progress.stage("tiles", f"geometry + transform of {len(part_of)} parts ({tiles} tiles) on "
+                                 f"{executor.name} ({executor.workers} workers)"):
+        done = executor.map(code_part, [_part_job(vox, idx, grids[t]) for _, t, idx in part_of])
+    return [Layer(index=idx, geometry_job=geom, tree=tree, raht_dc=dc, raht_ac=ac,
+                  scales=np.ascontiguousarray(vox.cloud.scales[idx].T, dtype=np.float32), codes=codes,
+                  layer=li, tile=t, grid=grids[t])
+            for (li, t, idx), (geom, codes, tree, dc, ac) in zip(part_of, done)]
+
+
+@dataclass
+class AttributeJob:
+    """One part's coefficients and bit-widths: what coding its ATTR chunk needs (a worker's job)."""
+    raht_dc: np.ndarray
+    raht_ac: np.ndarray
+    scales: np.ndarray
+    codes: np.ndarray
+    tree: object
+    raht_bits: object
+    scale_bits: object
+    blocks: int
+
+
+def code_attributes(job: AttributeJob):
+    """:func:`attribute_chunk` of a job (the executor's unit of work)."""
+    return attribute_chunk(job, job.raht_bits, job.scale_bits, job.blocks)
 
 
 def attribute_chunk(layer: Layer, raht_bits, scale_bits, blocks: int):
@@ -512,9 +583,12 @@ def attribute_chunks(stage: Stage, bits, blocks: int):
     from gsz.decoder.attributes import Attributes
 
     payloads, parts, stats = [], [], {"raht_bytes": 0, "scale_bytes": 0}
+    jobs = []
     for li, (layer, b) in enumerate(zip(stage.layers, stage.layer_blocks(blocks))):
         rb, sb = (bits, bits) if np.isscalar(bits) else bits[li]
-        data, dec, st = attribute_chunk(layer, rb, sb, b)
+        jobs.append(AttributeJob(layer.raht_dc, layer.raht_ac, layer.scales, layer.codes, layer.tree, rb, sb, b))
+    ex = stage.executor if stage.num_tiles > 1 else None
+    for data, dec, st in (ex.map(code_attributes, jobs) if ex is not None else map(code_attributes, jobs)):
         payloads.append(data)
         parts.append(dec)
         for k in stats:
@@ -782,9 +856,19 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
         importance = np.asarray(importance, np.float64)
         if importance.shape != (n_in,) or not np.all(np.isfinite(importance)):
             raise EncodeOptionsError(f"importance must be {n_in} finite values")
+    from .executor import make_executor
+    executor = make_executor(opts.executor, opts.workers)
+    try:
+        return _encode_stage(cloud, opts, importance, executor, progress, t_start)
+    finally:
+        executor.close()
+
+
+def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, t_start) -> EncodeResult:
+    n_in = len(cloud)
     stage = prepare_stage(cloud, importance, opts.reserve, depth=opts.depth,
                           rel_error=opts.rel_error, layers=opts.layers, first_layer=opts.first_layer,
-                          progress=progress, tile_gaussians=opts.tile_gaussians)
+                          progress=progress, tile_gaussians=opts.tile_gaussians, executor=executor)
     m = stage.num_points
     blocks = default_blocks(opts.bits) if opts.blocks is None else int(opts.blocks)
     sh_blocks = default_blocks(opts.sh_bits or opts.bits) if opts.blocks is None else int(opts.blocks)
@@ -799,6 +883,8 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
             keep = int(round(0.01 * m)) if opts.keep is None else int(opts.keep)
             sh, sh_rest, sh_stats = sh_chunk(stage, cb, keep, int(opts.sh_bits or opts.bits), sh_blocks)
     options_json = dict(asdict(opts), depth=stage.depth, blocks=blocks)
+    for k in ("executor", "workers"):      # where the work ran does not shape the file
+        del options_json[k]
     if stage.num_tiles == 1:       # the option shaped nothing (one-tile files stay 1.1 files)
         del options_json["tile_gaussians"]
     if cloud.sh_degree > 0 and sh_blocks != blocks:

@@ -18,6 +18,7 @@ from ..pipeline import (EncodeOptions, EncodeOptionsError, EncodeResult, Stage, 
                         attribute_chunks, check_layer_options, check_tile_option, compute_train_importance,
                         prepare_stage, sh_chunk, sh_set_blocks, voxelize_stage)
 from ..progress import Progress
+from ..executor import check_executor
 from .candidate import Candidate, best_of
 from .codebooks import Codebooks
 from .depth_walk import walk_depth
@@ -44,9 +45,15 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
 
     # every candidate's octree is coded on this thread while the caller computes the candidate's
     # SH statistics and rate tables (flowers: ~1.4 s of each ~10 s candidate)
-    with _search_threads(), ThreadPoolExecutor(max_workers=1, thread_name_prefix="gsz-geom") as pool:
-        search = BudgetSearch(cloud, target_bytes, options or SearchOptions(), progress, pool)
-        return search.run(importance, cameras)
+    from ..executor import make_executor
+    sopts = options or SearchOptions()
+    executor = make_executor(sopts.executor, sopts.workers)
+    try:
+        with _search_threads(), ThreadPoolExecutor(max_workers=1, thread_name_prefix="gsz-geom") as pool:
+            search = BudgetSearch(cloud, target_bytes, sopts, progress, pool, executor)
+            return search.run(importance, cameras)
+    finally:
+        executor.close()
 
 
 @contextlib.contextmanager
@@ -100,15 +107,17 @@ class BudgetSearch:
     judge and candidates, and the records the report shows."""
 
     def __init__(self, cloud, target_bytes: int, sopts: SearchOptions, progress: Progress | None,
-                 geometry_pool):
+                 geometry_pool, executor=None):
         def bad(msg):
             raise EncodeOptionsError(msg)
         check_layer_options(sopts.layers, sopts.first_layer, bad)
         check_tile_option(sopts.tile_gaussians, bad)
+        check_executor(sopts.executor, sopts.workers, bad)
         # the importance pass's options, checked by their own rules (beta, train views, width)
         self.eopts = EncodeOptions(train_views=sopts.train_views, importance_width=sopts.importance_width,
                                    beta=sopts.beta, seed=sopts.seed).validate()
         self.sopts, self.cloud, self.geometry_pool = sopts, cloud, geometry_pool
+        self.executor = executor
         self.progress = progress or Progress(quiet=True)
         self.target = int(target_bytes)
         if self.target <= 0:
@@ -155,7 +164,8 @@ class BudgetSearch:
         if stage is None:
             stage = prepare_stage(self.cloud, self.importance, tau, depth=d, layers=self.sopts.layers,
                                   first_layer=fl, progress=self.progress, voxelized=self.vox_for(tau, d),
-                                  pool=self.geometry_pool, tile_gaussians=self.sopts.tile_gaussians)
+                                  pool=self.geometry_pool, tile_gaussians=self.sopts.tile_gaussians,
+                                  executor=self.executor)
             self._stages.put((tau, d, fl), stage)
         return stage
 

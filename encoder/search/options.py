@@ -49,6 +49,9 @@ class SearchOptions:
     first_layer     fraction of the Gaussians in layer 0 (when layers > 1)
     tile_gaussians  spatial tiles of at most this many voxels (None: one tile); one bit
                     allocation spans every tile's groups, so the budget holds for the file
+    executor        where per-tile work runs: "local" (worker processes), "inline", "ray" or
+                    "ray://HOST:PORT" (gsz.encoder.executor); the bytes do not depend on it
+    workers         worker processes / local Ray CPUs (None: the machine's cores)
     layer0_share    wanted fraction of the file bytes before layer 0 is decodable: when the
                     chosen file's layer 0 ends after more than 1.5x this, the layers are
                     re-split with a proportionally smaller layer 0 and that candidate re-encoded
@@ -78,6 +81,8 @@ class SearchOptions:
     layers: int = DEFAULT_LAYERS
     first_layer: float = DEFAULT_FIRST_LAYER
     tile_gaussians: int | None = DEFAULT_TILE_GAUSSIANS
+    executor: str = "local"
+    workers: int | None = None
     layer0_share: float = 0.1
     screen: bool = True
     overlap: bool = True
