@@ -202,3 +202,17 @@ def test_size_search_holds_one_budget_across_tiles():
     assert len(info["tiles"]) >= 3 and info["version"] == "1.2"
     assert 0.99 * target <= len(res.data) <= target
     assert decode(res.data).equals(res.cloud)
+
+
+def test_viewer_stream_playback_shows_tiles_as_they_decode():
+    from gsz.viewer.streaming import StreamPlayback
+    data = VEC.read_bytes()
+    info = inspect(data)
+    play = StreamPlayback(data, None, piece=8192)
+    assert play.wait(timeout=60)
+    snap = play.snapshot()
+    assert snap["error"] is None and snap["layers"] == 2 and snap["tiles_total"] == len(info["tiles"])
+    assert snap["tiles"] == sum(len(r["parts"]) for r in info["tiles"])
+    assert snap["layer_bytes"] == [r["decodable_at"] if r["decodable_at"] % 8192 == 0 else
+                                   min(len(data), (r["decodable_at"] // 8192 + 1) * 8192) for r in info["layers"]]
+    assert snap["cloud"].equals(decode(data))

@@ -268,6 +268,8 @@ class ViewerApp(ViewState):
             self._stream_version = snap["version"]
             self._set_cloud(scene, snap["cloud"])
         layers = f"{snap['layers']}/{snap['layers_total'] or '?'}"
+        if (snap.get("tiles_total") or 1) > 1:
+            layers += f" ({snap['tiles']} tile parts of {snap['tiles_total']} tiles)"
         if snap["error"]:
             scene.note = f"stream error: {snap['error']}"
         elif snap["done"]:

@@ -41,6 +41,7 @@ class StreamPlayback:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._state = {"bytes": 0, "total": len(self.data), "layers": 0, "layers_total": None,
+                       "tiles": 0, "tiles_total": None,
                        "cloud": None, "version": 0, "done": False, "error": None,
                        "layer_bytes": []}
         self._thread = threading.Thread(target=self._run, name="gsz-view-stream", daemon=True)
@@ -56,9 +57,9 @@ class StreamPlayback:
             self._thread.join(timeout)
 
     def snapshot(self) -> dict:
-        """{"bytes", "total", "layers", "layers_total", "cloud" (newest cumulative cloud or
-        None), "version" (+1 per layer), "done", "error", "layer_bytes" (bytes received when
-        each layer completed)}"""
+        """{"bytes", "total", "layers", "layers_total", "tiles" (parts decoded: layers of tiles),
+        "tiles_total", "cloud" (newest cumulative cloud or None), "version" (+1 per new cloud),
+        "done", "error", "layer_bytes" (bytes received when each layer completed)}"""
         with self._lock:
             return dict(self._state, layer_bytes=list(self._state["layer_bytes"]))
 
@@ -93,7 +94,7 @@ class StreamPlayback:
                     if updates:      # tiles show as they decode; one cumulative cloud per feed
                         u = updates[-1]
                         self._state.update(cloud=u.cloud, layers=dec.layers_decoded,
-                                           tiles=self._state.get("tiles", 0) + len(updates),
+                                           tiles=self._state["tiles"] + len(updates),
                                            version=self._state["version"] + 1)
                     for u in updates:
                         if u.layer_complete:

@@ -99,8 +99,9 @@ def draw_panel(app) -> None:
             frac = st_["bytes"] / max(1, st_["total"])
             imgui.progress_bar(frac, imgui.ImVec2(-1, 0),
                                f"{format_bytes(st_['bytes'])} / {format_bytes(st_['total'])}")
-            imgui.text(f"layers {st_['layers']}/{st_['layers_total'] or '?'}   {len(app.stream_scene.cloud):,} splats"
-                       + ("   done" if st_["done"] else ""))
+            tiles = f"   tiles {st_['tiles']} parts / {st_['tiles_total']}" if (st_.get("tiles_total") or 1) > 1 else ""
+            imgui.text(f"layers {st_['layers']}/{st_['layers_total'] or '?'}{tiles}   "
+                       f"{len(app.stream_scene.cloud):,} splats" + ("   done" if st_["done"] else ""))
         mbps = app.stream_rate / 1e6
         _, mbps = imgui.slider_float("MB/s", mbps, 0.05, 100.0, "%.2f", imgui.SliderFlags_.logarithmic)
         app.stream_rate = mbps * 1e6
