@@ -178,7 +178,6 @@ def _make_plan():
 
 PLAN_KNOWN, PLAN_UNKNOWN = _make_plan()
 POPCOUNT8 = np.array([bin(v).count("1") for v in range(256)], dtype=np.int64)
-_POPCOUNT8_U8 = POPCOUNT8.astype(np.uint8)
 #: RANK8[j, o] = number of set bits of byte o below bit j
 RANK8 = np.array([[bin(o & ((1 << j) - 1)).count("1") for o in range(256)] for j in range(8)],
                  dtype=np.int64)
@@ -202,15 +201,17 @@ def _make_child_plan():
 
 
 CHILD_PAR, CHILD_IDX = _make_child_plan()
+#: the 8 parent-level offsets holding the 26 neighbours of child k (its octant, self included)
+_OCTANT = [[int(o) for o in np.unique(CHILD_PAR[k])] for k in range(8)]
+_NOT_SELF = [t for t in range(27) if t != SELF]
 
 
-def _child_neighbour_table(nbr: np.ndarray, occ: np.ndarray, rows: np.ndarray,
-                           ks: np.ndarray) -> np.ndarray:
+def _child_neighbour_table(nbr: np.ndarray, occ: np.ndarray) -> np.ndarray:
     """27-neighbour table of the next level, derived from the current one without any search.
 
     nbr: int64 [27, N] neighbour table of the current level (row t = offset t, -1 where absent);
-    occ: int64 [N] its occupancy bytes; rows, ks: int64 [C] parent index and child index of each
-    child (Morton order).  Returns int64 [27, C].
+    occ: uint8 [N] its final occupancy bytes.  Returns int64 [27, C] for the C children in
+    Morton order (node-major, child index ascending).
     A neighbour of child c lies in a neighbour (or self) of c's parent, so it exists iff that
     node exists and has the corresponding child bit; its index is the parent's first-child index
     plus the rank of the bit among the parent's children.
@@ -218,60 +219,101 @@ def _child_neighbour_table(nbr: np.ndarray, occ: np.ndarray, rows: np.ndarray,
     n = occ.shape[0]
     start = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(POPCOUNT8[occ], out=start[1:])
-    # one gather per neighbour: (first-child index << 8) | occupancy byte; slot n = absent (0)
-    packed = np.append((start[:n] << 8) | occ, 0)
-    c = rows.shape[0]
-    out = np.empty((27, c), dtype=np.int64)
-    # children grouped by their index k (a stable counting sort), so that the neighbour's
-    # parent offset and child index are scalars within a group
-    order = np.argsort(ks, kind="stable")
-    bounds = np.searchsorted(ks[order], np.arange(9))
+    # one gather per neighbour: (first-child index << 8) | occupancy byte; slot n = absent (0),
+    # which the -1 entries of ``nbr`` reach (mode="wrap")
+    packed = np.empty(n + 1, dtype=np.int64)
+    np.left_shift(start[:n], 8, out=packed[:n])
+    packed[:n] |= occ
+    packed[n] = 0
+    c = int(start[n])
+    # built group by group (children with index k: the parent-level offset and child index of
+    # each neighbour are scalars within a group), each group's columns contiguous -- scattering
+    # straight into Morton columns touched every cache line of every row 8 times -- then put
+    # into Morton order with one gather per row (eight sorted runs, near-sequential)
+    grouped = np.empty((27, c), dtype=np.int64)
+    col = np.empty(c, dtype=np.int64)         # Morton index -> column of ``grouped``
+    g0 = 0
     for k in range(8):
-        sel = order[bounds[k]:bounds[k + 1]]
-        if sel.size == 0:
+        r = np.flatnonzero(occ & np.uint8(1 << k))
+        if r.size == 0:
             continue
-        r = rows[sel]
+        g1 = g0 + r.size
+        sel = start[r] + RANK8[k].take(occ[r])          # the children's Morton indices
+        col[sel] = np.arange(g0, g1)
         # the 26 neighbours of child k lie in the 8 parent-level nodes of k's octant
-        par_v = {int(o): packed[nbr[o][r]] for o in np.unique(CHILD_PAR[k])}
-        for t in range(27):
-            if t == SELF:
-                out[t, sel] = sel
-                continue
-            v = par_v[int(CHILD_PAR[k, t])]
+        hi, lo = {}, {}
+        for o in _OCTANT[k]:
+            v = packed.take(nbr[o].take(r), mode="wrap")
+            hi[o], lo[o] = v >> 8, v & 255
+        for t in _NOT_SELF:
+            o, j = int(CHILD_PAR[k, t]), int(CHILD_IDX[k, t])
             # rank of bit j if set, else a large negative number that the max turns into -1
-            idx = (v >> 8) + _RANK_OR_ABSENT[int(CHILD_IDX[k, t])][v & 255]
-            out[t, sel] = np.maximum(idx, -1)
+            np.add(_RANK_OR_ABSENT[j].take(lo[o]), hi[o], out=grouped[t, g0:g1])
+        g0 = g1
+    for t in _NOT_SELF:                        # in place: one table's memory, not two
+        np.maximum(grouped[t][col], -1, out=grouped[t])
+    grouped[SELF] = np.arange(c)
+    return grouped
+
+
+def _make_plane_tables(level_bucket: int) -> list:
+    """Per child index k: (the 8 parent-level offsets t of k's octant, SELF first, and a table
+    int64 [8, 512]) such that the context of child k of a node is the sum over those t of
+    ``table[i][v_t]``, v_t = the neighbour's state byte (256 | occupancy bits decoded so far,
+    0 when absent), packed as ``coarse << 32 | fine`` -- both ids are linear in their terms
+    (module docstring), so every neighbour's share is one lookup.  Absent neighbours add 0."""
+    v = np.arange(512, dtype=np.int64)
+    present, byte = v >> 8, v & 255
+    nl = NUM_LEVEL_BUCKETS
+    # weights of the terms in coarse = ((k*27 + kn)*27 + unk)*NUM_SIB + sib and in
+    # fine = (((((k*7 + kf)*7 + uf)*21 + ko)*21 + uo)*NUM_SIB + sib)*nl + lb
+    wc_k, wc_kn, wc_un = 27 * 27 * NUM_SIB, 27 * NUM_SIB, NUM_SIB
+    wf_uo = NUM_SIB * nl
+    wf_ko = 21 * wf_uo
+    wf_uf = 21 * wf_ko
+    wf_kf = 7 * wf_uf
+    wf_k = 7 * wf_kf
+    out = []
+    for k in range(8):
+        ts = [SELF] + [int(t) for t in np.flatnonzero((PLAN_KNOWN[:, k] | PLAN_UNKNOWN[:, k])
+                                                       .any(axis=0)) if t != SELF]
+        tab = np.zeros((len(ts), 512), dtype=np.int64)
+        for i, t in enumerate(ts):
+            kf = POPCOUNT8[byte & PLAN_KNOWN[0, k, t]]
+            ko = POPCOUNT8[byte & PLAN_KNOWN[1, k, t]]
+            uf = present * PLAN_UNKNOWN[0, k, t]
+            uo = present * PLAN_UNKNOWN[1, k, t]
+            coarse = wc_kn * (kf + ko) + wc_un * (uf + uo)
+            fine = wf_kf * kf + wf_uf * uf + wf_ko * ko + wf_uo * uo
+            if t == SELF:
+                sib = np.minimum(POPCOUNT8[byte & ((1 << k) - 1)], NUM_SIB - 1)
+                coarse = coarse + wc_k * k + sib
+                fine = fine + wf_k * k + nl * sib + level_bucket
+            tab[i] = (coarse << 32) | fine
+        out.append((np.array(ts, dtype=np.int64), tab))
     return out
 
 
-def plane_contexts(k: int, occ: np.ndarray, nbr: np.ndarray, present: np.ndarray,
-                   level_bucket: int):
-    """Coarse and fine context ids of child ``k`` of every node of a level.
+_PLANE_TABLES = [_make_plane_tables(lb) for lb in range(NUM_LEVEL_BUCKETS)]
 
-    occ: int64 [N] occupancy bytes decoded so far (bits < k valid, others 0).
-    nbr: int64 [27, N] from :func:`_child_neighbour_table`; present: uint8 [27, N] = nbr >= 0.
-    Returns (coarse int64 [N], fine int64 [N], sib int64 [N] = min(3, number of set child bits < k)).
+
+def plane_contexts(k: int, state: np.ndarray, nbr: np.ndarray, level_bucket: int) -> np.ndarray:
+    """Packed context ids ``coarse << 32 | fine`` of child ``k`` of every node of a level.
+
+    state: uint16 [N + 1] per node 256 | occupancy bits decoded so far (bits < k), slot N = 0
+    (absent; the -1 entries of ``nbr`` reach it); nbr: int64 [27, N] from
+    :func:`_child_neighbour_table`.  Returns int64 [N].
     """
-    # uint8 throughout (counts <= 26): the gathers and sums are memory-bound
-    occ_ext = np.append(occ, 0).astype(np.uint8)   # index -1 (absent neighbour) reads a 0 byte
-    n = occ.shape[0]
-    kn = [np.zeros(n, dtype=np.uint8), np.zeros(n, dtype=np.uint8)]     # face, edge/corner
-    unk = [np.zeros(n, dtype=np.uint8), np.zeros(n, dtype=np.uint8)]
-    for t in np.flatnonzero((PLAN_KNOWN[:, k] | PLAN_UNKNOWN[:, k]).any(axis=0)):
-        v = occ_ext[nbr[t]] if (PLAN_KNOWN[0, k, t] | PLAN_KNOWN[1, k, t]) else None
-        for kind in (0, 1):
-            km, uc = int(PLAN_KNOWN[kind, k, t]), int(PLAN_UNKNOWN[kind, k, t])
-            if km:
-                kn[kind] += _POPCOUNT8_U8[v & np.uint8(km)]
-            if uc:
-                unk[kind] += present[t] * np.uint8(uc) if uc > 1 else present[t]
-    sib = np.minimum(POPCOUNT8[occ & ((1 << k) - 1)], NUM_SIB - 1)
-    kf, ko = kn[0].astype(np.int64), kn[1].astype(np.int64)
-    uf, uo = unk[0].astype(np.int64), unk[1].astype(np.int64)
-    coarse = ((k * 27 + kf + ko) * 27 + uf + uo) * NUM_SIB + sib
-    fine = (((((k * 7 + kf) * 7 + uf) * 21 + ko) * 21 + uo) * NUM_SIB + sib) \
-        * NUM_LEVEL_BUCKETS + level_bucket
-    return coarse, fine, sib
+    ts, tab = _PLANE_TABLES[level_bucket][k]
+    n = nbr.shape[1]
+    acc = tab[0].take(state[:n])
+    g = np.empty(n, dtype=np.uint16)
+    tmp = np.empty(n, dtype=np.int64)
+    for i in range(1, ts.shape[0]):
+        np.take(state, nbr[ts[i]], out=g, mode="wrap")
+        np.take(tab[i], g, out=tmp, mode="clip")
+        acc += tmp
+    return acc
 
 
 def _chunk_bounds(n: int):
@@ -284,7 +326,12 @@ def _chunk_bounds(n: int):
         s = e
 
 
-_ONE32 = np.int32(1)
+_LOW32 = np.int64(0xFFFFFFFF)
+#: count increment of a decoded bit: counts are packed zeros | ones << 32 per context
+_INC = np.array([1, 1 << 32], dtype=np.int64)
+#: levels with at least this many nodes mark their used fine contexts in a flag array (cheaper
+#: than collecting and sorting them); smaller ones collect them (scanning the flags costs more)
+_MARK_MIN_NODES = 4096
 
 # A bit source: given (level, k, node indices of the chunk, model ids) return the chunk's bits.
 BitSource = Callable[[int, int, np.ndarray, np.ndarray], np.ndarray]
@@ -303,12 +350,12 @@ def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
         raise GszFormatError(f"octree depth {depth} outside [1, {MAX_DEPTH}]")
     if num_points == 0:
         return np.zeros(0, dtype=np.uint64)
-    # counts: [2 * ctx] = zeros seen, [2 * ctx + 1] = ones seen
-    # int32 (22 MB for the fine set): k is part of every context, so within a level a total grows
-    # by at most one bit-plane's node count (< 2^31) before the halving that follows the level;
-    # products are taken in int64 below
-    cc_n = np.zeros(2 * NUM_COARSE, dtype=np.int32)
-    ff_n = np.zeros(2 * NUM_FINE, dtype=np.int32)
+    # counts packed per context as zeros | ones << 32 (one gather reads both): k is part of
+    # every context, so within a level a total grows by at most one bit-plane's node count
+    # (< 2^31) before the halving that follows the level
+    cc_n = np.zeros(NUM_COARSE, dtype=np.int64)
+    ff_n = np.zeros(NUM_FINE, dtype=np.int64)
+    marks = None
     codes = np.zeros(1, dtype=np.uint64)
     nbr = np.full((27, 1), -1, dtype=np.int64)
     nbr[SELF, 0] = 0
@@ -317,68 +364,87 @@ def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
     # than the traversal itself on small files)
     carry = np.zeros(0, dtype=np.int64)
     for level in range(depth):
-        used = [carry]
         n = codes.shape[0]
-        occ = np.zeros(n, dtype=np.int64)
+        used = [carry]
+        if n >= _MARK_MIN_NODES:
+            if marks is None:
+                marks = np.zeros(NUM_FINE, dtype=np.bool_)
+            marks[carry] = True
+            used = None
+        state = np.full(n + 1, 256, dtype=np.uint16)     # 256 | occupancy; slot n: absent
+        state[n] = 0
         lb = min(NUM_LEVEL_BUCKETS - 1, depth - 1 - level)
-        present = (nbr >= 0).view(np.uint8)
         for k in range(8):
-            coarse, fine, sib = plane_contexts(k, occ, nbr, present, lb)
+            ctx = plane_contexts(k, state, nbr, lb)
+            coded = None
             if k == 7:
-                coded = np.flatnonzero(sib > 0)     # nodes with no child yet get child 7 for free
-                occ[sib == 0] |= 1 << 7
-                coarse, fine = 2 * coarse[coded], 2 * fine[coded]
-            else:
-                coded = None
-                coarse, fine = 2 * coarse, 2 * fine
-            for s, e in _chunk_bounds(coarse.shape[0]):
+                free = (state[:n] & 127) == 0   # no child yet: child 7 for free, not coded
+                coded = np.flatnonzero(~free)
+                state[:n][free] |= np.uint16(128)
+                ctx = ctx[coded]
+            coarse, fine = ctx >> 32, ctx & _LOW32
+            for s, e in _chunk_bounds(ctx.shape[0]):
                 cc, ff = coarse[s:e], fine[s:e]
-                c0, c1 = cc_n[cc].astype(np.int64), cc_n[cc + 1].astype(np.int64)
-                pc = ((2 * c1 + 1) << 16) // (2 * (c0 + c1) + 2)
-                f0, f1 = ff_n[ff].astype(np.int64), ff_n[ff + 1].astype(np.int64)
-                pf = ((f1 << 16) + MIX_WEIGHT * pc) // (f0 + f1 + MIX_WEIGHT)
+                v = cc_n.take(cc)
+                c1 = v >> 32
+                v &= _LOW32
+                v += c1
+                pc = ((c1 << 17) + (1 << 16)) // ((v << 1) + 2)       # ((2 c1 + 1) << 16) // (2 (c0 + c1) + 2)
+                v = ff_n.take(ff)
+                f1 = v >> 32
+                v &= _LOW32
+                v += f1 + MIX_WEIGHT
+                pc *= MIX_WEIGHT
+                pc += f1 << 16
+                pc //= v
                 idx = np.arange(s, e) if coded is None else coded[s:e]
-                b = np.asarray(bits(level, k, idx, P16_TO_MODEL[pf]), dtype=np.int64)
-                occ[idx] |= b << k
-                np.add.at(cc_n, cc + b, _ONE32)      # (a typed scalar: numpy's fast path)
-                np.add.at(ff_n, ff + b, _ONE32)
-                used.append(ff >> 1)
-        _halve(cc_n)
-        carry = _halve_some(ff_n, np.unique(np.concatenate(used)))
+                b = np.asarray(bits(level, k, idx, P16_TO_MODEL.take(pc)), dtype=np.int64)
+                inc = _INC.take(b)
+                np.add.at(cc_n, cc, inc)
+                np.add.at(ff_n, ff, inc)
+                if used is None:
+                    marks[ff] = True
+                else:
+                    used.append(ff)
+                b = b << k                      # not in place: the source may keep its array
+                if coded is None:
+                    np.bitwise_or(state[s:e], b, out=state[s:e], casting="unsafe")
+                else:
+                    state[idx] |= b.astype(np.uint16)
+        _halve_some(cc_n, np.arange(NUM_COARSE))
+        if used is None:
+            cand = np.flatnonzero(marks)
+            marks[cand] = False
+        else:
+            cand = np.unique(np.concatenate(used))
+        carry = _halve_some(ff_n, cand)
+        occ = state[:n].astype(np.uint8)
         # children in Morton order: node-major, child index ascending
-        child_bits = (occ[:, None] >> np.arange(8)) & 1
-        total = int(child_bits.sum())
+        total = int(POPCOUNT8[occ].sum())
         if total > num_points:
             raise GszFormatError(f"octree level {level + 1} decodes to {total} nodes, more than "
                                  f"the {num_points} points declared")
-        rows, ks = np.nonzero(child_bits)
-        codes = (codes[rows] << np.uint64(3)) | ks.astype(np.uint64)
+        nz = np.flatnonzero(np.unpackbits(occ, bitorder="little"))
+        codes = (codes[nz >> 3] << np.uint64(3)) | (nz & 7).astype(np.uint64)
         if level + 1 < depth:
-            nbr = _child_neighbour_table(nbr, occ, rows, ks)
+            nbr = _child_neighbour_table(nbr, occ)
     if codes.shape[0] != num_points:
         raise GszFormatError(f"octree decodes to {codes.shape[0]} points, header declares {num_points}")
     return codes
 
 
-def _halve(counts: np.ndarray) -> None:
-    """Halve (rounding up) every count pair (zeros at ``2c``, ones at ``2c + 1``) whose total
-    exceeds COUNT_LIMIT, in place.  Applied after each level."""
-    pairs = counts.reshape(-1, 2)
-    over = np.flatnonzero((counts[0::2] + counts[1::2]) > COUNT_LIMIT)
-    if over.size:
-        pairs[over] = (pairs[over] + 1) >> 1
-
-
-def _halve_some(counts: np.ndarray, pairs: np.ndarray) -> np.ndarray:
-    """:func:`_halve` restricted to the count pairs ``pairs`` (unique ids) -- every other pair
-    is known to be within the limit; returns the pairs still above COUNT_LIMIT afterwards."""
-    z, o = counts[2 * pairs], counts[2 * pairs + 1]
+def _halve_some(counts: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Halve (rounding up both halves) the packed count pairs ``counts[ids]`` (unique ids) whose
+    total exceeds COUNT_LIMIT, in place -- every other pair is known to be within the limit;
+    returns the ids still above COUNT_LIMIT afterwards.  Applied after each level."""
+    v = counts[ids]
+    z, o = v & _LOW32, v >> 32
     over = (z + o) > COUNT_LIMIT
     if not over.any():
-        return pairs[:0]
-    p = pairs[over]
+        return ids[:0]
+    p = ids[over]
     z, o = (z[over] + 1) >> 1, (o[over] + 1) >> 1
-    counts[2 * p], counts[2 * p + 1] = z, o
+    counts[p] = z | (o << 32)
     return p[(z + o) > COUNT_LIMIT]
 
 
