@@ -230,7 +230,8 @@ def _child_neighbour_table(nbr: np.ndarray, occ: np.ndarray) -> np.ndarray:
     # each neighbour are scalars within a group), each group's columns contiguous -- scattering
     # straight into Morton columns touched every cache line of every row 8 times -- then put
     # into Morton order with one gather per row (eight sorted runs, near-sequential)
-    grouped = np.empty((27, c), dtype=np.int64)
+    # int32 where it fits: the table is the decoder's largest array (27 entries per node)
+    grouped = np.empty((27, c), dtype=np.int32 if c < (1 << 31) else np.int64)
     col = np.empty(c, dtype=np.int64)         # Morton index -> column of ``grouped``
     g0 = 0
     for k in range(8):
@@ -248,10 +249,13 @@ def _child_neighbour_table(nbr: np.ndarray, occ: np.ndarray) -> np.ndarray:
         for t in _NOT_SELF:
             o, j = int(CHILD_PAR[k, t]), int(CHILD_IDX[k, t])
             # rank of bit j if set, else a large negative number that the max turns into -1
-            np.add(_RANK_OR_ABSENT[j].take(lo[o]), hi[o], out=grouped[t, g0:g1])
+            v = _RANK_OR_ABSENT[j].take(lo[o])
+            v += hi[o]
+            np.maximum(v, -1, out=v)
+            grouped[t, g0:g1] = v
         g0 = g1
     for t in _NOT_SELF:                        # in place: one table's memory, not two
-        np.maximum(grouped[t][col], -1, out=grouped[t])
+        grouped[t] = grouped[t][col]
     grouped[SELF] = np.arange(c)
     return grouped
 
@@ -297,22 +301,52 @@ def _make_plane_tables(level_bucket: int) -> list:
 _PLANE_TABLES = [_make_plane_tables(lb) for lb in range(NUM_LEVEL_BUCKETS)]
 
 
-def plane_contexts(k: int, state: np.ndarray, nbr: np.ndarray, level_bucket: int) -> np.ndarray:
+def _make_gather_plan() -> list:
+    """Per child index k, for each non-self offset t of its plane table (in table order):
+    (t, gather, last): whether plane k gathers neighbour t's state afresh or reuses the one
+    gathered at an earlier plane g -- valid when every known bit the plane reads is < g (the
+    table masks off the rest; presence never changes) -- and whether plane k is its last use."""
+    plan, held, uses = [], {}, {}
+    for k in range(8):
+        row = []
+        for t in _PLANE_TABLES[0][k][0][1:]:
+            t = int(t)
+            need = int(PLAN_KNOWN[0, k, t] | PLAN_KNOWN[1, k, t]).bit_length()
+            fresh = t not in held or held[t] < need
+            if fresh:
+                held[t] = k
+            row.append([t, fresh, False])
+            uses[t] = row[-1]
+        plan.append(row)
+    for entry in uses.values():
+        entry[2] = True
+    return [[tuple(e) for e in row] for row in plan]
+
+
+_GATHER_PLAN = _make_gather_plan()
+
+
+def plane_contexts(k: int, state: np.ndarray, nbr: np.ndarray, level_bucket: int,
+                   held: dict) -> np.ndarray:
     """Packed context ids ``coarse << 32 | fine`` of child ``k`` of every node of a level.
 
     state: uint16 [N + 1] per node 256 | occupancy bits decoded so far (bits < k), slot N = 0
-    (absent; the -1 entries of ``nbr`` reach it); nbr: int64 [27, N] from
-    :func:`_child_neighbour_table`.  Returns int64 [N].
+    (absent; the -1 entries of ``nbr`` reach it); nbr: int [27, N] from
+    :func:`_child_neighbour_table`; held: the neighbour states gathered by earlier planes of
+    the level (``_GATHER_PLAN``), empty at k = 0, updated.  Returns int64 [N].
     """
     ts, tab = _PLANE_TABLES[level_bucket][k]
     n = nbr.shape[1]
     acc = tab[0].take(state[:n])
-    g = np.empty(n, dtype=np.uint16)
     tmp = np.empty(n, dtype=np.int64)
-    for i in range(1, ts.shape[0]):
-        np.take(state, nbr[ts[i]], out=g, mode="wrap")
+    for i, (t, fresh, last) in enumerate(_GATHER_PLAN[k], start=1):
+        g = state.take(nbr[t]) if fresh else held[t]      # -1 (absent) reads slot N
         np.take(tab[i], g, out=tmp, mode="clip")
         acc += tmp
+        if last:
+            held.pop(t, None)
+        elif fresh:
+            held[t] = g
     return acc
 
 
@@ -374,8 +408,9 @@ def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
         state = np.full(n + 1, 256, dtype=np.uint16)     # 256 | occupancy; slot n: absent
         state[n] = 0
         lb = min(NUM_LEVEL_BUCKETS - 1, depth - 1 - level)
+        held = {}
         for k in range(8):
-            ctx = plane_contexts(k, state, nbr, lb)
+            ctx = plane_contexts(k, state, nbr, lb, held)
             coded = None
             if k == 7:
                 free = (state[:n] & 127) == 0   # no child yet: child 7 for free, not coded

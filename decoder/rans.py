@@ -294,9 +294,22 @@ class ModelSet:
         packed_lut = np.repeat((np.arange(freq.size, dtype=np.int64) << 33) + (freq << 16) - start,
                                freq)
         packed_lut += np.arange(packed_lut.size, dtype=np.int64)
+        # the NumPy row loop's split LUTs: freq and (slot - cum) of each slot's symbol (two
+        # gathers per row instead of one gather and four unpacking steps), and its value
+        used = self.types != EMPTY
+        uniform = bool(used.any()) and int(self.prec[used].min()) == int(self.prec[used].max())
         self._tables = dict(freq=freq, cum=cum, value=value, sym_start=sym_start,
                             sym_count=sym_count, lut_base=lut_base, packed_lut=packed_lut,
-                            total=total, mask=total - 1)
+                            total=total, mask=total - 1,
+                            lut_freq=(packed_lut >> 16) & 0x1FFFF, lut_bias=packed_lut & 0xFFFF,
+                            lut_value=value[packed_lut >> 33],
+                            uniform_prec=int(self.prec[used][0]) if uniform else None,
+                            has_empty=bool((~used).any()))
+        # binary models of one precision with values 0 and 1 (the octree bank, flag streams):
+        # the row loop decides a symbol by one comparison with the frequency of the 0
+        if (uniform and not self._tables["has_empty"] and np.all(sym_count == 2)
+                and np.array_equal(value, np.tile(np.array([0, 1], np.int64), m_count))):
+            self._tables["binary_f0"] = freq[sym_start]
         return self._tables
 
     def native_tables(self, max_lut_entries: int) -> tuple:
@@ -644,18 +657,21 @@ class RansDecoder:
         m_count = self._models.num_models
         if mids.min() < 0 or mids.max() >= m_count:
             raise GszFormatError(f"rANS: model id outside 0..{m_count - 1}")
-        if np.any(self._t["total"][mids] == 0):
+        if self._t["has_empty"] and np.any(self._t["total"][mids] == 0):
             raise GszFormatError("rANS: symbol refers to an empty model")
-        out = np.empty(count, dtype=np.int64)
+        binary = "binary_f0" in self._t and self._lanes >= SCALAR_LANES
+        out = np.empty(count, dtype=np.bool_ if binary else np.int64)
         # work in chunks of whole rows (~256k symbols) so the per-symbol arrays stay in cache
         chunk = max(1, (1 << 18) // self._lanes) * self._lanes
         j = 0
         while j < count:
             end = min(count, j + chunk - (self._pos % self._lanes))
-            self._decode_chunk(mids[j:end], out[j:end])
+            if binary:
+                self._decode_chunk_binary(mids[j:end], out[j:end])
+            else:
+                self._decode_chunk(mids[j:end], out[j:end])
             j = end
-        np.right_shift(out, 33, out=out)
-        return self._t["value"][out]
+        return out.astype(np.int64) if binary else self._t["lut_value"].take(out)
 
     def decode_blocks(self, table: np.ndarray, channels: int, length: int, blocks: int,
                       out: np.ndarray, steps=None, lo=None, qmax=None) -> None:
@@ -676,54 +692,39 @@ class RansDecoder:
         self._pos += count
 
     def _decode_chunk(self, mids: np.ndarray, out: np.ndarray) -> None:
-        """Decode len(mids) symbols; writes their packed LUT entries to ``out``."""
+        """Decode len(mids) symbols; writes their global LUT slots to ``out``."""
         t = self._t
         count = mids.size
-        mask = t["mask"][mids]
-        shift = self._models.prec[mids]
-        base = t["lut_base"][mids]
-        lut = t["packed_lut"]
-        words = self._words
-        nwords = words.size
-        x_all = self._states
+        # per-symbol mask, shift and LUT base -- scalars where every model has one precision
+        # or the chunk one model (the SH index streams, a channel's run of a channel set)
+        if count > 8192 and mids[0] == mids[-1] and not np.any(mids != mids[0]):
+            m0 = int(mids[0])
+            mask, shift, base = int(t["mask"][m0]), int(self._models.prec[m0]), int(t["lut_base"][m0])
+        elif t["uniform_prec"] is not None:
+            shift = t["uniform_prec"]
+            mask, base = (1 << shift) - 1, t["lut_base"].take(mids)
+        else:
+            mask, shift, base = t["mask"].take(mids), self._models.prec.take(mids), t["lut_base"].take(mids)
         lanes = self._lanes
-        wpos = self._wpos
         if lanes < SCALAR_LANES:
             # rows of a few symbols: the same decode step on Python integers is ~10x faster
             # than a dozen NumPy calls per row (small streams, e.g. every stream of a tiny file)
-            self._wpos = _decode_scalar(mids, out, mask, shift, base, lut, words, x_all,
-                                        lanes, self._pos, wpos)
+            b = (lambda v: np.broadcast_to(v, (count,)))
+            self._wpos = _decode_scalar(mids, out, b(mask), b(shift), b(base), t["packed_lut"],
+                                        self._words, self._states, lanes, self._pos, self._wpos)
             self._pos += count
             return
-        # scratch buffer: one row of at most `lanes` symbols, reused (no per-row allocation)
-        tmp = np.empty(min(lanes, count), np.int64)
-        j = 0
-        while j < count:
-            lane0 = (self._pos + j) % lanes
-            k = min(lanes - lane0, count - j)
-            sl = slice(j, j + k)
-            x = x_all[lane0:lane0 + k]
-            e_, t_ = out[sl], tmp[:k]
-            # decode step (ENTROPY.md 4.3): x = freq * (x >> n) + (slot - cum)
-            np.bitwise_and(x, mask[sl], out=t_)
-            np.add(t_, base[sl], out=t_)
-            np.take(lut, t_, out=e_)          # e = (g << 33) | (freq << 16) | (slot - cum)
-            np.right_shift(x, shift[sl], out=x)
-            np.right_shift(e_, 16, out=t_)
-            np.bitwise_and(t_, 0x1FFFF, out=t_)
-            np.multiply(x, t_, out=x)
-            np.bitwise_and(e_, 0xFFFF, out=t_)
-            np.add(x, t_, out=x)
-            idx = np.flatnonzero(x < STATE_LOW)
-            r = idx.size
-            if r:
-                if wpos + r > nwords:
-                    raise GszFormatError("rANS: payload truncated (word stream exhausted)")
-                x[idx] = (x[idx] << WORD_BITS) | words[wpos:wpos + r]
-                wpos += r
-            j += k
-        self._wpos = wpos
+        self._wpos = _decode_rows(out, mask, shift, base, t["lut_freq"], t["lut_bias"],
+                                  self._words, self._states, lanes, self._pos, self._wpos)
         self._pos += count
+
+    def _decode_chunk_binary(self, mids: np.ndarray, out: np.ndarray) -> None:
+        """_decode_chunk for binary models (``binary_f0``): writes the bits (bool) to ``out``."""
+        n = self._t["uniform_prec"]
+        f0 = self._t["binary_f0"].take(mids)
+        self._wpos = _decode_rows_binary(out, f0, (1 << n) - f0, n, self._words, self._states,
+                                         self._lanes, self._pos, self._wpos)
+        self._pos += mids.size
 
     def finish(self) -> None:
         """Check that all symbols were decoded, every word consumed and every state is 2**16."""
@@ -735,13 +736,82 @@ class RansDecoder:
             raise GszFormatError("rANS: final states differ from 2**16 (corrupt payload)")
 
 
+def _decode_rows(out, mask, shift, base, lut_freq, lut_bias, words, states, lanes, pos,
+                 wpos) -> int:
+    """The NumPy row loop of RansDecoder._decode_chunk (ENTROPY.md 4.3): one row of up to
+    ``lanes`` consecutive symbols (one per lane) per step.  mask, shift, base: per-symbol arrays
+    or scalars; writes each symbol's global LUT slot to ``out``; returns the new word position."""
+    count = out.size
+    arr = [isinstance(v, np.ndarray) for v in (mask, shift, base)]
+    flag = np.empty(min(lanes, count), dtype=np.bool_)
+    j = 0
+    while j < count:
+        lane0 = (pos + j) % lanes
+        k = min(lanes - lane0, count - j)
+        sl = slice(j, j + k)
+        x = states[lane0:lane0 + k]
+        slot = out[sl]
+        # decode step: x = freq * (x >> n) + (slot - cum)
+        np.bitwise_and(x, mask[sl] if arr[0] else mask, out=slot)
+        np.add(slot, base[sl] if arr[2] else base, out=slot)
+        np.right_shift(x, shift[sl] if arr[1] else shift, out=x)
+        np.multiply(x, lut_freq.take(slot), out=x)
+        np.add(x, lut_bias.take(slot), out=x)
+        wpos = _renormalise(x, flag[:k], words, wpos)
+        j += k
+    return wpos
+
+
+def _renormalise(x, flag, words, wpos: int) -> int:
+    """Shift the next word into every state of the row ``x`` below 2**16, in lane order;
+    ``flag``: a bool scratch array like x.  Returns the new word position."""
+    np.less(x, STATE_LOW, out=flag)
+    r = np.count_nonzero(flag)
+    if r:
+        if wpos + r > words.size:
+            raise GszFormatError("rANS: payload truncated (word stream exhausted)")
+        v = x[flag]
+        v <<= WORD_BITS
+        v |= words[wpos:wpos + r]
+        x[flag] = v
+    return wpos + r
+
+
+def _decode_rows_binary(out, f0, f1, n, words, states, lanes, pos, wpos) -> int:
+    """_decode_rows for binary models of precision n: symbol 0 owns slots [0, f0), symbol 1
+    [f0, 2**n) (f0, f1 = 2**n - f0: per symbol), so the decode step needs no LUT:
+    b = slot >= f0, x = (b ? f1 : f0) * (x >> n) + slot - (b ? f0 : 0).  Bits to ``out``."""
+    count = out.size
+    mask = (1 << n) - 1
+    w = min(lanes, count)
+    slot, freq, flag = np.empty(w, np.int64), np.empty(w, np.int64), np.empty(w, np.bool_)
+    j = 0
+    while j < count:
+        lane0 = (pos + j) % lanes
+        k = min(lanes - lane0, count - j)
+        x = states[lane0:lane0 + k]
+        s, fr, b = slot[:k], freq[:k], out[j:j + k]
+        lo, hi = f0[j:j + k], f1[j:j + k]
+        np.bitwise_and(x, mask, out=s)
+        np.greater_equal(s, lo, out=b)
+        np.copyto(fr, lo)
+        np.copyto(fr, hi, where=b)
+        np.subtract(s, lo, out=s, where=b)
+        np.right_shift(x, n, out=x)
+        np.multiply(x, fr, out=x)
+        np.add(x, s, out=x)
+        wpos = _renormalise(x, flag[:k], words, wpos)
+        j += k
+    return wpos
+
+
 #: Below this many lanes the NumPy decoder's row loop runs on Python integers instead.
 SCALAR_LANES = 8
 
 
 def _decode_scalar(mids, out, mask, shift, base, lut, words, states, lanes, pos, wpos) -> int:
     """RansDecoder._decode_chunk for streams with few lanes, one symbol at a time (ENTROPY.md
-    4.3, identical arithmetic); writes the packed LUT entries to ``out``, returns the new word
+    4.3, identical arithmetic); writes the global LUT slots to ``out``, returns the new word
     position."""
     st = states.tolist()
     masks, shifts, bases = mask.tolist(), shift.tolist(), base.tolist()
@@ -750,8 +820,9 @@ def _decode_scalar(mids, out, mask, shift, base, lut, words, states, lanes, pos,
     lane = pos % lanes
     for j in range(mids.size):
         x = st[lane]
-        e = int(lut[(x & masks[j]) + bases[j]])
-        res[j] = e
+        slot = (x & masks[j]) + bases[j]
+        e = int(lut[slot])
+        res[j] = slot
         x = ((e >> 16) & 0x1FFFF) * (x >> shifts[j]) + (e & 0xFFFF)
         if x < STATE_LOW:
             if wpos >= nwords:
