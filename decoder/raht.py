@@ -104,17 +104,17 @@ def build_raht_tree(morton_codes: np.ndarray, depth: int) -> RahtTree:
         if codes.shape[0] == 1:
             break
         # Sorted unique codes: siblings are adjacent, left one even, right one = left + 1.
-        is_left = (codes[:-1] >> one) == (codes[1:] >> one)
-        pos = np.flatnonzero(is_left)
+        parent = codes >> one
+        pos = np.flatnonzero(parent[:-1] == parent[1:])
         if pos.size:
+            wl, wr = weights[pos], weights[pos + 1]
             levels.append(RahtLevel(level, slots[pos], slots[pos + 1],
-                                    weights[pos].astype(np.float64), weights[pos + 1].astype(np.float64)))
-            weights = weights.copy()
-            weights[pos] += weights[pos + 1]
+                                    wl.astype(np.float64), wr.astype(np.float64)))
+            weights[pos] = wl + wr              # weights is a fresh array from the last level
             keep = np.ones(codes.shape[0], dtype=bool)
             keep[pos + 1] = False
-            codes, slots, weights = codes[keep], slots[keep], weights[keep]
-        codes = codes >> one
+            parent, slots, weights = parent[keep], slots[keep], weights[keep]
+        codes = parent
     if codes.shape[0] != 1:  # unreachable given the bit-length check; kept as a hard guard
         raise GszFormatError("RAHT tree did not reduce to a single root")
     ac_slots = (np.concatenate([lv.right for lv in reversed(levels)]) if levels
@@ -134,13 +134,34 @@ def raht_inverse(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
     n = tree.num_points
     if ac.ndim != 2 or ac.shape != (n - 1, dc.shape[0]):
         raise GszFormatError(f"RAHT inverse: expected AC shape ({n - 1}, {dc.shape[0]}), got {ac.shape}")
-    v = np.empty((n, dc.shape[0]), dtype=np.float64)
-    v[0] = dc
-    v[tree.ac_slots] = ac
+    return np.ascontiguousarray(raht_inverse_planes(dc, ac.T, tree).T)
+
+
+def raht_inverse_planes(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
+    """:func:`raht_inverse` channel-major: ac float [C, N-1] (stream order) -> float64 [C, N],
+    the same values (every channel's butterflies are the same float64 operations; the rows
+    are contiguous, so the gathers and scatters move whole runs)."""
+    dc = np.asarray(dc, dtype=np.float64).reshape(-1)
+    ac = np.asarray(ac, dtype=np.float64)
+    n = tree.num_points
+    if ac.ndim != 2 or ac.shape != (dc.shape[0], n - 1):
+        raise GszFormatError(f"RAHT inverse: expected AC shape ({dc.shape[0]}, {n - 1}), got {ac.shape}")
+    v = np.empty((dc.shape[0], n), dtype=np.float64)
+    v[:, 0] = dc
+    v[:, tree.ac_slots] = ac
     for lv in reversed(tree.levels):  # coarsest first: undo the merges top-down
         g1, g2, _ = lv.butterfly()
-        low = v[lv.left]
-        high = v[lv.right]
-        v[lv.left] = g1 * low - g2 * high
-        v[lv.right] = g2 * low + g1 * high
+        g1, g2 = g1[:, 0], g2[:, 0]
+        t, u = np.empty_like(g1), np.empty_like(g1)
+        for row in v:                        # one channel at a time: 1-D gathers, in cache
+            low = row[lv.left]
+            high = row[lv.right]
+            np.multiply(g1, low, out=t)
+            np.multiply(g2, high, out=u)
+            t -= u                           # L' = g1 low - g2 high
+            row[lv.left] = t
+            low *= g2
+            high *= g1
+            low += high                      # H' = g2 low + g1 high
+            row[lv.right] = low
     return v

@@ -294,15 +294,11 @@ class ModelSet:
         packed_lut = np.repeat((np.arange(freq.size, dtype=np.int64) << 33) + (freq << 16) - start,
                                freq)
         packed_lut += np.arange(packed_lut.size, dtype=np.int64)
-        # the NumPy row loop's split LUTs: freq and (slot - cum) of each slot's symbol (two
-        # gathers per row instead of one gather and four unpacking steps), and its value
         used = self.types != EMPTY
         uniform = bool(used.any()) and int(self.prec[used].min()) == int(self.prec[used].max())
         self._tables = dict(freq=freq, cum=cum, value=value, sym_start=sym_start,
                             sym_count=sym_count, lut_base=lut_base, packed_lut=packed_lut,
                             total=total, mask=total - 1,
-                            lut_freq=(packed_lut >> 16) & 0x1FFFF, lut_bias=packed_lut & 0xFFFF,
-                            lut_value=value[packed_lut >> 33],
                             uniform_prec=int(self.prec[used][0]) if uniform else None,
                             has_empty=bool((~used).any()))
         # binary models of one precision with values 0 and 1 (the octree bank, flag streams):
@@ -311,6 +307,16 @@ class ModelSet:
                 and np.array_equal(value, np.tile(np.array([0, 1], np.int64), m_count))):
             self._tables["binary_f0"] = freq[sym_start]
         return self._tables
+
+    def split_luts(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The NumPy row loop's LUTs (once, after :meth:`build`): freq, slot - cum and value of
+        every slot's symbol (two gathers per row instead of one and four unpacking steps)."""
+        t = self._tables
+        if "lut_freq" not in t:
+            p = t["packed_lut"]
+            t["lut_freq"], t["lut_bias"] = (p >> 16) & 0x1FFFF, p & 0xFFFF
+            t["lut_value"] = t["value"][p >> 33]
+        return t["lut_freq"], t["lut_bias"], t["lut_value"]
 
     def native_tables(self, max_lut_entries: int) -> tuple:
         """Build (once) the compact decoding tables of the C decoder (``_native.rans_tables``:
@@ -654,11 +660,7 @@ class RansDecoder:
                                                      self._nt)
             self._pos += count
             return out
-        m_count = self._models.num_models
-        if mids.min() < 0 or mids.max() >= m_count:
-            raise GszFormatError(f"rANS: model id outside 0..{m_count - 1}")
-        if self._t["has_empty"] and np.any(self._t["total"][mids] == 0):
-            raise GszFormatError("rANS: symbol refers to an empty model")
+        self._check_models(mids)
         binary = "binary_f0" in self._t and self._lanes >= SCALAR_LANES
         out = np.empty(count, dtype=np.bool_ if binary else np.int64)
         # work in chunks of whole rows (~256k symbols) so the per-symbol arrays stay in cache
@@ -671,7 +673,40 @@ class RansDecoder:
             else:
                 self._decode_chunk(mids[j:end], out[j:end])
             j = end
-        return out.astype(np.int64) if binary else self._t["lut_value"].take(out)
+        return out.astype(np.int64) if binary else self._models.split_luts()[2].take(out)
+
+    def _check_models(self, mids: np.ndarray) -> None:
+        """Model ids within the set and of non-empty models (NumPy path)."""
+        m_count = self._models.num_models
+        if mids.min() < 0 or mids.max() >= m_count:
+            raise GszFormatError(f"rANS: model id outside 0..{m_count - 1}")
+        if self._t["has_empty"] and np.any(self._t["total"][mids] == 0):
+            raise GszFormatError("rANS: symbol refers to an empty model")
+
+    def decode_runs(self, run_models: np.ndarray, run_lengths: np.ndarray) -> np.ndarray:
+        """``decode(np.repeat(run_models, run_lengths))`` (same symbols, checks and errors);
+        long runs (a channel set's groups) are decoded with their model's scalars and no
+        per-symbol model-id array."""
+        rm = np.asarray(run_models, dtype=np.int64).ravel()
+        rl = np.asarray(run_lengths, dtype=np.int64).ravel()
+        count = int(rl.sum())
+        if (self._native or "binary_f0" in self._t or self._lanes < SCALAR_LANES
+                or count < (1 << 14) * rm.size):
+            return self.decode(np.repeat(rm, rl))
+        if self._pos + count > self._n:
+            raise GszFormatError(f"rANS: asked for {self._pos + count} symbols, "
+                                 f"stream has {self._n}")
+        self._check_models(rm[rl > 0])
+        out = np.empty(count, dtype=np.int64)
+        chunk = max(1, (1 << 18) // self._lanes) * self._lanes
+        j = 0
+        for m, length in zip(rm.tolist(), rl.tolist()):
+            end = j + length
+            while j < end:
+                e = min(end, j + chunk - (self._pos % self._lanes))
+                self._decode_chunk(None, out[j:e], model=m)
+                j = e
+        return self._models.split_luts()[2].take(out)
 
     def decode_blocks(self, table: np.ndarray, channels: int, length: int, blocks: int,
                       out: np.ndarray, steps=None, lo=None, qmax=None) -> None:
@@ -691,14 +726,17 @@ class RansDecoder:
             int(channels), int(length), int(blocks), out, *args)
         self._pos += count
 
-    def _decode_chunk(self, mids: np.ndarray, out: np.ndarray) -> None:
-        """Decode len(mids) symbols; writes their global LUT slots to ``out``."""
+    def _decode_chunk(self, mids: np.ndarray | None, out: np.ndarray, model=None) -> None:
+        """Decode len(out) symbols with models ``mids`` (or all with ``model``); writes their
+        global LUT slots to ``out``."""
         t = self._t
-        count = mids.size
+        count = out.size
         # per-symbol mask, shift and LUT base -- scalars where every model has one precision
         # or the chunk one model (the SH index streams, a channel's run of a channel set)
-        if count > 8192 and mids[0] == mids[-1] and not np.any(mids != mids[0]):
-            m0 = int(mids[0])
+        if model is None and count > 8192 and mids[0] == mids[-1] and not np.any(mids != mids[0]):
+            model = int(mids[0])
+        if model is not None:
+            m0 = model
             mask, shift, base = int(t["mask"][m0]), int(self._models.prec[m0]), int(t["lut_base"][m0])
         elif t["uniform_prec"] is not None:
             shift = t["uniform_prec"]
@@ -710,12 +748,12 @@ class RansDecoder:
             # rows of a few symbols: the same decode step on Python integers is ~10x faster
             # than a dozen NumPy calls per row (small streams, e.g. every stream of a tiny file)
             b = (lambda v: np.broadcast_to(v, (count,)))
-            self._wpos = _decode_scalar(mids, out, b(mask), b(shift), b(base), t["packed_lut"],
+            self._wpos = _decode_scalar(out, b(mask), b(shift), b(base), t["packed_lut"],
                                         self._words, self._states, lanes, self._pos, self._wpos)
             self._pos += count
             return
-        self._wpos = _decode_rows(out, mask, shift, base, t["lut_freq"], t["lut_bias"],
-                                  self._words, self._states, lanes, self._pos, self._wpos)
+        lut_freq, lut_bias, _ = self._models.split_luts()
+        self._wpos = _decode_rows(out, mask, shift, base, lut_freq, lut_bias, self._words, self._states, lanes, self._pos, self._wpos)
         self._pos += count
 
     def _decode_chunk_binary(self, mids: np.ndarray, out: np.ndarray) -> None:
@@ -770,10 +808,13 @@ def _renormalise(x, flag, words, wpos: int) -> int:
     if r:
         if wpos + r > words.size:
             raise GszFormatError("rANS: payload truncated (word stream exhausted)")
-        v = x[flag]
+        # a boolean mask is cheaper for a few states, an index list for many (wide rows of
+        # ~8-bit symbols renormalise half their lanes: masks cost 3x there)
+        sel = flag if 16 * r < x.size else np.flatnonzero(flag)
+        v = x[sel]
         v <<= WORD_BITS
         v |= words[wpos:wpos + r]
-        x[flag] = v
+        x[sel] = v
     return wpos + r
 
 
@@ -809,16 +850,16 @@ def _decode_rows_binary(out, f0, f1, n, words, states, lanes, pos, wpos) -> int:
 SCALAR_LANES = 8
 
 
-def _decode_scalar(mids, out, mask, shift, base, lut, words, states, lanes, pos, wpos) -> int:
+def _decode_scalar(out, mask, shift, base, lut, words, states, lanes, pos, wpos) -> int:
     """RansDecoder._decode_chunk for streams with few lanes, one symbol at a time (ENTROPY.md
     4.3, identical arithmetic); writes the global LUT slots to ``out``, returns the new word
     position."""
     st = states.tolist()
     masks, shifts, bases = mask.tolist(), shift.tolist(), base.tolist()
     nwords = words.size
-    res = [0] * mids.size
+    res = [0] * out.size
     lane = pos % lanes
-    for j in range(mids.size):
+    for j in range(out.size):
         x = st[lane]
         slot = (x & masks[j]) + bases[j]
         e = int(lut[slot])

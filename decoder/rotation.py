@@ -120,6 +120,29 @@ def euler_to_quaternion(euler: np.ndarray) -> np.ndarray:
     return np.where(q[..., :1] < 0, -q, q)
 
 
+def quaternion_f32_from_trig(c: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """``euler_to_quaternion(...).astype(float32)`` from the cos and sin of the half angles
+    (float64 [3, M], :func:`half_angle_trig`): the same products in the same order (the four
+    shared two-factor products computed once), the same sign rule, as float32 [M, 4]."""
+    cr, cp, cy = c
+    sr, sp, sy = s
+    crcp, srsp, srcp, crsp = cr * cp, sr * sp, sr * cp, cr * sp
+    q0 = crcp * cy
+    q0 += srsp * sy
+    q1 = srcp * cy
+    q1 -= crsp * sy
+    q2 = crsp * cy
+    q2 += srcp * sy
+    q3 = crcp * sy
+    q3 -= srsp * cy
+    neg = q0 < 0
+    out = np.empty((q0.shape[0], 4), dtype=np.float32)
+    for i, q in enumerate((q0, q1, q2, q3)):
+        np.negative(q, out=q, where=neg)
+        out[:, i] = q
+    return out
+
+
 def euler_to_matrix(euler: np.ndarray) -> np.ndarray:
     """Rz(yaw) Ry(pitch) Rx(roll) as float64 [..., 3, 3] (reference form of the convention)."""
     e = np.asarray(euler, dtype=np.float64)
