@@ -181,8 +181,6 @@ POPCOUNT8 = np.array([bin(v).count("1") for v in range(256)], dtype=np.int64)
 #: RANK8[j, o] = number of set bits of byte o below bit j
 RANK8 = np.array([[bin(o & ((1 << j) - 1)).count("1") for o in range(256)] for j in range(8)],
                  dtype=np.int64)
-_RANK_OR_ABSENT = np.where(((np.arange(256)[None, :] >> np.arange(8)[:, None]) & 1) == 1, RANK8,
-                           -(1 << 62))
 
 
 def _make_child_plan():
@@ -204,60 +202,52 @@ CHILD_PAR, CHILD_IDX = _make_child_plan()
 #: the 8 parent-level offsets holding the 26 neighbours of child k (its octant, self included)
 _OCTANT = [[int(o) for o in np.unique(CHILD_PAR[k])] for k in range(8)]
 _NOT_SELF = [t for t in range(27) if t != SELF]
+_RANK8_T = np.ascontiguousarray(RANK8.T)     # [byte, j]
 
 
-def _child_neighbour_table(nbr: np.ndarray, occ: np.ndarray) -> np.ndarray:
+def _child_neighbour_table(nbr: np.ndarray, col: np.ndarray | None, occ: np.ndarray):
     """27-neighbour table of the next level, derived from the current one without any search.
 
-    nbr: int64 [27, N] neighbour table of the current level (row t = offset t, -1 where absent);
-    occ: uint8 [N] its final occupancy bytes.  Returns int64 [27, C] for the C children in
-    Morton order (node-major, child index ascending).
-    A neighbour of child c lies in a neighbour (or self) of c's parent, so it exists iff that
-    node exists and has the corresponding child bit; its index is the parent's first-child index
-    plus the rank of the bit among the parent's children.
+    nbr, col: the current level's table (see below) and its column of every node (None: column
+    = Morton index); occ: uint8 [N] the level's final occupancy bytes.
+    Returns (table, col) of the C children: ``table[t, p]`` = Morton index of the neighbour at
+    offset t of the child in column p, -1 where absent (int32 where it fits: the decoder's
+    largest array; row SELF is not filled), and ``col`` int64 [C] the column of every child.
+    Columns are grouped by child index k (the children with index k of ascending parents):
+    within a group the parent-level offset and child index of each neighbour are scalars, and
+    writing whole column runs beats scattering into Morton columns (every cache line of every
+    row touched 8 times).  A neighbour of child c lies in a neighbour (or self) of c's parent,
+    so it exists iff that node exists and has the corresponding child bit.
     """
     n = occ.shape[0]
     start = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(POPCOUNT8[occ], out=start[1:])
-    # one gather per neighbour: (first-child index << 8) | occupancy byte; slot n = absent (0),
-    # which the -1 entries of ``nbr`` reach (mode="wrap")
-    packed = np.empty(n + 1, dtype=np.int64)
-    np.left_shift(start[:n], 8, out=packed[:n])
-    packed[:n] |= occ
-    packed[n] = 0
     c = int(start[n])
-    # built group by group (children with index k: the parent-level offset and child index of
-    # each neighbour are scalars within a group), each group's columns contiguous -- scattering
-    # straight into Morton columns touched every cache line of every row 8 times -- then put
-    # into Morton order with one gather per row (eight sorted runs, near-sequential)
-    # int32 where it fits: the table is the decoder's largest array (27 entries per node)
-    grouped = np.empty((27, c), dtype=np.int32 if c < (1 << 31) else np.int64)
-    col = np.empty(c, dtype=np.int64)         # Morton index -> column of ``grouped``
+    dt = np.int32 if c < (1 << 31) else np.int64
+    # ch[p, j]: Morton index of child j of node p, -1 if absent; row N (the absent node that
+    # nbr's -1 entries reach) all -1
+    ch = np.full((n + 1, 8), -1, dtype=dt)
+    has = np.unpackbits(occ[:, None], axis=1, bitorder="little").view(np.bool_)
+    np.copyto(ch[:n], start[:n, None] + _RANK8_T.take(occ, axis=0), where=has, casting="unsafe")
+    chf = ch.ravel()
+    table = np.empty((27, c), dtype=dt)
+    new_col = np.empty(c, dtype=np.int64)
     g0 = 0
     for k in range(8):
         r = np.flatnonzero(occ & np.uint8(1 << k))
         if r.size == 0:
             continue
         g1 = g0 + r.size
-        sel = start[r] + RANK8[k].take(occ[r])          # the children's Morton indices
-        col[sel] = np.arange(g0, g1)
-        # the 26 neighbours of child k lie in the 8 parent-level nodes of k's octant
-        hi, lo = {}, {}
-        for o in _OCTANT[k]:
-            v = packed.take(nbr[o].take(r), mode="wrap")
-            hi[o], lo[o] = v >> 8, v & 255
+        new_col[ch[r, k]] = np.arange(g0, g1)
+        rc = r if col is None else col.take(r)
+        # row offsets into ch of the 8 parent-level nodes of k's octant (-8 for absent ones:
+        # mode="wrap" takes them to row N)
+        base = {o: (r if o == SELF else nbr[o].take(rc).astype(np.int64)) << 3 for o in _OCTANT[k]}
         for t in _NOT_SELF:
-            o, j = int(CHILD_PAR[k, t]), int(CHILD_IDX[k, t])
-            # rank of bit j if set, else a large negative number that the max turns into -1
-            v = _RANK_OR_ABSENT[j].take(lo[o])
-            v += hi[o]
-            np.maximum(v, -1, out=v)
-            grouped[t, g0:g1] = v
+            j = int(CHILD_IDX[k, t])
+            np.take(chf, base[int(CHILD_PAR[k, t])] + j, out=table[t, g0:g1], mode="wrap")
         g0 = g1
-    for t in _NOT_SELF:                        # in place: one table's memory, not two
-        grouped[t] = grouped[t][col]
-    grouped[SELF] = np.arange(c)
-    return grouped
+    return table, new_col
 
 
 def _make_plane_tables(level_bucket: int) -> list:
@@ -326,18 +316,18 @@ def _make_gather_plan() -> list:
 _GATHER_PLAN = _make_gather_plan()
 
 
-def plane_contexts(k: int, state: np.ndarray, nbr: np.ndarray, level_bucket: int,
-                   held: dict) -> np.ndarray:
+def plane_contexts(k: int, state: np.ndarray, nbr: np.ndarray, col: np.ndarray | None,
+                   level_bucket: int, held: dict) -> np.ndarray:
     """Packed context ids ``coarse << 32 | fine`` of child ``k`` of every node of a level.
 
     state: uint16 [N + 1] per node 256 | occupancy bits decoded so far (bits < k), slot N = 0
-    (absent; the -1 entries of ``nbr`` reach it); nbr: int [27, N] from
-    :func:`_child_neighbour_table`; held: the neighbour states gathered by earlier planes of
-    the level (``_GATHER_PLAN``), empty at k = 0, updated.  Returns int64 [N].
+    (absent; the -1 entries of ``nbr`` reach it); nbr, col: from :func:`_child_neighbour_table`;
+    held: the neighbour states gathered by earlier planes of the level (``_GATHER_PLAN``, in
+    column order), empty at k = 0, updated.  Returns int64 [N] in Morton order.
     """
     ts, tab = _PLANE_TABLES[level_bucket][k]
-    n = nbr.shape[1]
-    acc = tab[0].take(state[:n])
+    n = state.shape[0] - 1
+    acc = np.zeros(n, dtype=np.int64)
     tmp = np.empty(n, dtype=np.int64)
     for i, (t, fresh, last) in enumerate(_GATHER_PLAN[k], start=1):
         g = state.take(nbr[t]) if fresh else held[t]      # -1 (absent) reads slot N
@@ -347,6 +337,10 @@ def plane_contexts(k: int, state: np.ndarray, nbr: np.ndarray, level_bucket: int
             held.pop(t, None)
         elif fresh:
             held[t] = g
+    if col is not None:
+        acc = acc.take(col)                               # columns -> Morton order
+    np.take(tab[0], state[:n], out=tmp, mode="clip")
+    acc += tmp
     return acc
 
 
@@ -391,8 +385,7 @@ def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
     ff_n = np.zeros(NUM_FINE, dtype=np.int64)
     marks = None
     codes = np.zeros(1, dtype=np.uint64)
-    nbr = np.full((27, 1), -1, dtype=np.int64)
-    nbr[SELF, 0] = 0
+    nbr, col = np.full((27, 1), -1, dtype=np.int64), None    # the root has no neighbours
     # fine contexts that may exceed COUNT_LIMIT after a level: those used in it and those still
     # above the limit after the previous halving (scanning all 2.8 M pairs per level cost more
     # than the traversal itself on small files)
@@ -410,7 +403,7 @@ def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
         lb = min(NUM_LEVEL_BUCKETS - 1, depth - 1 - level)
         held = {}
         for k in range(8):
-            ctx = plane_contexts(k, state, nbr, lb, held)
+            ctx = plane_contexts(k, state, nbr, col, lb, held)
             coded = None
             if k == 7:
                 free = (state[:n] & 127) == 0   # no child yet: child 7 for free, not coded
@@ -462,7 +455,7 @@ def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
         nz = np.flatnonzero(np.unpackbits(occ, bitorder="little"))
         codes = (codes[nz >> 3] << np.uint64(3)) | (nz & 7).astype(np.uint64)
         if level + 1 < depth:
-            nbr = _child_neighbour_table(nbr, occ)
+            nbr, col = _child_neighbour_table(nbr, col, occ)
     if codes.shape[0] != num_points:
         raise GszFormatError(f"octree decodes to {codes.shape[0]} points, header declares {num_points}")
     return codes
