@@ -756,6 +756,30 @@ class RansDecoder:
         self._wpos = _decode_rows(out, mask, shift, base, lut_freq, lut_bias, self._words, self._states, lanes, self._pos, self._wpos)
         self._pos += count
 
+    def binary_reader(self):
+        """A function ``read(model_ids) -> int64 bits``: :meth:`decode` for a binary model set
+        (``ModelSet.build``'s ``binary_f0``, e.g. the octree bank) without its per-call model
+        checks -- for callers whose model ids are valid by construction (an invalid one still
+        raises IndexError) -- or :meth:`decode` itself on any other set or path."""
+        if self._native or "binary_f0" not in self._t or self._lanes < SCALAR_LANES:
+            return self.decode
+        n = self._t["uniform_prec"]
+        f0_of, total = self._t["binary_f0"], 1 << n
+
+        def read(model_ids):
+            mids = np.asarray(model_ids)
+            count = mids.size
+            if self._pos + count > self._n:
+                raise GszFormatError(f"rANS: asked for {self._pos + count} symbols, "
+                                     f"stream has {self._n}")
+            out = np.empty(count, dtype=np.bool_)
+            f0 = f0_of.take(mids)
+            self._wpos = _decode_rows_binary(out, f0, total - f0, n, self._words, self._states,
+                                             self._lanes, self._pos, self._wpos)
+            self._pos += count
+            return out.astype(np.int64)
+        return read
+
     def _decode_chunk_binary(self, mids: np.ndarray, out: np.ndarray) -> None:
         """_decode_chunk for binary models (``binary_f0``): writes the bits (bool) to ``out``."""
         n = self._t["uniform_prec"]
@@ -820,28 +844,28 @@ def _renormalise(x, flag, words, wpos: int) -> int:
 
 def _decode_rows_binary(out, f0, f1, n, words, states, lanes, pos, wpos) -> int:
     """_decode_rows for binary models of precision n: symbol 0 owns slots [0, f0), symbol 1
-    [f0, 2**n) (f0, f1 = 2**n - f0: per symbol), so the decode step needs no LUT:
-    b = slot >= f0, x = (b ? f1 : f0) * (x >> n) + slot - (b ? f0 : 0).  Bits to ``out``."""
+    [f0, 2**n) (f0, f1 = 2**n - f0: per symbol), so the decode step needs no LUT.  With
+    q = x >> n and b = (x & (2**n - 1)) >= f0 the step freq * q + slot - cum is
+    x - (b ? f0 : f1) * (q + b) (expand x = q 2**n + slot).  Bits to ``out`` (bool)."""
     count = out.size
     mask = (1 << n) - 1
     w = min(lanes, count)
-    slot, freq, flag = np.empty(w, np.int64), np.empty(w, np.int64), np.empty(w, np.bool_)
+    slot, q, flag = np.empty(w, np.int64), np.empty(w, np.int64), np.empty(w, np.bool_)
     j = 0
     while j < count:
         lane0 = (pos + j) % lanes
         k = min(lanes - lane0, count - j)
         x = states[lane0:lane0 + k]
-        s, fr, b = slot[:k], freq[:k], out[j:j + k]
-        lo, hi = f0[j:j + k], f1[j:j + k]
+        b, lo = out[j:j + k], f0[j:j + k]
+        s, qq = (slot, q) if k == w else (slot[:k], q[:k])
         np.bitwise_and(x, mask, out=s)
         np.greater_equal(s, lo, out=b)
-        np.copyto(fr, lo)
-        np.copyto(fr, hi, where=b)
-        np.subtract(s, lo, out=s, where=b)
-        np.right_shift(x, n, out=x)
-        np.multiply(x, fr, out=x)
-        np.add(x, s, out=x)
-        wpos = _renormalise(x, flag[:k], words, wpos)
+        np.right_shift(x, n, out=qq)
+        qq += b
+        fr = np.where(b, lo, f1[j:j + k])
+        fr *= qq
+        x -= fr
+        wpos = _renormalise(x, flag if k == w else flag[:k], words, wpos)
         j += k
     return wpos
 
