@@ -211,8 +211,8 @@ def _child_neighbour_table(nbr: np.ndarray, col: np.ndarray | None, occ: np.ndar
     nbr, col: the current level's table (see below) and its column of every node (None: column
     = Morton index); occ: uint8 [N] the level's final occupancy bytes.
     Returns (table, col) of the C children: ``table[t, p]`` = Morton index of the neighbour at
-    offset t of the child in column p, -1 where absent (int32 where it fits: the decoder's
-    largest array; row SELF is not filled), and ``col`` int64 [C] the column of every child.
+    offset t of the child in column p, -1 where absent (int32 where it fits; row SELF is not
+    filled), and ``col`` int64 [C] the column of every child.
     Columns are grouped by child index k (the children with index k of ascending parents):
     within a group the parent-level offset and child index of each neighbour are scalars, and
     writing whole column runs beats scattering into Morton columns (every cache line of every
@@ -223,6 +223,8 @@ def _child_neighbour_table(nbr: np.ndarray, col: np.ndarray | None, occ: np.ndar
     start = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(POPCOUNT8[occ], out=start[1:])
     c = int(start[n])
+    # int32 where it fits: the table is the decoder's largest array, and fresh memory costs
+    # page faults on every level
     dt = np.int32 if c < (1 << 31) else np.int64
     # ch[p, j]: Morton index of child j of node p, -1 if absent; row N (the absent node that
     # nbr's -1 entries reach) all -1
@@ -242,7 +244,7 @@ def _child_neighbour_table(nbr: np.ndarray, col: np.ndarray | None, occ: np.ndar
         rc = r if col is None else col.take(r)
         # row offsets into ch of the 8 parent-level nodes of k's octant (-8 for absent ones:
         # mode="wrap" takes them to row N)
-        base = {o: (r if o == SELF else nbr[o].take(rc).astype(np.int64)) << 3 for o in _OCTANT[k]}
+        base = {o: (r if o == SELF else nbr[o][rc].astype(np.int64)) << 3 for o in _OCTANT[k]}
         for t in _NOT_SELF:
             j = int(CHILD_IDX[k, t])
             np.take(chf, base[int(CHILD_PAR[k, t])] + j, out=table[t, g0:g1], mode="wrap")
@@ -327,12 +329,14 @@ def plane_contexts(k: int, state: np.ndarray, nbr: np.ndarray, col: np.ndarray |
     """
     ts, tab = _PLANE_TABLES[level_bucket][k]
     n = state.shape[0] - 1
-    acc = np.zeros(n, dtype=np.int64)
+    acc = np.empty(n, dtype=np.int64)
     tmp = np.empty(n, dtype=np.int64)
     for i, (t, fresh, last) in enumerate(_GATHER_PLAN[k], start=1):
-        g = state.take(nbr[t]) if fresh else held[t]      # -1 (absent) reads slot N
-        np.take(tab[i], g, out=tmp, mode="clip")
-        acc += tmp
+        # fancy indexing: faster than take() here; -1 (absent) reads slot N
+        g = state[nbr[t]] if fresh else held[t]
+        np.take(tab[i], g, out=acc if i == 1 else tmp, mode="clip")
+        if i > 1:
+            acc += tmp
         if last:
             held.pop(t, None)
         elif fresh:
