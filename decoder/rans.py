@@ -848,6 +848,7 @@ def _decode_rows_binary(out, f0, f1, n, words, states, lanes, pos, wpos) -> int:
     q = x >> n and b = (x & (2**n - 1)) >= f0 the step freq * q + slot - cum is
     x - (b ? f0 : f1) * (q + b) (expand x = q 2**n + slot).  Bits to ``out`` (bool)."""
     count = out.size
+    nwords = words.size
     mask = (1 << n) - 1
     w = min(lanes, count)
     slot, q, flag = np.empty(w, np.int64), np.empty(w, np.int64), np.empty(w, np.bool_)
@@ -865,7 +866,18 @@ def _decode_rows_binary(out, f0, f1, n, words, states, lanes, pos, wpos) -> int:
         fr = np.where(b, lo, f1[j:j + k])
         fr *= qq
         x -= fr
-        wpos = _renormalise(x, flag if k == w else flag[:k], words, wpos)
+        # _renormalise inlined (few states per row renormalise here: a mask is cheapest)
+        fl = flag if k == w else flag[:k]
+        np.less(x, STATE_LOW, out=fl)
+        v = x[fl]
+        r = v.size
+        if r:
+            if wpos + r > nwords:
+                raise GszFormatError("rANS: payload truncated (word stream exhausted)")
+            v <<= WORD_BITS
+            v |= words[wpos:wpos + r]
+            x[fl] = v
+            wpos += r
         j += k
     return wpos
 
