@@ -202,7 +202,6 @@ CHILD_PAR, CHILD_IDX = _make_child_plan()
 #: the 8 parent-level offsets holding the 26 neighbours of child k (its octant, self included)
 _OCTANT = [[int(o) for o in np.unique(CHILD_PAR[k])] for k in range(8)]
 _NOT_SELF = [t for t in range(27) if t != SELF]
-_RANK8_T = np.ascontiguousarray(RANK8.T)     # [byte, j]
 
 
 def _child_neighbour_table(nbr: np.ndarray, col: np.ndarray | None, occ: np.ndarray):
@@ -226,12 +225,13 @@ def _child_neighbour_table(nbr: np.ndarray, col: np.ndarray | None, occ: np.ndar
     # int32 where it fits: the table is the decoder's largest array, and fresh memory costs
     # page faults on every level
     dt = np.int32 if c < (1 << 31) else np.int64
-    # ch[p, j]: Morton index of child j of node p, -1 if absent; row N (the absent node that
-    # nbr's -1 entries reach) all -1
-    ch = np.full((n + 1, 8), -1, dtype=dt)
-    has = np.unpackbits(occ[:, None], axis=1, bitorder="little").view(np.bool_)
-    np.copyto(ch[:n], start[:n, None] + _RANK8_T.take(occ, axis=0), where=has, casting="unsafe")
-    chf = ch.ravel()
+    # ch[j, p]: Morton index of child j of node p, -1 if absent; column N (the absent node that
+    # nbr's -1 entries reach, mode="wrap") all -1.  j-major: a group's lookups for one
+    # neighbour read one row, in ascending parent order (cache-resident)
+    ch = np.full((8, n + 1), -1, dtype=dt)
+    for j in range(8):
+        np.copyto(ch[j, :n], start[:n] + RANK8[j].take(occ), where=(occ & np.uint8(1 << j)) > 0,
+                  casting="unsafe")
     table = np.empty((27, c), dtype=dt)
     new_col = np.empty(c, dtype=np.int64)
     g0 = 0
@@ -240,14 +240,13 @@ def _child_neighbour_table(nbr: np.ndarray, col: np.ndarray | None, occ: np.ndar
         if r.size == 0:
             continue
         g1 = g0 + r.size
-        new_col[ch[r, k]] = np.arange(g0, g1)
+        new_col[ch[k, r]] = np.arange(g0, g1)
         rc = r if col is None else col.take(r)
-        # row offsets into ch of the 8 parent-level nodes of k's octant (-8 for absent ones:
-        # mode="wrap" takes them to row N)
-        base = {o: (r if o == SELF else nbr[o][rc].astype(np.int64)) << 3 for o in _OCTANT[k]}
+        # the 8 parent-level nodes of k's octant (-1 where absent)
+        par = {o: r if o == SELF else nbr[o][rc].astype(np.intp) for o in _OCTANT[k]}
         for t in _NOT_SELF:
-            j = int(CHILD_IDX[k, t])
-            np.take(chf, base[int(CHILD_PAR[k, t])] + j, out=table[t, g0:g1], mode="wrap")
+            np.take(ch[int(CHILD_IDX[k, t])], par[int(CHILD_PAR[k, t])], out=table[t, g0:g1],
+                    mode="wrap")
         g0 = g1
     return table, new_col
 
