@@ -139,8 +139,8 @@ def raht_inverse(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
 
 def raht_inverse_planes(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
     """:func:`raht_inverse` channel-major: ac float [C, N-1] (stream order) -> float64 [C, N],
-    the same values (every channel's butterflies are the same float64 operations; the rows
-    are contiguous, so the gathers and scatters move whole runs)."""
+    the same values (every channel's butterflies are the same float64 operations, one
+    channel's row at a time)."""
     dc = np.asarray(dc, dtype=np.float64).reshape(-1)
     ac = np.asarray(ac, dtype=np.float64)
     n = tree.num_points
@@ -148,20 +148,25 @@ def raht_inverse_planes(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.nd
         raise GszFormatError(f"RAHT inverse: expected AC shape ({dc.shape[0]}, {n - 1}), got {ac.shape}")
     v = np.empty((dc.shape[0], n), dtype=np.float64)
     v[:, 0] = dc
-    v[:, tree.ac_slots] = ac
+    # the high-pass value of a pair is its AC coefficient, read in stream order: the right
+    # slot of a level is first written by that level (no coarser node starts there), so the
+    # AC coefficients need not be scattered into v first
+    off = 0
     for lv in reversed(tree.levels):  # coarsest first: undo the merges top-down
         g1, g2, _ = lv.butterfly()
         g1, g2 = g1[:, 0], g2[:, 0]
         t, u = np.empty_like(g1), np.empty_like(g1)
-        for row in v:                        # one channel at a time: 1-D gathers, in cache
+        p = g1.shape[0]
+        for row, coef in zip(v, ac):         # one channel at a time: 1-D gathers, in cache
             low = row[lv.left]
-            high = row[lv.right]
+            high = coef[off:off + p]
             np.multiply(g1, low, out=t)
             np.multiply(g2, high, out=u)
             t -= u                           # L' = g1 low - g2 high
             row[lv.left] = t
             low *= g2
-            high *= g1
-            low += high                      # H' = g2 low + g1 high
+            np.multiply(g1, high, out=u)
+            low += u                         # H' = g2 low + g1 high
             row[lv.right] = low
+        off += p
     return v
