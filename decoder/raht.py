@@ -96,8 +96,12 @@ def build_raht_tree(morton_codes: np.ndarray, depth: int) -> RahtTree:
     if int(codes[-1]) >> (3 * depth):
         raise GszFormatError(f"Morton code {int(codes[-1])} exceeds 3*depth = {3 * depth} bits")
 
-    slots = np.arange(n, dtype=np.int64)
-    weights = np.ones(n, dtype=np.int64)
+    if n >= 1 << 31:
+        raise GszFormatError(f"RAHT tree of {n} points: more than 2^31")
+    # every node's slot and weight (both < 2^31) in one int64: slot << 32 | weight -- one
+    # gather and one compaction per level for both
+    node = (np.arange(n, dtype=np.int64) << 32) | 1
+    low32 = np.int64(0xFFFFFFFF)
     levels = []
     one = np.uint64(1)
     for level in range(3 * depth):
@@ -107,13 +111,14 @@ def build_raht_tree(morton_codes: np.ndarray, depth: int) -> RahtTree:
         parent = codes >> one
         pos = np.flatnonzero(parent[:-1] == parent[1:])
         if pos.size:
-            wl, wr = weights[pos], weights[pos + 1]
-            levels.append(RahtLevel(level, slots[pos], slots[pos + 1],
+            a, b = node[pos], node[pos + 1]
+            wl, wr = a & low32, b & low32
+            levels.append(RahtLevel(level, a >> 32, b >> 32,
                                     wl.astype(np.float64), wr.astype(np.float64)))
-            weights[pos] = wl + wr              # weights is a fresh array from the last level
+            node[pos] = a + wr                  # node is a fresh array from the last level
             keep = np.ones(codes.shape[0], dtype=bool)
             keep[pos + 1] = False
-            parent, slots, weights = parent[keep], slots[keep], weights[keep]
+            parent, node = parent[keep], node[keep]
         codes = parent
     if codes.shape[0] != 1:  # unreachable given the bit-length check; kept as a hard guard
         raise GszFormatError("RAHT tree did not reduce to a single root")
