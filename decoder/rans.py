@@ -264,18 +264,9 @@ class ModelSet:
         if self._tables is not None:
             return self._tables
         m_count = self.num_models
-        freqs, offs = [], []
-        sym_count = np.zeros(m_count, dtype=np.int64)
-        for m in range(m_count):
-            if self.types[m] == EMPTY:
-                continue
-            off, w = self.model_weights(m)
-            f = normalise_weights(w, int(self.prec[m]))
-            freqs.append(f)
-            offs.append(off + self.lo[m])
-            sym_count[m] = f.size
-        freq = np.concatenate(freqs) if freqs else np.zeros(0, np.int64)
-        value = np.concatenate(offs) if offs else np.zeros(0, np.int64)
+        sym_count, off, w = _symbol_weights(self)
+        freq = _normalise_all(w, sym_count, self.prec)
+        value = off + np.repeat(self.lo, sym_count)
         sym_start = np.zeros(m_count, dtype=np.int64)
         if m_count:
             sym_start[1:] = np.cumsum(sym_count)[:-1]
@@ -404,6 +395,108 @@ class ModelSet:
         sizes = np.minimum((allb + 1) << hb, np.repeat(span[co], nb) + 1) - (allb << hb)
         if np.any(np.add.reduceat(sizes, first) > (np.int64(1) << n[co])):
             raise GszFormatError("rANS model set: more coarse symbols than 2**n")
+
+
+def _expand(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """Concatenated ranges start .. start + length - 1."""
+    out = np.arange(int(lengths.sum()), dtype=np.int64)
+    out += np.repeat(starts - (np.cumsum(lengths) - lengths), lengths)
+    return out
+
+
+def _symbol_weights(ms: ModelSet) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:meth:`ModelSet.model_weights` of every model at once: (present symbols per model,
+    then per symbol in model order its offset within [0, span] and its weight).  The work is
+    linear in the number of symbols, at most the LUT size (sum of 2**n) that build() bounds."""
+    t, span = ms.types, ms.span
+    k = np.zeros(ms.num_models, dtype=np.int64)
+    k[t == SINGLE] = 1
+    lap = np.flatnonzero(t == LAPLACE)
+    k[lap] = span[lap] + 1
+    co = np.flatnonzero(t == COARSE)
+    nb, allb, allq = ms.coarse_flat() if co.size else (np.zeros(0, np.int64),) * 3
+    bm = np.repeat(co, nb)                         # model of every COARSE bin
+    h = ms.binshift[bm]
+    bsize = np.minimum((allb + 1) << h, span[bm] + 1) - (allb << h)
+    if co.size:
+        k[co] = np.add.reduceat(bsize, np.cumsum(nb) - nb)
+    start = np.cumsum(k) - k
+    off = np.zeros(int(k.sum()), dtype=np.int64)
+    w = np.zeros_like(off)
+    w[start[t == SINGLE]] = 1
+    if co.size:
+        pos = _expand(start[co], k[co])
+        off[pos] = _expand(allb << h, bsize)
+        w[pos] = np.repeat(level_weights_groups(allq, ms.group[bm]), bsize)
+    if lap.size:
+        pos = _expand(start[lap], k[lap])
+        rep = np.repeat(lap, k[lap])
+        o = pos - start[rep]
+        off[pos] = o
+        d = o - ms.centre[rep]
+        w[pos] = _laplace_table_weights(np.where(d < 0, ms.r_left[rep], ms.r_right[rep]),
+                                        np.abs(d))
+    return k, off, w
+
+
+def level_weights_groups(q: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """:func:`level_weights` with a level-group exponent per code (q >= 1 here)."""
+    qm = np.maximum(q - 1, 0)
+    return ((np.int64(1) << g) + (qm & ((np.int64(1) << g) - 1))) << (qm >> g)
+
+
+def _laplace_table_weights(code: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """LAPLACE weights floor(v_d * 2**24) of ratio codes ``code`` at distances ``dist`` (2**24 at
+    0): per distinct code one sequential product up to the largest distance it is asked for
+    (laplace_weights' exact products; their total length is at most the symbol count)."""
+    out = np.full(code.shape[0], 1 << LAPLACE_SCALE_BITS, dtype=np.int64)
+    far = dist > 0
+    c, d = code[far], dist[far]
+    if not c.size:
+        return out
+    longest = np.zeros(256, dtype=np.int64)
+    np.maximum.at(longest, c, d)
+    base = np.zeros(256, dtype=np.int64)
+    tables = []
+    pos = 0
+    for u in np.flatnonzero(longest).tolist():
+        steps = np.full(int(longest[u]), ratio_from_code(u) / RATIO_ONE, dtype=np.float64)
+        tables.append(np.floor(np.multiply.accumulate(steps) * float(1 << LAPLACE_SCALE_BITS)))
+        base[u] = pos
+        pos += int(longest[u])
+    out[far] = np.concatenate(tables).astype(np.int64)[base[c] + d - 1]
+    return out
+
+
+def _normalise_all(w: np.ndarray, k: np.ndarray, prec: np.ndarray) -> np.ndarray:
+    """:func:`normalise_weights` of every model at once (k symbols of model m, its weights
+    consecutive in ``w``; models with k = 0 are skipped): the same frequencies, the +1s going
+    to the largest remainders of each model (ties: lower index first) through one sort."""
+    used = np.flatnonzero(k > 0)
+    if not used.size:
+        return np.zeros(0, dtype=np.int64)
+    ku = k[used]
+    total = np.int64(1) << prec[used]
+    bad = np.flatnonzero(ku > total)
+    if bad.size:
+        raise GszFormatError(f"rANS model: {int(ku[bad[0]])} symbols do not fit precision "
+                             f"{int(prec[used[bad[0]]])}")
+    starts = np.cumsum(ku) - ku
+    rep = np.repeat(np.arange(used.size), ku)
+    big_w = np.add.reduceat(w, starts)
+    if np.any(big_w == 0):                       # every weight 0: all taken as 1
+        w = np.where((big_w == 0)[rep], 1, w)
+        big_w = np.add.reduceat(w, starts)
+    prod = w * (total - ku)[rep]                 # < 2**56: no overflow
+    wr = big_w[rep]
+    f = 1 + prod // wr
+    short = total - np.add.reduceat(f, starts)
+    if np.any(short > 0):
+        # within each model: descending remainder, ties by index (a stable sort of -rem)
+        order = np.lexsort((-(prod % wr), rep))
+        rank = np.arange(f.size) - np.repeat(starts, ku)
+        f[order[rank < short[rep]]] += 1
+    return f
 
 
 _ZSTD = threading.local()     # one decompression context per thread (~20 us to create)
