@@ -81,7 +81,9 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
         which[~kept_mask] = idx + p
     else:
         which = idx + p if idx.size else np.arange(m)
-    out = rows[which]
+    # rows as single 4*D-byte items: a 1-D take copies each row in one piece
+    item = np.dtype((np.void, 4 * d))
+    out = np.ascontiguousarray(rows).view(item)[:, 0].take(which).view(np.float32)
     return out.reshape(m, k, 3), codebook
 
 
