@@ -294,21 +294,30 @@ def _make_plane_tables(level_bucket: int) -> list:
 _PLANE_TABLES = [_make_plane_tables(lb) for lb in range(NUM_LEVEL_BUCKETS)]
 
 
+#: how a plane reads neighbour t (``_GATHER_PLAN``)
+_PRESENCE, _GATHER, _HELD = 0, 1, 2
+
+
 def _make_gather_plan() -> list:
     """Per child index k, for each non-self offset t of its plane table (in table order):
-    (t, gather, last): whether plane k gathers neighbour t's state afresh or reuses the one
-    gathered at an earlier plane g -- valid when every known bit the plane reads is < g (the
-    table masks off the rest; presence never changes) -- and whether plane k is its last use."""
+    (t, how, last).  how: _PRESENCE when the plane reads no known bit of t (its share is a
+    constant for a present neighbour), _GATHER when it gathers t's state afresh, _HELD when it
+    reuses the state gathered at an earlier plane g -- valid when every known bit the plane
+    reads is < g (the table masks off the rest; presence never changes); last: whether no
+    later plane reuses that gathered state."""
     plan, held, uses = [], {}, {}
     for k in range(8):
         row = []
         for t in _PLANE_TABLES[0][k][0][1:]:
             t = int(t)
             need = int(PLAN_KNOWN[0, k, t] | PLAN_KNOWN[1, k, t]).bit_length()
+            if need == 0:
+                row.append([t, _PRESENCE, False])
+                continue
             fresh = t not in held or held[t] < need
             if fresh:
                 held[t] = k
-            row.append([t, fresh, False])
+            row.append([t, _GATHER if fresh else _HELD, False])
             uses[t] = row[-1]
         plan.append(row)
     for entry in uses.values():
@@ -325,23 +334,30 @@ def plane_contexts(k: int, state: np.ndarray, nbr: np.ndarray, col: np.ndarray |
 
     state: uint16 [N + 1] per node 256 | occupancy bits decoded so far (bits < k), slot N = 0
     (absent; the -1 entries of ``nbr`` reach it); nbr, col: from :func:`_child_neighbour_table`;
-    held: the neighbour states gathered by earlier planes of the level (``_GATHER_PLAN``, in
-    column order), empty at k = 0, updated.  Returns int64 [N] in Morton order.
+    held: the neighbour states gathered and presence masks made by earlier planes of the
+    level (``_GATHER_PLAN``, in column order), empty at k = 0, updated.
+    Returns int64 [N] in Morton order.
     """
     ts, tab = _PLANE_TABLES[level_bucket][k]
     n = state.shape[0] - 1
-    acc = np.empty(n, dtype=np.int64)
+    acc = np.zeros(n, dtype=np.int64)
     tmp = np.empty(n, dtype=np.int64)
-    for i, (t, fresh, last) in enumerate(_GATHER_PLAN[k], start=1):
+    for i, (t, how, last) in enumerate(_GATHER_PLAN[k], start=1):
+        if how == _PRESENCE:
+            present = held.get(-1 - t)
+            if present is None:
+                present = held[-1 - t] = nbr[t] >= 0
+            np.multiply(present, tab[i][256], out=tmp)
+            acc += tmp
+            continue
         # fancy indexing with int64 indices: 2x faster than take() or int32 indices here (the
         # conversion included); -1 (absent) reads slot N
-        g = state[nbr[t].astype(np.intp, copy=False)] if fresh else held[t]
-        np.take(tab[i], g, out=acc if i == 1 else tmp, mode="clip")
-        if i > 1:
-            acc += tmp
+        g = state[nbr[t].astype(np.intp, copy=False)] if how == _GATHER else held[t]
+        np.take(tab[i], g, out=tmp, mode="clip")
+        acc += tmp
         if last:
             held.pop(t, None)
-        elif fresh:
+        elif how == _GATHER:
             held[t] = g
     if col is not None:
         acc = acc.take(col)                               # columns -> Morton order
