@@ -20,8 +20,8 @@ from . import native
 from .bytesio import Reader
 from .groups import read_channel_set
 from .layout import DIRECT_CHANNELS, RAHT_CHANNELS, ROTATION_EULER_ZYX
-from .raht import RahtTree, build_raht_tree, raht_inverse
-from .rotation import euler_to_quaternion, half_angle_trig
+from .raht import RahtTree, build_raht_tree, raht_inverse, raht_inverse_planes
+from .rotation import euler_to_quaternion, half_angle_trig, quaternion_f32_from_trig
 
 
 @dataclass
@@ -40,6 +40,20 @@ def attributes_from_channels(raht_values: np.ndarray, direct: np.ndarray) -> Att
         rotations=euler_to_quaternion(raht_values[:, 1:4]).astype(np.float32),
         sh_dc=raht_values[:, 4:7].astype(np.float32),
         scales=np.ascontiguousarray(direct.T, dtype=np.float32))
+
+
+def _attributes_from_planes(v: np.ndarray, direct: np.ndarray) -> Attributes:
+    """:func:`attributes_from_channels` of ``v.T``, from the channel-major values v float64
+    [7, M] (``raht_inverse_planes``): the same values bit for bit, with cos/sin on the same
+    contiguous [3, M] half angles as :func:`euler_to_quaternion`."""
+    ang = v[1:4]
+    half = np.where(np.isfinite(ang), ang, 0.0)
+    half *= 0.5
+    c, s = half_angle_trig(half)
+    return Attributes(opacities=v[0].astype(np.float32),
+                      rotations=quaternion_f32_from_trig(c, s),
+                      sh_dc=np.ascontiguousarray(v[4:7].T, dtype=np.float32),
+                      scales=np.ascontiguousarray(direct.T, dtype=np.float32))
 
 
 def parse_attributes(data, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -68,7 +82,7 @@ def attributes_from_coefficients(dc: np.ndarray, ac: np.ndarray, direct: np.ndar
     float32 conversions in C, cos/sin still NumPy's on the same arrays (bit-identical)."""
     if not native.enabled():
         tree = build_raht_tree(codes, depth)
-        return attributes_from_channels(raht_inverse(dc, ac.T, tree), direct)
+        return _attributes_from_planes(raht_inverse_planes(dc, ac, tree), direct)
     tree = native_tree(codes, depth)
     half = native_half_angles(tree, dc, ac)
     opacities, sh_dc, _ = native_opacity_dc(tree, dc, ac)

@@ -24,7 +24,7 @@ from . import native
 from .bytesio import Reader
 from .errors import GszFormatError
 from .quant import dequantize_groups, split_lengths, step_sizes, validate_group_params
-from .rans import RansDecoder, decode_stream, read_model_set
+from .rans import RansDecoder, read_model_set
 
 
 MODEL_PER_GROUP = 0
@@ -38,14 +38,20 @@ def group_model_ids(num_channels: int, length: int, num_blocks: int, bits=None,
     number of models.  Mode 0: c*B + block; mode 1: c*16 + bits[c, block] - 1 (groups of one
     channel with equal bit-widths share a model, which saves the model tables of small groups)."""
     block_of = np.repeat(np.arange(num_blocks, dtype=np.int64), split_lengths(length, num_blocks))
+    table, count = group_model_table(num_channels, num_blocks, bits, mode)
+    return table[:, block_of].ravel(), count
+
+
+def group_model_table(num_channels: int, num_blocks: int, bits=None,
+                      mode: int = MODEL_PER_GROUP) -> tuple[np.ndarray, int]:
+    """Model id of every (channel, block) group (int64 [C, B]) and the number of models
+    (see :func:`group_model_ids`)."""
     if mode == MODEL_PER_GROUP:
         table = np.arange(num_channels * num_blocks, dtype=np.int64).reshape(num_channels, num_blocks)
-        count = num_channels * num_blocks
-    else:
-        table = (np.arange(num_channels, dtype=np.int64)[:, None] * 16
-                 + np.asarray(bits, dtype=np.int64).reshape(num_channels, num_blocks) - 1)
-        count = num_channels * 16
-    return table[:, block_of].ravel(), count
+        return table, num_channels * num_blocks
+    table = (np.arange(num_channels, dtype=np.int64)[:, None] * 16
+             + np.asarray(bits, dtype=np.int64).reshape(num_channels, num_blocks) - 1)
+    return table, num_channels * 16
 
 
 def read_channel_set(r: Reader, *, max_length: int) -> np.ndarray:
@@ -65,9 +71,14 @@ def read_channel_set(r: Reader, *, max_length: int) -> np.ndarray:
     blob = r.blob()
     if native.enabled():
         return _decode_native(blob, c, length, b, bits, mins, maxs, mode)
-    mids, _ = group_model_ids(c, length, b, bits, mode)
-    symbols = decode_stream(blob, mids).reshape(c, length)
-    return dequantize_groups(symbols, mins, maxs, bits, split_lengths(length, b))
+    # decode_stream(blob, group_model_ids(...)) one group (a run of one model) at a time
+    lengths = split_lengths(length, b)
+    models, pos = read_model_set(blob, 0)
+    dec = RansDecoder(memoryview(blob)[pos:], c * length, models)
+    table, _ = group_model_table(c, b, bits, mode)
+    symbols = dec.decode_runs(table.ravel(), np.tile(lengths, c)).reshape(c, length)
+    dec.finish()
+    return dequantize_groups(symbols, mins, maxs, bits, lengths)
 
 
 def _decode_native(blob, c: int, length: int, b: int, bits, mins, maxs, mode: int) -> np.ndarray:

@@ -81,3 +81,18 @@ def morton_decode(codes: np.ndarray) -> np.ndarray:
     out[:, 1] = _compact3(c >> np.uint64(1))
     out[:, 2] = _compact3(c)
     return out
+
+
+def morton_decode_planes(codes: np.ndarray) -> np.ndarray:
+    """:func:`morton_decode` as three rows: int64 [3, M] (x, y, z), the same checks."""
+    c = np.asarray(codes)
+    if c.ndim != 1:
+        raise GszFormatError(f"morton_decode expects a 1-D code array, got shape {c.shape}")
+    c = c.astype(np.uint64, copy=False)
+    if c.size and int(c.max()) >= (1 << (3 * MAX_DEPTH)):
+        raise GszFormatError("Morton code out of range (more than 63 bits)")
+    out = np.empty((3, c.shape[0]), dtype=np.int64)
+    out[0] = _compact3(c >> np.uint64(2))
+    out[1] = _compact3(c >> np.uint64(1))
+    out[2] = _compact3(c)
+    return out

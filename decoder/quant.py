@@ -98,6 +98,16 @@ def dequantize_groups(symbols: np.ndarray, mins: np.ndarray, maxs: np.ndarray, b
     qmax = (np.left_shift(1, np.asarray(bits, dtype=np.int64)) - 1)[:, nonempty]
     if np.any(group_max > qmax):
         raise GszFormatError("quantisation symbol exceeds its group's 2^q - 1")
+    if lengths.shape[0] <= 64 or length >= 256 * lengths.shape[0]:
+        # few or long blocks: each block's step and minimum broadcast over its columns (the
+        # same products and sums as below, without two [C, L] arrays of repeated parameters)
+        out = np.empty((c, length), dtype=np.float64)
+        ends = np.cumsum(lengths)
+        for blk, (s, e) in enumerate(zip((ends - lengths).tolist(), ends.tolist())):
+            if e > s:
+                np.multiply(steps[:, blk:blk + 1], sym[:, s:e], out=out[:, s:e])
+                out[:, s:e] += lo[:, blk:blk + 1]
+        return out
     out = np.repeat(steps, lengths, axis=1)
     out *= sym
     out += np.repeat(lo, lengths, axis=1)

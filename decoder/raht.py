@@ -96,25 +96,30 @@ def build_raht_tree(morton_codes: np.ndarray, depth: int) -> RahtTree:
     if int(codes[-1]) >> (3 * depth):
         raise GszFormatError(f"Morton code {int(codes[-1])} exceeds 3*depth = {3 * depth} bits")
 
-    slots = np.arange(n, dtype=np.int64)
-    weights = np.ones(n, dtype=np.int64)
+    if n >= 1 << 31:
+        raise GszFormatError(f"RAHT tree of {n} points: more than 2^31")
+    # every node's slot and weight (both < 2^31) in one int64: slot << 32 | weight -- one
+    # gather and one compaction per level for both
+    node = (np.arange(n, dtype=np.int64) << 32) | 1
+    low32 = np.int64(0xFFFFFFFF)
     levels = []
     one = np.uint64(1)
     for level in range(3 * depth):
         if codes.shape[0] == 1:
             break
         # Sorted unique codes: siblings are adjacent, left one even, right one = left + 1.
-        is_left = (codes[:-1] >> one) == (codes[1:] >> one)
-        pos = np.flatnonzero(is_left)
+        parent = codes >> one
+        pos = np.flatnonzero(parent[:-1] == parent[1:])
         if pos.size:
-            levels.append(RahtLevel(level, slots[pos], slots[pos + 1],
-                                    weights[pos].astype(np.float64), weights[pos + 1].astype(np.float64)))
-            weights = weights.copy()
-            weights[pos] += weights[pos + 1]
+            a, b = node[pos], node[pos + 1]
+            wl, wr = a & low32, b & low32
+            levels.append(RahtLevel(level, a >> 32, b >> 32,
+                                    wl.astype(np.float64), wr.astype(np.float64)))
+            node[pos] = a + wr                  # node is a fresh array from the last level
             keep = np.ones(codes.shape[0], dtype=bool)
             keep[pos + 1] = False
-            codes, slots, weights = codes[keep], slots[keep], weights[keep]
-        codes = codes >> one
+            parent, node = parent[keep], node[keep]
+        codes = parent
     if codes.shape[0] != 1:  # unreachable given the bit-length check; kept as a hard guard
         raise GszFormatError("RAHT tree did not reduce to a single root")
     ac_slots = (np.concatenate([lv.right for lv in reversed(levels)]) if levels
@@ -134,13 +139,39 @@ def raht_inverse(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
     n = tree.num_points
     if ac.ndim != 2 or ac.shape != (n - 1, dc.shape[0]):
         raise GszFormatError(f"RAHT inverse: expected AC shape ({n - 1}, {dc.shape[0]}), got {ac.shape}")
-    v = np.empty((n, dc.shape[0]), dtype=np.float64)
-    v[0] = dc
-    v[tree.ac_slots] = ac
+    return np.ascontiguousarray(raht_inverse_planes(dc, ac.T, tree).T)
+
+
+def raht_inverse_planes(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
+    """:func:`raht_inverse` channel-major: ac float [C, N-1] (stream order) -> float64 [C, N],
+    the same values (every channel's butterflies are the same float64 operations, one
+    channel's row at a time)."""
+    dc = np.asarray(dc, dtype=np.float64).reshape(-1)
+    ac = np.asarray(ac, dtype=np.float64)
+    n = tree.num_points
+    if ac.ndim != 2 or ac.shape != (dc.shape[0], n - 1):
+        raise GszFormatError(f"RAHT inverse: expected AC shape ({dc.shape[0]}, {n - 1}), got {ac.shape}")
+    v = np.empty((dc.shape[0], n), dtype=np.float64)
+    v[:, 0] = dc
+    # the high-pass value of a pair is its AC coefficient, read in stream order: the right
+    # slot of a level is first written by that level (no coarser node starts there), so the
+    # AC coefficients need not be scattered into v first
+    off = 0
     for lv in reversed(tree.levels):  # coarsest first: undo the merges top-down
         g1, g2, _ = lv.butterfly()
-        low = v[lv.left]
-        high = v[lv.right]
-        v[lv.left] = g1 * low - g2 * high
-        v[lv.right] = g2 * low + g1 * high
+        g1, g2 = g1[:, 0], g2[:, 0]
+        t, u = np.empty_like(g1), np.empty_like(g1)
+        p = g1.shape[0]
+        for row, coef in zip(v, ac):         # one channel at a time: 1-D gathers, in cache
+            low = row[lv.left]
+            high = coef[off:off + p]
+            np.multiply(g1, low, out=t)
+            np.multiply(g2, high, out=u)
+            t -= u                           # L' = g1 low - g2 high
+            row[lv.left] = t
+            low *= g2
+            np.multiply(g1, high, out=u)
+            low += u                         # H' = g2 low + g1 high
+            row[lv.right] = low
+        off += p
     return v

@@ -264,18 +264,9 @@ class ModelSet:
         if self._tables is not None:
             return self._tables
         m_count = self.num_models
-        freqs, offs = [], []
-        sym_count = np.zeros(m_count, dtype=np.int64)
-        for m in range(m_count):
-            if self.types[m] == EMPTY:
-                continue
-            off, w = self.model_weights(m)
-            f = normalise_weights(w, int(self.prec[m]))
-            freqs.append(f)
-            offs.append(off + self.lo[m])
-            sym_count[m] = f.size
-        freq = np.concatenate(freqs) if freqs else np.zeros(0, np.int64)
-        value = np.concatenate(offs) if offs else np.zeros(0, np.int64)
+        sym_count, off, w = _symbol_weights(self)
+        freq = _normalise_all(w, sym_count, self.prec)
+        value = off + np.repeat(self.lo, sym_count)
         sym_start = np.zeros(m_count, dtype=np.int64)
         if m_count:
             sym_start[1:] = np.cumsum(sym_count)[:-1]
@@ -294,10 +285,29 @@ class ModelSet:
         packed_lut = np.repeat((np.arange(freq.size, dtype=np.int64) << 33) + (freq << 16) - start,
                                freq)
         packed_lut += np.arange(packed_lut.size, dtype=np.int64)
+        used = self.types != EMPTY
+        uniform = bool(used.any()) and int(self.prec[used].min()) == int(self.prec[used].max())
         self._tables = dict(freq=freq, cum=cum, value=value, sym_start=sym_start,
                             sym_count=sym_count, lut_base=lut_base, packed_lut=packed_lut,
-                            total=total, mask=total - 1)
+                            total=total, mask=total - 1,
+                            uniform_prec=int(self.prec[used][0]) if uniform else None,
+                            has_empty=bool((~used).any()))
+        # binary models of one precision with values 0 and 1 (the octree bank, flag streams):
+        # the row loop decides a symbol by one comparison with the frequency of the 0
+        if (uniform and not self._tables["has_empty"] and np.all(sym_count == 2)
+                and np.array_equal(value, np.tile(np.array([0, 1], np.int64), m_count))):
+            self._tables["binary_f0"] = freq[sym_start]
         return self._tables
+
+    def split_luts(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The NumPy row loop's LUTs (once, after :meth:`build`): freq, slot - cum and value of
+        every slot's symbol (two gathers per row instead of one and four unpacking steps)."""
+        t = self._tables
+        if "lut_freq" not in t:
+            p = t["packed_lut"]
+            t["lut_freq"], t["lut_bias"] = (p >> 16) & 0x1FFFF, p & 0xFFFF
+            t["lut_value"] = t["value"][p >> 33]
+        return t["lut_freq"], t["lut_bias"], t["lut_value"]
 
     def native_tables(self, max_lut_entries: int) -> tuple:
         """Build (once) the compact decoding tables of the C decoder (``_native.rans_tables``:
@@ -385,6 +395,108 @@ class ModelSet:
         sizes = np.minimum((allb + 1) << hb, np.repeat(span[co], nb) + 1) - (allb << hb)
         if np.any(np.add.reduceat(sizes, first) > (np.int64(1) << n[co])):
             raise GszFormatError("rANS model set: more coarse symbols than 2**n")
+
+
+def _expand(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """Concatenated ranges start .. start + length - 1."""
+    out = np.arange(int(lengths.sum()), dtype=np.int64)
+    out += np.repeat(starts - (np.cumsum(lengths) - lengths), lengths)
+    return out
+
+
+def _symbol_weights(ms: ModelSet) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:meth:`ModelSet.model_weights` of every model at once: (present symbols per model,
+    then per symbol in model order its offset within [0, span] and its weight).  The work is
+    linear in the number of symbols, at most the LUT size (sum of 2**n) that build() bounds."""
+    t, span = ms.types, ms.span
+    k = np.zeros(ms.num_models, dtype=np.int64)
+    k[t == SINGLE] = 1
+    lap = np.flatnonzero(t == LAPLACE)
+    k[lap] = span[lap] + 1
+    co = np.flatnonzero(t == COARSE)
+    nb, allb, allq = ms.coarse_flat() if co.size else (np.zeros(0, np.int64),) * 3
+    bm = np.repeat(co, nb)                         # model of every COARSE bin
+    h = ms.binshift[bm]
+    bsize = np.minimum((allb + 1) << h, span[bm] + 1) - (allb << h)
+    if co.size:
+        k[co] = np.add.reduceat(bsize, np.cumsum(nb) - nb)
+    start = np.cumsum(k) - k
+    off = np.zeros(int(k.sum()), dtype=np.int64)
+    w = np.zeros_like(off)
+    w[start[t == SINGLE]] = 1
+    if co.size:
+        pos = _expand(start[co], k[co])
+        off[pos] = _expand(allb << h, bsize)
+        w[pos] = np.repeat(level_weights_groups(allq, ms.group[bm]), bsize)
+    if lap.size:
+        pos = _expand(start[lap], k[lap])
+        rep = np.repeat(lap, k[lap])
+        o = pos - start[rep]
+        off[pos] = o
+        d = o - ms.centre[rep]
+        w[pos] = _laplace_table_weights(np.where(d < 0, ms.r_left[rep], ms.r_right[rep]),
+                                        np.abs(d))
+    return k, off, w
+
+
+def level_weights_groups(q: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """:func:`level_weights` with a level-group exponent per code (q >= 1 here)."""
+    qm = np.maximum(q - 1, 0)
+    return ((np.int64(1) << g) + (qm & ((np.int64(1) << g) - 1))) << (qm >> g)
+
+
+def _laplace_table_weights(code: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """LAPLACE weights floor(v_d * 2**24) of ratio codes ``code`` at distances ``dist`` (2**24 at
+    0): per distinct code one sequential product up to the largest distance it is asked for
+    (laplace_weights' exact products; their total length is at most the symbol count)."""
+    out = np.full(code.shape[0], 1 << LAPLACE_SCALE_BITS, dtype=np.int64)
+    far = dist > 0
+    c, d = code[far], dist[far]
+    if not c.size:
+        return out
+    longest = np.zeros(256, dtype=np.int64)
+    np.maximum.at(longest, c, d)
+    base = np.zeros(256, dtype=np.int64)
+    tables = []
+    pos = 0
+    for u in np.flatnonzero(longest).tolist():
+        steps = np.full(int(longest[u]), ratio_from_code(u) / RATIO_ONE, dtype=np.float64)
+        tables.append(np.floor(np.multiply.accumulate(steps) * float(1 << LAPLACE_SCALE_BITS)))
+        base[u] = pos
+        pos += int(longest[u])
+    out[far] = np.concatenate(tables).astype(np.int64)[base[c] + d - 1]
+    return out
+
+
+def _normalise_all(w: np.ndarray, k: np.ndarray, prec: np.ndarray) -> np.ndarray:
+    """:func:`normalise_weights` of every model at once (k symbols of model m, its weights
+    consecutive in ``w``; models with k = 0 are skipped): the same frequencies, the +1s going
+    to the largest remainders of each model (ties: lower index first) through one sort."""
+    used = np.flatnonzero(k > 0)
+    if not used.size:
+        return np.zeros(0, dtype=np.int64)
+    ku = k[used]
+    total = np.int64(1) << prec[used]
+    bad = np.flatnonzero(ku > total)
+    if bad.size:
+        raise GszFormatError(f"rANS model: {int(ku[bad[0]])} symbols do not fit precision "
+                             f"{int(prec[used[bad[0]]])}")
+    starts = np.cumsum(ku) - ku
+    rep = np.repeat(np.arange(used.size), ku)
+    big_w = np.add.reduceat(w, starts)
+    if np.any(big_w == 0):                       # every weight 0: all taken as 1
+        w = np.where((big_w == 0)[rep], 1, w)
+        big_w = np.add.reduceat(w, starts)
+    prod = w * (total - ku)[rep]                 # < 2**56: no overflow
+    wr = big_w[rep]
+    f = 1 + prod // wr
+    short = total - np.add.reduceat(f, starts)
+    if np.any(short > 0):
+        # within each model: descending remainder, ties by index (a stable sort of -rem)
+        order = np.lexsort((-(prod % wr), rep))
+        rank = np.arange(f.size) - np.repeat(starts, ku)
+        f[order[rank < short[rep]]] += 1
+    return f
 
 
 _ZSTD = threading.local()     # one decompression context per thread (~20 us to create)
@@ -641,21 +753,53 @@ class RansDecoder:
                                                      self._nt)
             self._pos += count
             return out
-        m_count = self._models.num_models
-        if mids.min() < 0 or mids.max() >= m_count:
-            raise GszFormatError(f"rANS: model id outside 0..{m_count - 1}")
-        if np.any(self._t["total"][mids] == 0):
-            raise GszFormatError("rANS: symbol refers to an empty model")
-        out = np.empty(count, dtype=np.int64)
+        self._check_models(mids)
+        binary = "binary_f0" in self._t and self._lanes >= SCALAR_LANES
+        out = np.empty(count, dtype=np.bool_ if binary else np.int64)
         # work in chunks of whole rows (~256k symbols) so the per-symbol arrays stay in cache
         chunk = max(1, (1 << 18) // self._lanes) * self._lanes
         j = 0
         while j < count:
             end = min(count, j + chunk - (self._pos % self._lanes))
-            self._decode_chunk(mids[j:end], out[j:end])
+            if binary:
+                self._decode_chunk_binary(mids[j:end], out[j:end])
+            else:
+                self._decode_chunk(mids[j:end], out[j:end])
             j = end
-        np.right_shift(out, 33, out=out)
-        return self._t["value"][out]
+        return out.astype(np.int64) if binary else self._models.split_luts()[2].take(out)
+
+    def _check_models(self, mids: np.ndarray) -> None:
+        """Model ids within the set and of non-empty models (NumPy path)."""
+        m_count = self._models.num_models
+        if mids.min() < 0 or mids.max() >= m_count:
+            raise GszFormatError(f"rANS: model id outside 0..{m_count - 1}")
+        if self._t["has_empty"] and np.any(self._t["total"][mids] == 0):
+            raise GszFormatError("rANS: symbol refers to an empty model")
+
+    def decode_runs(self, run_models: np.ndarray, run_lengths: np.ndarray) -> np.ndarray:
+        """``decode(np.repeat(run_models, run_lengths))`` (same symbols, checks and errors);
+        long runs (a channel set's groups) are decoded with their model's scalars and no
+        per-symbol model-id array."""
+        rm = np.asarray(run_models, dtype=np.int64).ravel()
+        rl = np.asarray(run_lengths, dtype=np.int64).ravel()
+        count = int(rl.sum())
+        if (self._native or "binary_f0" in self._t or self._lanes < SCALAR_LANES
+                or count < (1 << 14) * rm.size):
+            return self.decode(np.repeat(rm, rl))
+        if self._pos + count > self._n:
+            raise GszFormatError(f"rANS: asked for {self._pos + count} symbols, "
+                                 f"stream has {self._n}")
+        self._check_models(rm[rl > 0])
+        out = np.empty(count, dtype=np.int64)
+        chunk = max(1, (1 << 18) // self._lanes) * self._lanes
+        j = 0
+        for m, length in zip(rm.tolist(), rl.tolist()):
+            end = j + length
+            while j < end:
+                e = min(end, j + chunk - (self._pos % self._lanes))
+                self._decode_chunk(None, out[j:e], model=m)
+                j = e
+        return self._models.split_luts()[2].take(out)
 
     def decode_blocks(self, table: np.ndarray, channels: int, length: int, blocks: int,
                       out: np.ndarray, steps=None, lo=None, qmax=None) -> None:
@@ -675,55 +819,67 @@ class RansDecoder:
             int(channels), int(length), int(blocks), out, *args)
         self._pos += count
 
-    def _decode_chunk(self, mids: np.ndarray, out: np.ndarray) -> None:
-        """Decode len(mids) symbols; writes their packed LUT entries to ``out``."""
+    def _decode_chunk(self, mids: np.ndarray | None, out: np.ndarray, model=None) -> None:
+        """Decode len(out) symbols with models ``mids`` (or all with ``model``); writes their
+        global LUT slots to ``out``."""
         t = self._t
-        count = mids.size
-        mask = t["mask"][mids]
-        shift = self._models.prec[mids]
-        base = t["lut_base"][mids]
-        lut = t["packed_lut"]
-        words = self._words
-        nwords = words.size
-        x_all = self._states
+        count = out.size
+        # per-symbol mask, shift and LUT base -- scalars where every model has one precision
+        # or the chunk one model (the SH index streams, a channel's run of a channel set)
+        if model is None and count > 8192 and mids[0] == mids[-1] and not np.any(mids != mids[0]):
+            model = int(mids[0])
+        if model is not None:
+            m0 = model
+            mask, shift, base = int(t["mask"][m0]), int(self._models.prec[m0]), int(t["lut_base"][m0])
+        elif t["uniform_prec"] is not None:
+            shift = t["uniform_prec"]
+            mask, base = (1 << shift) - 1, t["lut_base"].take(mids)
+        else:
+            mask, shift, base = t["mask"].take(mids), self._models.prec.take(mids), t["lut_base"].take(mids)
         lanes = self._lanes
-        wpos = self._wpos
         if lanes < SCALAR_LANES:
             # rows of a few symbols: the same decode step on Python integers is ~10x faster
             # than a dozen NumPy calls per row (small streams, e.g. every stream of a tiny file)
-            self._wpos = _decode_scalar(mids, out, mask, shift, base, lut, words, x_all,
-                                        lanes, self._pos, wpos)
+            b = (lambda v: np.broadcast_to(v, (count,)))
+            self._wpos = _decode_scalar(out, b(mask), b(shift), b(base), t["packed_lut"],
+                                        self._words, self._states, lanes, self._pos, self._wpos)
             self._pos += count
             return
-        # scratch buffer: one row of at most `lanes` symbols, reused (no per-row allocation)
-        tmp = np.empty(min(lanes, count), np.int64)
-        j = 0
-        while j < count:
-            lane0 = (self._pos + j) % lanes
-            k = min(lanes - lane0, count - j)
-            sl = slice(j, j + k)
-            x = x_all[lane0:lane0 + k]
-            e_, t_ = out[sl], tmp[:k]
-            # decode step (ENTROPY.md 4.3): x = freq * (x >> n) + (slot - cum)
-            np.bitwise_and(x, mask[sl], out=t_)
-            np.add(t_, base[sl], out=t_)
-            np.take(lut, t_, out=e_)          # e = (g << 33) | (freq << 16) | (slot - cum)
-            np.right_shift(x, shift[sl], out=x)
-            np.right_shift(e_, 16, out=t_)
-            np.bitwise_and(t_, 0x1FFFF, out=t_)
-            np.multiply(x, t_, out=x)
-            np.bitwise_and(e_, 0xFFFF, out=t_)
-            np.add(x, t_, out=x)
-            idx = np.flatnonzero(x < STATE_LOW)
-            r = idx.size
-            if r:
-                if wpos + r > nwords:
-                    raise GszFormatError("rANS: payload truncated (word stream exhausted)")
-                x[idx] = (x[idx] << WORD_BITS) | words[wpos:wpos + r]
-                wpos += r
-            j += k
-        self._wpos = wpos
+        lut_freq, lut_bias, _ = self._models.split_luts()
+        self._wpos = _decode_rows(out, mask, shift, base, lut_freq, lut_bias, self._words, self._states, lanes, self._pos, self._wpos)
         self._pos += count
+
+    def binary_reader(self):
+        """A function ``read(model_ids) -> int64 bits``: :meth:`decode` for a binary model set
+        (``ModelSet.build``'s ``binary_f0``, e.g. the octree bank) without its per-call model
+        checks -- for callers whose model ids are valid by construction (an invalid one still
+        raises IndexError) -- or :meth:`decode` itself on any other set or path."""
+        if self._native or "binary_f0" not in self._t or self._lanes < SCALAR_LANES:
+            return self.decode
+        n = self._t["uniform_prec"]
+        f0_of, total = self._t["binary_f0"], 1 << n
+
+        def read(model_ids):
+            mids = np.asarray(model_ids)
+            count = mids.size
+            if self._pos + count > self._n:
+                raise GszFormatError(f"rANS: asked for {self._pos + count} symbols, "
+                                     f"stream has {self._n}")
+            out = np.empty(count, dtype=np.bool_)
+            f0 = f0_of.take(mids)
+            self._wpos = _decode_rows_binary(out, f0, total - f0, n, self._words, self._states,
+                                             self._lanes, self._pos, self._wpos)
+            self._pos += count
+            return out.astype(np.int64)
+        return read
+
+    def _decode_chunk_binary(self, mids: np.ndarray, out: np.ndarray) -> None:
+        """_decode_chunk for binary models (``binary_f0``): writes the bits (bool) to ``out``."""
+        n = self._t["uniform_prec"]
+        f0 = self._t["binary_f0"].take(mids)
+        self._wpos = _decode_rows_binary(out, f0, (1 << n) - f0, n, self._words, self._states,
+                                         self._lanes, self._pos, self._wpos)
+        self._pos += mids.size
 
     def finish(self) -> None:
         """Check that all symbols were decoded, every word consumed and every state is 2**16."""
@@ -735,23 +891,108 @@ class RansDecoder:
             raise GszFormatError("rANS: final states differ from 2**16 (corrupt payload)")
 
 
+def _decode_rows(out, mask, shift, base, lut_freq, lut_bias, words, states, lanes, pos,
+                 wpos) -> int:
+    """The NumPy row loop of RansDecoder._decode_chunk (ENTROPY.md 4.3): one row of up to
+    ``lanes`` consecutive symbols (one per lane) per step.  mask, shift, base: per-symbol arrays
+    or scalars; writes each symbol's global LUT slot to ``out``; returns the new word position."""
+    count = out.size
+    arr = [isinstance(v, np.ndarray) for v in (mask, shift, base)]
+    flag = np.empty(min(lanes, count), dtype=np.bool_)
+    j = 0
+    while j < count:
+        lane0 = (pos + j) % lanes
+        k = min(lanes - lane0, count - j)
+        sl = slice(j, j + k)
+        x = states[lane0:lane0 + k]
+        slot = out[sl]
+        # decode step: x = freq * (x >> n) + (slot - cum)
+        np.bitwise_and(x, mask[sl] if arr[0] else mask, out=slot)
+        np.add(slot, base[sl] if arr[2] else base, out=slot)
+        np.right_shift(x, shift[sl] if arr[1] else shift, out=x)
+        np.multiply(x, lut_freq.take(slot), out=x)
+        np.add(x, lut_bias.take(slot), out=x)
+        wpos = _renormalise(x, flag[:k], words, wpos)
+        j += k
+    return wpos
+
+
+def _renormalise(x, flag, words, wpos: int) -> int:
+    """Shift the next word into every state of the row ``x`` below 2**16, in lane order;
+    ``flag``: a bool scratch array like x.  Returns the new word position."""
+    np.less(x, STATE_LOW, out=flag)
+    r = np.count_nonzero(flag)
+    if r:
+        if wpos + r > words.size:
+            raise GszFormatError("rANS: payload truncated (word stream exhausted)")
+        # a boolean mask is cheaper for a few states, an index list for many (wide rows of
+        # ~8-bit symbols renormalise half their lanes: masks cost 3x there)
+        sel = flag if 16 * r < x.size else np.flatnonzero(flag)
+        v = x[sel]
+        v <<= WORD_BITS
+        v |= words[wpos:wpos + r]
+        x[sel] = v
+    return wpos + r
+
+
+def _decode_rows_binary(out, f0, f1, n, words, states, lanes, pos, wpos) -> int:
+    """_decode_rows for binary models of precision n: symbol 0 owns slots [0, f0), symbol 1
+    [f0, 2**n) (f0, f1 = 2**n - f0: per symbol), so the decode step needs no LUT.  With
+    q = x >> n and b = (x & (2**n - 1)) >= f0 the step freq * q + slot - cum is
+    x - (b ? f0 : f1) * (q + b) (expand x = q 2**n + slot).  Bits to ``out`` (bool)."""
+    count = out.size
+    nwords = words.size
+    mask = (1 << n) - 1
+    w = min(lanes, count)
+    slot, q, flag = np.empty(w, np.int64), np.empty(w, np.int64), np.empty(w, np.bool_)
+    j = 0
+    while j < count:
+        lane0 = (pos + j) % lanes
+        k = min(lanes - lane0, count - j)
+        x = states[lane0:lane0 + k]
+        b, lo = out[j:j + k], f0[j:j + k]
+        s, qq = (slot, q) if k == w else (slot[:k], q[:k])
+        np.bitwise_and(x, mask, out=s)
+        np.greater_equal(s, lo, out=b)
+        np.right_shift(x, n, out=qq)
+        qq += b
+        fr = np.where(b, lo, f1[j:j + k])
+        fr *= qq
+        x -= fr
+        # _renormalise inlined (few states per row renormalise here: a mask is cheapest)
+        fl = flag if k == w else flag[:k]
+        np.less(x, STATE_LOW, out=fl)
+        v = x[fl]
+        r = v.size
+        if r:
+            if wpos + r > nwords:
+                raise GszFormatError("rANS: payload truncated (word stream exhausted)")
+            v <<= WORD_BITS
+            v |= words[wpos:wpos + r]
+            x[fl] = v
+            wpos += r
+        j += k
+    return wpos
+
+
 #: Below this many lanes the NumPy decoder's row loop runs on Python integers instead.
 SCALAR_LANES = 8
 
 
-def _decode_scalar(mids, out, mask, shift, base, lut, words, states, lanes, pos, wpos) -> int:
+def _decode_scalar(out, mask, shift, base, lut, words, states, lanes, pos, wpos) -> int:
     """RansDecoder._decode_chunk for streams with few lanes, one symbol at a time (ENTROPY.md
-    4.3, identical arithmetic); writes the packed LUT entries to ``out``, returns the new word
+    4.3, identical arithmetic); writes the global LUT slots to ``out``, returns the new word
     position."""
     st = states.tolist()
     masks, shifts, bases = mask.tolist(), shift.tolist(), base.tolist()
     nwords = words.size
-    res = [0] * mids.size
+    res = [0] * out.size
     lane = pos % lanes
-    for j in range(mids.size):
+    for j in range(out.size):
         x = st[lane]
-        e = int(lut[(x & masks[j]) + bases[j]])
-        res[j] = e
+        slot = (x & masks[j]) + bases[j]
+        e = int(lut[slot])
+        res[j] = slot
         x = ((e >> 16) & 0x1FFFF) * (x >> shifts[j]) + (e & 0xFFFF)
         if x < STATE_LOW:
             if wpos >= nwords:

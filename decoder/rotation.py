@@ -120,6 +120,31 @@ def euler_to_quaternion(euler: np.ndarray) -> np.ndarray:
     return np.where(q[..., :1] < 0, -q, q)
 
 
+def quaternion_f32_from_trig(c: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """``euler_to_quaternion(...).astype(float32)`` from the cos and sin of the half angles
+    (float64 [3, M], :func:`half_angle_trig`): the same products in the same order (the four
+    shared two-factor products computed once), the same sign rule, as float32 [M, 4]."""
+    cr, cp, cy = c
+    sr, sp, sy = s
+    # in place where a product is last needed (fewer fresh [M] arrays: page faults)
+    crcp, srsp, srcp, crsp = cr * cp, sr * sp, sr * cp, cr * sp
+    t = np.empty_like(crcp)
+    q0 = crcp * cy
+    q0 += np.multiply(srsp, sy, out=t)         # cr cp cy + sr sp sy
+    q3 = np.multiply(crcp, sy, out=crcp)
+    q3 -= np.multiply(srsp, cy, out=srsp)      # cr cp sy - sr sp cy
+    q1 = srcp * cy
+    q1 -= np.multiply(crsp, sy, out=t)         # sr cp cy - cr sp sy
+    q2 = np.multiply(crsp, cy, out=crsp)
+    q2 += np.multiply(srcp, sy, out=srcp)      # cr sp cy + sr cp sy
+    neg = q0 < 0
+    out = np.empty((q0.shape[0], 4), dtype=np.float32)
+    for i, q in enumerate((q0, q1, q2, q3)):
+        np.negative(q, out=q, where=neg)
+        out[:, i] = q
+    return out
+
+
 def euler_to_matrix(euler: np.ndarray) -> np.ndarray:
     """Rz(yaw) Ry(pitch) Rx(roll) as float64 [..., 3, 3] (reference form of the convention)."""
     e = np.asarray(euler, dtype=np.float64)

@@ -59,8 +59,9 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
         kcb = 0 if codebook is None else codebook.shape[1]
     if native.enabled():
         return _assemble_native(r, m, k, d, p, kcb, codebook), codebook
-    out = np.empty((m, d), np.float32)
-    kept_mask = np.zeros(m, bool)
+    # every Gaussian's vector is one row of [kept vectors; codebook] as float32 (the rounding
+    # the float32 output applies anyway): one contiguous gather, not two masked scatters
+    rows = np.zeros((0, d), np.float32)
     if p:
         kept = read_channel_set(r, max_length=p)
         r.check(kept.shape == (d, p), f"kept SH set has shape {kept.shape}, expected ({d}, {p})")
@@ -68,12 +69,21 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
         r.check(bool(np.all((flags == 0) | (flags == 1))), "kept flag outside 0/1")
         kept_mask = flags.astype(bool)
         r.check(int(kept_mask.sum()) == p, f"{int(kept_mask.sum())} kept flags set, header says {p}")
-        out[kept_mask] = kept.T
+        rows = kept.T.astype(np.float32)
     idx = decode_stream_single(r.blob(), m - p)
     r.check(idx.size == 0 or (idx.min() >= 0 and idx.max() < kcb), "codeword index out of range")
-    if idx.size:
-        out[~kept_mask] = codebook.T[idx]
     r.expect_end()
+    if idx.size:
+        rows = np.concatenate([rows, codebook.T.astype(np.float32)])
+    if p and idx.size:
+        which = np.empty(m, np.int64)
+        which[kept_mask] = np.arange(p)
+        which[~kept_mask] = idx + p
+    else:
+        which = idx + p if idx.size else np.arange(m)
+    # rows as single 4*D-byte items: a 1-D take copies each row in one piece
+    item = np.dtype((np.void, 4 * d))
+    out = np.ascontiguousarray(rows).view(item)[:, 0].take(which).view(np.float32)
     return out.reshape(m, k, 3), codebook
 
 
