@@ -763,19 +763,30 @@ class ShPayloads:
         """(payloads per layer, SH as decoded [M, K, 3] output order, stats).  ``kept_bits``:
         per layer an int or int array [D, B_l] (B_l = blocks_for(P_l, its kept_sets blocks));
         default every group at ``sh_bits``."""
-        out = self.out.copy()
+        order = self.stage.order
+        out = self.out[order]                  # output order; one copy of [M, D]
+        pos = np.empty(self.m, np.int64)       # voxel -> its row in the output
+        pos[order] = np.arange(self.m)
         stats = dict(self.stats)
+        jobs = [(self.kept_vectors(li), self.sh_bits if kept_bits is None else kept_bits[li], kb)
+                for li, (sel, kb) in enumerate(self.kept_sets) if sel.size]
+        ex = self.stage.executor if self.stage.num_tiles > 1 else None
+        coded = iter(ex.map(_code_channel_set, jobs) if ex is not None else map(_code_channel_set, jobs))
         payloads = []
         for li, (sel, kb) in enumerate(self.kept_sets):
             body = b""
             if sel.size:
-                bits = self.sh_bits if kept_bits is None else kept_bits[li]
-                body, rec = write_channel_set(self.kept_vectors(li), bits, kb)
-                out[sel] = rec.T
+                body, rec = next(coded)
+                out[pos[sel]] = rec.T
                 stats["kept_bytes"] += len(body)
             payloads.append(self._heads[li] + body + self._tails[li])
         k = self.m and self.d // 3
-        return payloads, out[self.stage.order].reshape(self.m, k, 3), stats
+        return payloads, out.reshape(self.m, k, 3), stats
+
+
+def _code_channel_set(job):
+    """write_channel_set(values, bits, blocks) of one job (an executor's unit of work)."""
+    return write_channel_set(*job)
 
 
 def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: dict):

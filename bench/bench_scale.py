@@ -1,0 +1,118 @@
+"""Real-size scenes: size-targeted encodes of 1-6 M Gaussians, single-tile vs tiled, local vs Ray.
+
+    .venv/bin/python bench/bench_scale.py --scene bench/.cache/big_1.2M_sh3.ply --ratio 12 \
+        [--variants single,tiled,ray] [--tile-gaussians 300000] [--eval] [--out bench/out/scale.json]
+
+Generate the scenes with bench/big_scene.py (e.g. ``--gaussians 1.2M --sh 3 [--noise]``).
+Every variant runs ``gsz-encode SCENE --ratio R --json`` in its own process under
+``/usr/bin/time -v``, one after the other (time it on an idle machine), and records: wall and
+CPU seconds, peak RSS, bytes against the target, the chosen reserve/depth, train PSNR, seconds
+and peak RSS per stage (the report's ``seconds`` / ``memory``), tiles; then decodes each file
+with ``gsz-decode --json`` on the native and the NumPy path (Gaussians per second, best of 2).
+``--eval`` adds gsz-eval's test-view PSNR/SSIM (8 views at 800 px: minutes per file on 2
+cores).  Variants: ``single`` (--tile-gaussians 0), ``tiled`` (--tile-gaussians N, local
+worker processes), ``ray`` (the same with --executor ray: its bytes must equal ``tiled``'s).
+Prints a markdown table and writes the JSON.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+BIN = Path(sys.executable).parent
+
+
+def timed(cmd: list, env=None) -> tuple[subprocess.CompletedProcess, dict]:
+    """Run ``cmd`` under /usr/bin/time -v: (process, {wall_s, cpu_s, peak_rss_mb})."""
+    t0 = time.perf_counter()
+    p = subprocess.run(["/usr/bin/time", "-v", *cmd], capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - t0
+    def field(name):
+        m = re.search(rf"{re.escape(name)}: ([0-9.:]+)", p.stderr)
+        return float(m.group(1)) if m else float("nan")
+    return p, {"wall_s": round(wall, 1), "cpu_s": round(field("User time (seconds)") + field("System time (seconds)"), 1),
+               "peak_rss_mb": round(field("Maximum resident set size (kbytes)") / 1024)}
+
+
+def decode_speed(path: Path, native: bool) -> float:
+    env = dict(os.environ, GSZ_NATIVE="1" if native else "0")
+    best = 0.0
+    for _ in range(2):
+        p = subprocess.run([str(BIN / "gsz-decode"), str(path), "-o", os.devnull, "--json"],
+                           capture_output=True, text=True, env=env)
+        if p.returncode != 0:
+            raise SystemExit(f"gsz-decode failed: {p.stderr.strip()}")
+        best = max(best, json.loads(p.stdout)["gaussians_per_second"] or 0)
+    return best
+
+
+def run_variant(name: str, scene: Path, args, out_dir: Path) -> dict:
+    out = out_dir / f"{scene.stem}_{name}.gsz"
+    extra = {"single": ["--tile-gaussians", "0"],
+             "tiled": ["--tile-gaussians", str(args.tile_gaussians)],
+             "ray": ["--tile-gaussians", str(args.tile_gaussians), "--executor", "ray"]}[name]
+    cmd = [str(BIN / "gsz-encode"), str(scene), "-o", str(out), "--ratio", str(args.ratio), "--json", *extra]
+    print(f"[{name}] {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
+    p, t = timed(cmd)
+    if p.returncode != 0:
+        raise SystemExit(f"{name}: gsz-encode failed:\n{p.stderr[-2000:]}")
+    r = json.loads(p.stdout)
+    data = out.read_bytes()
+    row = {"variant": name, **t, "bytes": r["bytes"], "target": r.get("target_bytes"),
+           "of_target_pct": round(100 * r["bytes"] / r["target_bytes"], 2) if r.get("target_bytes") else None,
+           "reserve": r.get("reserve"), "depth": r.get("depth"), "train_psnr": r.get("train_psnr"),
+           "voxels": r.get("voxels"),
+           "sha256": hashlib.sha256(data).hexdigest()[:16],
+           "stage_seconds": {k: round(v, 1) for k, v in r.get("seconds", {}).items()},
+           "stage_peak_mb": r.get("memory", {})}
+    info = subprocess.run([str(BIN / "gsz-info"), str(out), "--json"], capture_output=True, text=True)
+    row["tiles"] = len(json.loads(info.stdout)["tiles"])
+    row["decode_native_gps"] = round(decode_speed(out, True))
+    row["decode_numpy_gps"] = round(decode_speed(out, False))
+    if args.eval:
+        e = subprocess.run([str(BIN / "gsz-eval"), str(scene), str(out), "--json"], capture_output=True, text=True)
+        if e.returncode == 0:
+            ev = json.loads(e.stdout)
+            row["test_psnr"], row["test_ssim"] = ev.get("mean_psnr"), ev.get("mean_ssim")
+    return row
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--scene", required=True, type=Path)
+    p.add_argument("--ratio", type=float, default=12.0)
+    p.add_argument("--variants", default="single,tiled")
+    p.add_argument("--tile-gaussians", type=int, default=300_000)
+    p.add_argument("--eval", action="store_true")
+    p.add_argument("--out", type=Path, default=ROOT / "bench" / "out" / "scale.json")
+    a = p.parse_args(argv)
+    out_dir = ROOT / "bench" / ".cache" / "scale"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    uptime = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    rows = [run_variant(v.strip(), a.scene, a, out_dir) for v in a.variants.split(",") if v.strip()]
+    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
+                            text=True).stdout.strip()
+    res = {"scene": str(a.scene), "ratio": a.ratio, "tile_gaussians": a.tile_gaussians, "commit": commit,
+           "cores": os.cpu_count(), "uptime_before": uptime, "rows": rows,
+           "command": "bench/bench_scale.py " + " ".join(argv if argv is not None else sys.argv[1:])}
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(json.dumps(res, indent=1) + "\n")
+    cols = ["variant", "tiles", "wall_s", "cpu_s", "peak_rss_mb", "bytes", "of_target_pct", "reserve", "depth",
+            "train_psnr", "test_psnr", "decode_native_gps", "decode_numpy_gps", "sha256"]
+    print("| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
+    for r in rows:
+        print("| " + " | ".join(f"{r.get(c):.2f}" if isinstance(r.get(c), float) else str(r.get(c, ""))
+                                for c in cols) + " |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
