@@ -216,3 +216,23 @@ def test_viewer_stream_playback_shows_tiles_as_they_decode():
     assert snap["layer_bytes"] == [r["decodable_at"] if r["decodable_at"] % 8192 == 0 else
                                    min(len(data), (r["decodable_at"] // 8192 + 1) * 8192) for r in info["layers"]]
     assert snap["cloud"].equals(decode(data))
+
+
+def test_cli_lists_tiles_and_decodes_a_region(tmp_path, capsys):
+    import json
+
+    from gsz.decoder.cli import decode_main, info_main
+    from gsz.decoder.ply import read_ply
+    assert info_main([str(VEC), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert [t["tile"] for t in info["tiles"]] == list(range(len(info["tiles"])))
+    assert info_main([str(VEC)]) == 0
+    text = capsys.readouterr().out
+    assert "bounding box" in text and text.count("\n") > len(info["tiles"])
+    out = tmp_path / "r.ply"
+    assert decode_main([str(VEC), "-o", str(out), "--region", "-0.05", "-0.02", "-0.05", "0.02", "0.05", "0.05"]) == 0
+    assert read_ply(out).equals(decode(VEC, region=((-0.05, -0.02, -0.05), (0.02, 0.05, 0.05))))
+    assert decode_main([str(VEC), "-o", str(out), "--tiles", "1"]) == 0
+    assert len(read_ply(out)) == info["tiles"][1]["gaussians"]
+    assert decode_main([str(VEC), "-o", str(out), "--tiles", "x"]) == 2
+    assert "--tiles must be" in capsys.readouterr().err
