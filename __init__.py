@@ -13,5 +13,6 @@ from gsz.decoder.cloud import GaussianCloud
 from gsz.decoder.errors import GszError, PlyFormatError
 from gsz.decoder.ply import read_ply, write_ply
 
+#: the one place the version is written (pyproject.toml reads it; META records "gsz <version>")
 __version__ = "0.1.0"
 __all__ = ["GaussianCloud", "GszError", "PlyFormatError", "read_ply", "write_ply", "__version__"]

@@ -87,6 +87,12 @@ DEFAULT_TILE_GAUSSIANS = 1 << 20
 MIN_TILE_GAUSSIANS = 4096
 
 
+def encoder_name() -> str:
+    """What META's "encoder" field records: "gsz <version>"."""
+    from gsz import __version__
+    return f"gsz {__version__}"
+
+
 def check_tile_option(tile_gaussians, bad) -> None:
     if tile_gaussians is not None and int(tile_gaussians) < MIN_TILE_GAUSSIANS:
         bad(f"--tile-gaussians must be >= {MIN_TILE_GAUSSIANS} (or 0 for no tiles), got {tile_gaussians}")
@@ -901,7 +907,7 @@ def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, t_
     if cloud.sh_degree > 0 and sh_blocks != blocks:
         options_json["sh_blocks"] = sh_blocks
     with progress.stage("container"):
-        meta = {"encoder": "gsz 0.1.0", "codec": "mesongs++", "options": options_json,
+        meta = {"encoder": encoder_name(), "codec": "mesongs++", "options": options_json,
                 "input_gaussians": n_in, "voxels": m}
         data, out_cloud, meta_len = assemble(stage, attr, decoded, sh, sh_rest, meta)
     sizes = {"geometry": stage.geometry_bytes, "attributes": sum(map(len, attr)), **attr_stats,

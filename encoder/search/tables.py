@@ -6,7 +6,7 @@ import numpy as np
 
 from gsz.decoder.groups import blocks_for
 
-from ..pipeline import Stage
+from ..pipeline import Stage, encoder_name
 
 
 def attribute_sets(stage: Stage, blocks: int):
@@ -111,6 +111,6 @@ def num_chunks(stage: Stage) -> int:
 
 def search_meta(stage: Stage, target: int, extra: dict) -> dict:
     """The META chunk's JSON of a size-search file."""
-    return {"encoder": "gsz 0.1.0", "codec": "mesongs++", "mode": "size-search",
+    return {"encoder": encoder_name(), "codec": "mesongs++", "mode": "size-search",
             "target_bytes": int(target), "reserve": stage.reserve, "depth": stage.depth,
             "input_gaussians": stage.input_gaussians, "voxels": stage.num_points, **extra}
