@@ -26,7 +26,9 @@ def build_parser() -> argparse.ArgumentParser:
     budget.add_argument("--solver", default="fast", choices=["fast", "cbc"], help="bit-allocation solver")
     p.add_argument("--reserve", type=float, default=None, help=f"fixed configuration: fraction of Gaussians kept by importance pruning (tau; default {d.reserve})")
     p.add_argument("--bits", type=int, default=None, help=f"fixed configuration: uniform bit-width of every quantisation group (1-16; default {d.bits})")
-    p.add_argument("--codebook", type=int, default=d.codebook, help="SH vector-quantisation codebook size K")
+    p.add_argument("--codebook", type=int, default=None,
+                   help=f"SH vector-quantisation codebook size K (fixed configuration default {d.codebook}; "
+                        "the size search picks K itself unless given)")
     p.add_argument("--keep", type=int, default=None, help="number of most important Gaussians whose exact SH is kept (default: 1%% of voxels)")
     p.add_argument("--blocks", type=int, default=None,
                    help=f"blocks per quantised channel (default for a fixed configuration: 1 at >= "
@@ -76,7 +78,7 @@ def _run_fixed(a, prog) -> dict:
     from .pipeline import EncodeOptions, encode
     opts = EncodeOptions(reserve=EncodeOptions.reserve if a.reserve is None else a.reserve,
                          bits=EncodeOptions.bits if a.bits is None else a.bits,
-                         codebook=a.codebook, keep=a.keep, blocks=a.blocks, depth=a.depth,
+                         codebook=EncodeOptions.codebook if a.codebook is None else a.codebook, keep=a.keep, blocks=a.blocks, depth=a.depth,
                          rel_error=a.rel_error, beta=a.beta, sh_bits=a.sh_bits,
                          train_views=a.train_views, importance_width=a.importance_width,
                          layers=a.layers, first_layer=a.first_layer, seed=a.seed,
@@ -108,7 +110,7 @@ def _run_search(a, prog) -> dict:
                           importance_width=a.importance_width, seed=a.seed,
                           layers=a.layers, first_layer=a.first_layer, tile_gaussians=a.tile_gaussians or None,
                           executor=a.executor, workers=a.workers,
-                          codebook=a.codebook if a.codebook != 4096 else None)
+                          codebook=a.codebook)
     result = encode_to_budget(cloud, target, options=sopts, cameras=cameras, progress=prog)
     r = _finish(a, result, {"target": format_size(target, style)})
     if a.report:
