@@ -81,7 +81,7 @@ def run_variant(name: str, scene: Path, args, out_dir: Path) -> dict:
         e = subprocess.run([str(BIN / "gsz-eval"), str(scene), str(out), "--json"], capture_output=True, text=True)
         if e.returncode == 0:
             ev = json.loads(e.stdout)
-            row["test_psnr"], row["test_ssim"] = ev.get("mean_psnr"), ev.get("mean_ssim")
+            row["test_psnr"], row["test_ssim"] = ev.get("psnr"), ev.get("ssim")
     return row
 
 
