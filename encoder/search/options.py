@@ -52,6 +52,8 @@ class SearchOptions:
     executor        where per-tile work runs: "local" (worker processes), "inline", "ray" or
                     "ray://HOST:PORT" (gsz.encoder.executor); the bytes do not depend on it
     workers         worker processes / local Ray CPUs (None: the machine's cores)
+    sh_scalar       weigh the scalar SH path (every vector quantised group-wise, its widths
+                    in the allocation) against the codebook at high rates
     layer0_share    wanted fraction of the file bytes before layer 0 is decodable: when the
                     chosen file's layer 0 ends after more than 1.5x this, the layers are
                     re-split with a proportionally smaller layer 0 and that candidate re-encoded
@@ -83,6 +85,7 @@ class SearchOptions:
     tile_gaussians: int | None = DEFAULT_TILE_GAUSSIANS
     executor: str = "local"
     workers: int | None = None
+    sh_scalar: bool = True
     layer0_share: float = 0.1
     screen: bool = True
     overlap: bool = True

@@ -24,6 +24,7 @@ def search_report(search, chosen: Candidate) -> dict:
         "bytes_per_gaussian": len(data) / enc.num_points, "sh_degree": search.cloud.sh_degree,
         "codebook_size": enc.codebook_size,
         "sh_keep": enc.sh_keep if sh else 0,
+        "sh_path": enc.sh_path,
         "layers": layer_report(data),
         "layer_blocks": [int(b.shape[1]) for b, _ in enc.layer_bits],
         "bits": {"raht": enc.raht_bits.tolist(), "scales": enc.scale_bits.tolist(),

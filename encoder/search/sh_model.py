@@ -244,9 +244,9 @@ class ShSource:
     num_points: int
 
 
-def kept_tables(plan: ShPlan, weight: float) -> list:
+def kept_tables(plan: ShPlan, weight: float, min_bits: int = SH_BITS) -> list:
     """Per layer with kept exact SH vectors: (layer, loss [D, B, 16] = SSE times the SH
-    channel weight, rate [D, B, 16] with +inf below SH_BITS) of their groups."""
+    channel weight, rate [D, B, 16] with +inf below ``min_bits``) of their groups."""
     from gsz.kernels.quantize import quantize_all_bits
 
     from ..rate import rate_matrix
@@ -256,6 +256,6 @@ def kept_tables(plan: ShPlan, weight: float) -> list:
             x = plan.payloads.kept_vectors(li)
             b = blocks_for(sel.size, kb)
             loss = quantize_all_bits(x, b)[3] * weight
-            rate = rate_matrix(x, b, (SH_BITS, 16))
+            rate = rate_matrix(x, b, (int(min_bits), 16))
             out.append((li, loss, rate))
     return out

@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 
 from ..pipeline import Stage
-from .calibration import Calibrated, calibrate, solve
+from .calibration import Calibrated, calibrate, solve, solve_max
 from .candidate import Encoded
 from .options import SH_BITS, SearchOptions
 from .sh_model import KEEP_FRACTIONS_HIGH, ShModel, ShPlan, kept_tables
@@ -25,18 +25,32 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
     meta_guess = 400
     base_fixed = (container_overhead(num_chunks(stage)) + stage.geometry_bytes + meta_guess
                   + (2 + 8 * 7) * len(stage.layers) + group_meta_bytes(shapes))
-    sh_plan = sh_model = None
+    sh_plan = sh_model = scalar = None
     if sh_models:
         with progress.stage("sh-plan", "codebook size and keep-count vs bit allocation"):
-            sh_model, keep = choose_sh(sh_models, loss, rate, target - base_fixed, weights, min_keep)
+            sh_model, keep, vq_total = choose_sh(sh_models, loss, rate, target - base_fixed, weights, min_keep)
             sh_plan = sh_model.encode(keep)
             progress.log(f"tau {stage.reserve}: keep {sh_plan.keep} exact SH vectors "
                          f"(SH chunks {sum(map(len, sh_plan.chunk)):,} B)")
-    res = calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_plan)
+        if sopts.sh_scalar and keep >= SCALAR_MIN_KEEP * sh_model.m:
+            with progress.stage("sh-plan", "scalar SH: every vector quantised group-wise"):
+                scalar = scalar_sh(sh_model, loss, rate, target - base_fixed, weights, vq_total)
+            if scalar is not None:
+                sh_plan = scalar[0]
+                progress.log(f"tau {stage.reserve}: scalar SH (every vector quantised group-wise, "
+                             f"1-16 bits in the allocation) beats the codebook")
+    if scalar is not None:
+        res = calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_plan, kept=scalar[1])
+    else:
+        res = calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_plan)
     # every attribute group at its best width and the file still short of the budget (the depth
     # walk reads this, whether or not the SH then spend the rest)
     saturated = res is not None and res.left_over(target, sopts.tolerance)
-    if saturated and sh_plan is not None:
+    if scalar is not None and res is not None:
+        # the SH take every byte the attributes leave: what the depth walk reads is whether
+        # every attribute group sits at its best width (as the codebook path's saturation)
+        saturated = bool(np.array_equal(res.best.pick[:loss.shape[0]], solve_max(loss, rate)))
+    if saturated and sh_plan is not None and scalar is None:
         res = spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fixed,
                               sh_model, sh_plan, res, weights)
     if res is None:
@@ -45,15 +59,44 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
     plan = res.sh_plan
     return dataclasses.replace(res.best, rounds=res.history, attributes_saturated=saturated,
                                sh_keep=None if plan is None else int(plan.keep),
+                               sh_path=None if plan is None else ("scalar" if scalar is not None else "vq"),
                                codebook_size=0 if plan is None else int(plan.stats["codebook_size"]),
                                depth=stage.depth, num_points=stage.num_points,
                                layer0_points=stage.layer0_points,
                                geometry_bytes=stage.geometry_bytes)
 
 
-def choose_sh(sh_models: list, loss, rate, room: float, weights, min_keep: int) -> tuple[ShModel, int]:
-    """(codebook model, keep-count) whose estimated SH loss plus the loss of the attribute
-    allocation in the bytes the SH leave (``room`` minus the SH estimate) is smallest."""
+#: The scalar SH path is weighed only when the codebook path keeps at least this share of the
+#: vectors exact (high rates, where a codebook is the wrong tool); below it the codebook wins
+#: and the scalar tables (every vector at every width) would cost time for nothing.
+SCALAR_MIN_KEEP = 0.08
+
+
+def scalar_sh(model: ShModel, loss, rate, room: float, weights, vq_total: float | None):
+    """(plan, kept tables) of the scalar SH path -- every vector kept, its (component, block)
+    groups in the allocation at 1..16 bits, no codebook -- when its estimated total loss (SH
+    plus attributes in ``room`` bytes) is below the codebook path's ``vq_total``; else None."""
+    from ..bit_allocation import InfeasibleBudgetError
+    from .tables import group_meta_bytes
+    plan = model.encode(model.m)
+    kept = kept_tables(plan, 1.0 if weights is None else weights["sh"], min_bits=1)
+    if not kept:
+        return None
+    all_loss = np.concatenate([loss] + [l.reshape(-1, 16) for _, l, _ in kept])
+    all_rate = np.concatenate([rate] + [r.reshape(-1, 16) for _, _, r in kept])
+    fixed = plan.payloads.fixed_bytes + group_meta_bytes(tuple(l.shape[:2] for _, l, _ in kept))
+    try:
+        pick = solve(all_loss, all_rate, 8.0 * (room - fixed), "fast")
+    except InfeasibleBudgetError:
+        return None
+    total = float(all_loss[np.arange(len(pick)), pick].sum())
+    return (plan, kept) if vq_total is None or total < vq_total else None
+
+
+def choose_sh(sh_models: list, loss, rate, room: float, weights, min_keep: int) -> tuple[ShModel, int, float | None]:
+    """(codebook model, keep-count, estimated total loss) whose estimated SH loss plus the loss
+    of the attribute allocation in the bytes the SH leave (``room`` minus the SH estimate) is
+    smallest (total None when no estimate fits)."""
     from ..bit_allocation import InfeasibleBudgetError
     best = None
     w_sh = 1.0 if weights is None else weights["sh"]
@@ -76,7 +119,7 @@ def choose_sh(sh_models: list, loss, rate, room: float, weights, min_keep: int) 
         model = best[1]
         consider(model, [k for k in model.keeps(min_keep, KEEP_FRACTIONS_HIGH) if k > best[2]])
     # estimates say nothing fits: try the cheapest SH anyway, calibration decides
-    return (sh_models[-1], min_keep) if best is None else (best[1], best[2])
+    return (sh_models[-1], min_keep, None) if best is None else (best[1], best[2], best[0])
 
 
 def spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_model: ShModel,
