@@ -23,12 +23,15 @@ from .cloud import GaussianCloud
 from .container import LAYER_SHIFT, TILE_SHIFT, Chunk
 from .errors import GszError, GszFormatError
 from .geometry import read_geometry_header
+from .io_util import check_input_file
 from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHVQ, CHUNK_TILE
 from .sh import read_sh
 
 
 def open_gsz(path: str):
-    """Open a .gsz file for reading; a GszError naming the file when it cannot be opened."""
+    """Open a .gsz file for reading; a GszError naming the file when it cannot be opened or is
+    not a regular file of bounded size (a device or FIFO would be read forever)."""
+    check_input_file(path)
     try:
         return open(path, "rb")
     except FileNotFoundError:
@@ -49,6 +52,8 @@ def load_bytes(src):
             return memoryview(f.read()), path
         except OSError as e:
             raise GszError(f"cannot read: {e.strerror or e}", path) from None
+        except MemoryError:
+            raise GszError("too large to read into memory", path) from None
 
 
 def guard(fn, path):

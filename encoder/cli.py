@@ -62,9 +62,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _read_inputs(a, prog):
     """The input cloud and, when --cameras is given, its train cameras."""
+    from gsz.decoder.errors import PlyFormatError
     from gsz.decoder.ply import read_ply
     with prog.stage("read", a.input):
         cloud = read_ply(a.input)
+    if len(cloud) == 0:
+        raise PlyFormatError("has 0 vertices: nothing to encode", a.input)
     cameras = None
     if a.cameras:
         from .cameras import load_cameras
@@ -97,8 +100,7 @@ def _run_search(a, prog) -> dict:
     if fixed_only:
         raise GszError("--size/--ratio/--profile choose the reserve, depth, bit-widths and kept SH "
                        f"themselves; drop {'/'.join(fixed_only)}")
-    in_bytes = os.path.getsize(a.input) if os.path.isfile(a.input) else None
-    target = budget_from_args(size=a.size, ratio=a.ratio, profile=a.profile, ply_bytes=in_bytes)
+    target = budget_from_args(size=a.size, ratio=a.ratio, profile=a.profile, ply_bytes=a.input_bytes)
     style = size_style(a.size) if a.size is not None else "auto"
     prog.log(f"target size {format_size(target, style)} ({target:,} bytes)")
     cloud, cameras = _read_inputs(a, prog)
@@ -122,21 +124,41 @@ def _run_search(a, prog) -> dict:
 def _finish(a, result, extra: dict) -> dict:
     """Write the file atomically and complete the report."""
     from gsz.decoder.io_util import atomic_write
-    atomic_write(a.output, result.data)
+    atomic_write(a.output, result.data)       # a GszError naming a.output when it fails
     r = result.report
-    in_bytes = os.path.getsize(a.input)
+    in_bytes = a.input_bytes
     r.update(input=a.input, output=a.output, input_bytes=in_bytes, ratio=in_bytes / r["bytes"], **extra)
     return r
 
 
-def main(argv=None) -> int:
-    a = build_parser().parse_args(argv)
-    from .progress import Progress
+def _check_paths(a) -> None:
+    """Input and output checks before the long encode: a readable regular input file, an output
+    that is not an input and whose folder is writable, a report folder that can be one."""
+    from gsz.decoder.errors import PlyFormatError
+    from gsz.decoder.io_util import check_input_file, check_output_path
+    a.input_bytes = check_input_file(a.input, PlyFormatError)
+    check_output_path(a.output, inputs=[a.input, a.cameras])
+    if a.report:
+        if os.path.exists(a.report) and not os.path.isdir(a.report):
+            raise GszError("--report: is a file, expected a folder", a.report)
+        check_output_path(os.path.join(a.report, "report.json"), inputs=[a.input, a.cameras])
 
+
+def _run(a):
+    """(report, progress) of the encode ``a`` asks for, its output written."""
+    from .progress import Progress
+    _check_paths(a)
     prog = Progress(quiet=a.quiet)
     searching = any(v is not None for v in (a.size, a.ratio, a.profile))
+    return (_run_search(a, prog) if searching else _run_fixed(a, prog)), prog
+
+
+def main(argv=None) -> int:
     try:
-        r = _run_search(a, prog) if searching else _run_fixed(a, prog)
+        a = build_parser().parse_args(argv)   # imports torch: Ctrl-C may land here too
+        from gsz.decoder.io_util import sigterm_as_interrupt
+        with sigterm_as_interrupt():
+            r, prog = _run(a)
     except GszError as e:
         print(f"gsz-encode: error: {e}", file=sys.stderr)
         return 2
