@@ -123,3 +123,51 @@ def test_missing_file_and_directory(tmp_path):
         decode(tmp_path / "nope.gsz")
     with pytest.raises(GszError, match="directory"):
         decode(tmp_path)
+
+
+def test_device_fifo_and_huge_files_are_refused_before_reading(tmp_path):
+    import os
+
+    from gsz.decoder import inspect
+    from gsz.decoder.io_util import MAX_INPUT_BYTES
+    from gsz.decoder.stream import iter_layers
+    fifo = tmp_path / "pipe.gsz"
+    os.mkfifo(fifo)
+    huge = tmp_path / "huge.gsz"
+    with open(huge, "wb") as f:
+        f.truncate(MAX_INPUT_BYTES + 1)     # sparse
+    for path, words in (("/dev/zero", "not a regular file"), (fifo, "not a regular file"),
+                        (huge, "bytes, more than")):
+        for fn in (decode, inspect, lambda p: list(iter_layers(p)),
+                   lambda p: decode(p, tiles=[0])):
+            with pytest.raises(GszError, match=words) as e:
+                fn(path)
+            assert str(path) in str(e.value)
+
+
+def _with_meta(data: bytes, text: bytes) -> bytes:
+    import zstandard
+
+    from gsz.decoder.container import Chunk, write_container
+    from gsz.decoder.layout import CHUNK_META
+    c = read_container(data)
+    chunks = [Chunk(ch.type, bytes(ch.data), ch.flags) for ch in c.chunks if ch.type != CHUNK_META]
+    return write_container(c.header, chunks + [Chunk(CHUNK_META, zstandard.compress(text), 0)])
+
+
+@pytest.mark.parametrize("text,expected", [
+    (b"[" * 100000 + b"]" * 100000, {}),                 # RecursionError in json.loads
+    (b'{"a":' + b"[" * 900 + b"]" * 900 + b"}", {}),     # parses, but would recurse when printed
+    (b'{"options": [1, 2], "encoder": "x"}', {"encoder": "x"}),    # options not an object
+    (b'{"options": "bits=8"}', {}),
+    (b'"just a string"', {}),
+])
+def test_hostile_meta_never_reaches_the_user_as_a_traceback(small, tmp_path, capsys, text, expected):
+    from gsz.decoder import inspect
+    from gsz.decoder.cli import info_main
+    path = tmp_path / "m.gsz"
+    path.write_bytes(_with_meta(small, text))
+    assert inspect(path)["meta"] == expected
+    assert info_main([str(path)]) == 0 and info_main([str(path), "--json"]) == 0
+    assert "Traceback" not in capsys.readouterr().err
+    assert len(decode(path)) == len(decode(small))       # META is informative only
