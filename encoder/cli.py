@@ -62,12 +62,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _read_inputs(a, prog):
     """The input cloud and, when --cameras is given, its train cameras."""
+    import numpy as np
+
     from gsz.decoder.errors import PlyFormatError
     from gsz.decoder.ply import read_ply
     with prog.stage("read", a.input):
         cloud = read_ply(a.input)
     if len(cloud) == 0:
         raise PlyFormatError("has 0 vertices: nothing to encode", a.input)
+    zero = ~(np.abs(cloud.rotations).sum(axis=1) > 0)    # the importance renderer needs a rotation
+    if zero.any():
+        raise PlyFormatError(f"{int(zero.sum())} vertices have an all-zero rotation quaternion "
+                             f"(rot_0..rot_3), first at vertex {int(np.argmax(zero))}", a.input)
     cameras = None
     if a.cameras:
         from .cameras import load_cameras

@@ -196,13 +196,19 @@ def test_zero_vertex_ply_and_device_inputs(tmp_path, capsys):
     empty.write_bytes(cloud_to_ply_bytes(gsz.read_ply(SAMPLE_SH0).subset([])))
     assert main([str(empty), "-o", str(tmp_path / "e.gsz"), *TINY]) == 2
     assert "0 vertices" in _one_line_error(capsys, empty)
+    bad_q = tmp_path / "zero_q.ply"
+    c = gsz.read_ply(SAMPLE_SH0).subset(list(range(50)))
+    c.rotations[[7, 9]] = 0.0
+    gsz.write_ply(c, bad_q)
+    assert main([str(bad_q), "-o", str(tmp_path / "q.gsz"), *TINY]) == 2
+    assert "2 vertices have an all-zero rotation quaternion" in _one_line_error(capsys, bad_q, "vertex 7")
     assert main(["/dev/zero", "-o", str(tmp_path / "z.gsz"), *TINY]) == 2
     assert "not a regular file" in _one_line_error(capsys, "/dev/zero")
     assert decode_main(["/dev/zero", "-o", str(tmp_path / "z.ply")]) == 2
     assert "not a regular file" in _one_line_error(capsys, "/dev/zero")
     assert info_main(["/dev/zero"]) == 2
     assert "not a regular file" in _one_line_error(capsys, "/dev/zero")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.ply"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.ply", "zero_q.ply"]
 
 
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
