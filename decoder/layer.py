@@ -216,6 +216,11 @@ class LayerState:
 #: attribute and SH streams decode on the calling one (native path; below it the hand-off costs
 #: more than it saves).
 OVERLAP_MIN_POINTS = 4096
+#: ... and only when the layer's chunks hold at least one byte per this many declared points: the
+#: overlap allocates and decodes M-sized attribute arrays before the octree has confirmed M, so a
+#: hostile M must first be plausible for the bytes (real files: <= 1 point per byte); beyond it
+#: the octree decodes first, as on the NumPy path (GSZ.md §11).
+OVERLAP_MAX_POINTS_PER_BYTE = 4
 _pool = None
 _pool_lock = threading.Lock()
 
@@ -277,7 +282,8 @@ def decode_layer(chunks: dict, header, state: LayerState, *, overlap: bool = Tru
         raise GszFormatError(f"layers hold more Gaussians than {state.what} {state.limit}")
     gh = read_geometry_header(chunks[CHUNK_GEOM], max_points=room)
     m = gh.num_points
-    if overlap and native.enabled() and m >= OVERLAP_MIN_POINTS and _cores() >= 2:
+    if (overlap and native.enabled() and m >= OVERLAP_MIN_POINTS and _cores() >= 2
+            and m <= OVERLAP_MAX_POINTS_PER_BYTE * sum(len(v) for v in chunks.values())):
         cloud = _decode_layer_overlapped(chunks, header, state, gh)
     else:
         codes = gh.decode_codes()
