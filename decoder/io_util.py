@@ -15,7 +15,7 @@ import stat
 import tempfile
 import time
 
-from .errors import GszError
+from .errors import GszError, GszOutputError
 
 #: Largest input file gsz reads: the PLY of 2^28 (the default Gaussian limit) SH-3 Gaussians is
 #: 2^28 x 248 B < 2^36; twice that leaves room for extra properties.  Bounds a read of a
@@ -25,10 +25,6 @@ MAX_INPUT_BYTES = 1 << 37
 _TMP_PREFIX = ".tmp-"
 #: A temporary file without a live writer's pid (an older gsz's) is stale after this long.
 _STALE_SECONDS = 24 * 3600
-
-
-class GszOutputError(GszError, OSError):
-    """An output file cannot be written (also an OSError, as the failure it replaces)."""
 
 
 def check_input_file(path, error=GszError, max_bytes: int = MAX_INPUT_BYTES) -> int:
@@ -61,6 +57,37 @@ def same_file(a, b) -> bool:
         return os.path.realpath(a) == os.path.realpath(b)
 
 
+def _is_stream(path: str) -> bool:
+    """True for an existing character device or FIFO (``/dev/null``, ``/dev/stdout``, a named
+    pipe): replacing such a file by a regular one (as root) would break the system."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return False
+    return stat.S_ISCHR(mode) or stat.S_ISFIFO(mode)
+
+
+def _refuse_special(path: str) -> None:
+    """GszOutputError when ``path`` is a block device or socket (never an output)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return
+    if stat.S_ISBLK(mode) or stat.S_ISSOCK(mode):
+        kind = "block device" if stat.S_ISBLK(mode) else "socket"
+        raise GszOutputError(f"is a {kind}; refusing to write there", path)
+
+
+def _write_stream(path: str, data: bytes) -> None:
+    """Write ``data`` into a character device or FIFO in place (no temporary file, no fsync:
+    devices need neither and some refuse fsync)."""
+    try:
+        with open(path, "wb") as f:
+            f.write(data)
+    except OSError as e:
+        raise GszOutputError(f"cannot write: {_reason(e)}", path) from None
+
+
 def _nearest_existing(folder: str) -> str:
     while not os.path.exists(folder) and os.path.dirname(folder) != folder:
         folder = os.path.dirname(folder)
@@ -81,8 +108,9 @@ def check_output_path(path, inputs=()) -> str:
         raise GszOutputError("is a directory; give an output file name", path)
     if path.endswith(os.sep) or (os.altsep and path.endswith(os.altsep)):
         raise GszOutputError("ends with a path separator; give an output file name", path)
-    if os.path.lexists(path) and not os.path.isfile(path):
-        raise GszOutputError("exists and is not a regular file (a device, pipe or socket)", path)
+    if _is_stream(path):                    # -o /dev/null, a FIFO: written straight through
+        return path
+    _refuse_special(path)
     folder = os.path.dirname(os.path.abspath(path))
     base = _nearest_existing(folder)
     if not os.path.isdir(base):
@@ -136,14 +164,18 @@ def atomic_write(path, data: bytes) -> None:
     """Write ``data`` to ``path`` via a temporary file in the same folder and ``os.replace``.
 
     A crash or error half-way leaves either the old file or none, never a partial one; stale
-    temporary files of a killed earlier write are removed.  Failures raise
+    temporary files of a killed earlier write are removed.  A character device or FIFO
+    (``/dev/null``, a named pipe) is written in place instead of being replaced.  Failures raise
     :class:`GszOutputError` naming ``path`` (never the temporary file).
     """
     if path is None or os.fspath(path) == "":
         raise GszOutputError("output path is empty")
     path = os.fspath(path)
+    if _is_stream(path):
+        return _write_stream(path, data)
     folder = os.path.dirname(os.path.abspath(path))
     name = os.path.basename(path)
+    _refuse_special(path)
     if not name or os.path.isdir(path):
         raise GszOutputError("is a directory; give an output file name", path)
     try:

@@ -162,7 +162,7 @@ def test_unwritable_output_fails_before_the_encode(small_pair, tmp_path, capsys)
     (tmp_path / "afile").write_bytes(b"x")
     cases = [("", "output path is empty"), (str(tmp_path), "is a directory"),
              (str(tmp_path / "afile" / "x.gsz"), "is a file, not a folder"),
-             (str(tmp_path / "new") + os.sep, "path separator"), ("/dev/null", "not a regular file")]
+             (str(tmp_path / "new") + os.sep, "path separator")]
     if os.path.isdir("/sys"):
         cases.append(("/sys/gsz-out.gsz", "Permission denied"))     # even root cannot write there
     for out, words in cases:
@@ -235,3 +235,15 @@ def test_interrupted_decode_exits_130_with_one_line_and_no_output(small_pair, tm
     assert decode_main([str(small_pair[1]), "-o", str(out)]) == 130
     assert "interrupted; no output written" in _one_line_error(capsys)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_decode_to_dev_null_keeps_it_a_device(small_pair, capsys):
+    import stat
+    from gsz.decoder.cli import decode_main
+    before = os.stat(os.devnull)
+    if not stat.S_ISCHR(before.st_mode):
+        pytest.skip(f"{os.devnull} is not a character device on this machine")
+    assert decode_main([str(small_pair[1]), "-o", os.devnull, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["num_gaussians"] > 0
+    after = os.stat(os.devnull)
+    assert stat.S_ISCHR(after.st_mode) and after.st_ino == before.st_ino

@@ -108,8 +108,13 @@ def test_check_output_path_refuses_inputs_and_unwritable_places(tmp_path):
         with pytest.raises(GszOutputError, match="is the input file"):
             check_output_path(same, inputs=[src])
     assert src.read_bytes() == b"ply"
-    with pytest.raises(GszOutputError, match="not a regular file"):
-        check_output_path("/dev/null")
+    import socket
+    sock = socket.socket(socket.AF_UNIX)
+    sock.bind(str(tmp_path / "s.sock"))
+    with pytest.raises(GszOutputError, match="is a socket"):
+        check_output_path(tmp_path / "s.sock")
+    sock.close()
+    os.unlink(tmp_path / "s.sock")
     with pytest.raises(GszOutputError, match="path separator"):
         check_output_path(str(tmp_path / "new") + os.sep)
     if os.path.isdir("/sys"):        # sysfs refuses new files even to root
@@ -155,3 +160,26 @@ def test_sigterm_during_a_write_leaves_no_file(tmp_path, monkeypatch):
 
 def test_gsz_error_types_stay_catchable():
     assert issubclass(GszOutputError, GszError) and issubclass(GszOutputError, OSError)
+
+
+def test_devices_and_pipes_are_written_in_place_never_replaced(tmp_path):
+    # `gsz-decode x.gsz -o /dev/null` (a timing run): atomic_write's os.replace used to turn
+    # /dev/null into a regular file when run as root.
+    import stat
+    import threading
+    null = os.stat(os.devnull)
+    if stat.S_ISCHR(null.st_mode):
+        check_output_path(os.devnull)
+        atomic_write(os.devnull, b"discarded")
+        after = os.stat(os.devnull)
+        assert stat.S_ISCHR(after.st_mode) and after.st_ino == null.st_ino
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(open(fifo, "rb").read()), daemon=True)
+    reader.start()
+    assert check_output_path(fifo) == str(fifo)
+    atomic_write(fifo, b"through the pipe")
+    reader.join(5)
+    assert got == [b"through the pipe"] and stat.S_ISFIFO(os.stat(fifo).st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe"]
