@@ -180,9 +180,7 @@ def atomic_write(path, data: bytes) -> None:
         raise GszOutputError("is a directory; give an output file name", path)
     try:
         os.makedirs(folder, exist_ok=True)
-    except FileExistsError:
-        raise GszOutputError(f"cannot write: {_nearest_existing(folder)} is a file, not a folder", path) from None
-    except NotADirectoryError:
+    except (FileExistsError, NotADirectoryError):        # a file where a folder should be
         raise GszOutputError(f"cannot write: {_nearest_existing(folder)} is a file, not a folder", path) from None
     except OSError as e:
         raise GszOutputError(f"cannot create folder {folder}: {e.strerror or e}", path) from None
