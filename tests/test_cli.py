@@ -247,3 +247,20 @@ def test_decode_to_dev_null_keeps_it_a_device(small_pair, capsys):
     assert json.loads(capsys.readouterr().out)["num_gaussians"] > 0
     after = os.stat(os.devnull)
     assert stat.S_ISCHR(after.st_mode) and after.st_ino == before.st_ino
+
+
+def test_ctrl_c_during_encode_start_up_is_one_line(tmp_path, capsys, monkeypatch):
+    import signal
+    import time
+
+    import gsz.encoder.cli as cli
+    real = cli.build_parser
+
+    def slow_imports():                  # Ctrl-C while torch and the pipeline import
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(2)
+        return real()
+    monkeypatch.setattr(cli, "build_parser", slow_imports)
+    assert cli.main([str(SAMPLE_SH0), "-o", str(tmp_path / "x.gsz")]) == 130
+    assert "interrupted; no output written" in _one_line_error(capsys)
+    assert list(tmp_path.iterdir()) == []
