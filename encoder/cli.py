@@ -91,6 +91,7 @@ def _run_fixed(a, prog) -> dict:
                          layers=a.layers, first_layer=a.first_layer, seed=a.seed,
                          tile_gaussians=a.tile_gaussians or None, executor=a.executor,
                          workers=a.workers).validate()
+    _check_paths(a)                           # after the options: their errors come first
     cloud, cameras = _read_inputs(a, prog)
     result = encode(cloud, opts, cameras=cameras, progress=prog)
     return _finish(a, result, {})
@@ -106,6 +107,7 @@ def _run_search(a, prog) -> dict:
     if fixed_only:
         raise GszError("--size/--ratio/--profile choose the reserve, depth, bit-widths and kept SH "
                        f"themselves; drop {'/'.join(fixed_only)}")
+    _check_paths(a)
     target = budget_from_args(size=a.size, ratio=a.ratio, profile=a.profile, ply_bytes=a.input_bytes)
     style = size_style(a.size) if a.size is not None else "auto"
     prog.log(f"target size {format_size(target, style)} ({target:,} bytes)")
@@ -138,7 +140,7 @@ def _finish(a, result, extra: dict) -> dict:
 
 
 def _check_paths(a) -> None:
-    """Input and output checks before the long encode: a readable regular input file, an output
+    """Input and output checks after the options' and before the long encode: a readable regular input file, an output
     that is not an input and whose folder is writable, a report folder that can be one."""
     from gsz.decoder.errors import PlyFormatError
     from gsz.decoder.io_util import check_input_file, check_output_path
@@ -153,7 +155,6 @@ def _check_paths(a) -> None:
 def _run(a):
     """(report, progress) of the encode ``a`` asks for, its output written."""
     from .progress import Progress
-    _check_paths(a)
     prog = Progress(quiet=a.quiet)
     searching = any(v is not None for v in (a.size, a.ratio, a.profile))
     return (_run_search(a, prog) if searching else _run_fixed(a, prog)), prog
