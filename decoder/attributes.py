@@ -66,11 +66,8 @@ def parse_attributes(data, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     r.check(nr == len(RAHT_CHANNELS), f"expected {len(RAHT_CHANNELS)} RAHT channels, got {nr}")
     dc = r.array(np.float64, nr)
     r.check(bool(np.all(np.isfinite(dc))), "non-finite RAHT DC coefficient")
-    ac = read_channel_set(r, max_length=m)
-    r.check(ac.shape == (nr, m - 1), f"RAHT AC set has shape {ac.shape}, expected ({nr}, {m - 1})")
-    direct = read_channel_set(r, max_length=m)
-    r.check(direct.shape == (len(DIRECT_CHANNELS), m),
-            f"direct channel set has shape {direct.shape}, expected ({len(DIRECT_CHANNELS)}, {m})")
+    ac = read_channel_set(r, max_length=m, shape=(nr, m - 1), name="RAHT AC set")
+    direct = read_channel_set(r, max_length=m, shape=(len(DIRECT_CHANNELS), m), name="direct channel set")
     r.expect_end()
     return dc, ac, direct
 

@@ -29,6 +29,33 @@ def decode_main(argv=None) -> int:
                    help="decode only the Gaussians inside this box (and only the tiles that meet it)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     a = p.parse_args(argv)
+    from .io_util import sigterm_as_interrupt
+    try:
+        with sigterm_as_interrupt():
+            out = _decode_to_file(a)
+    except KeyboardInterrupt:          # Ctrl-C or SIGTERM: atomic_write left no partial file
+        print("gsz-decode: interrupted; no output written", file=sys.stderr)
+        return 130
+    if isinstance(out, int):
+        return out
+    cloud, dt, truncated = out
+    from .native import active_path
+    summary = {"input": a.input, "output": a.output, "num_gaussians": len(cloud), "truncated": truncated,
+               "sh_degree": cloud.sh_degree, "decode_seconds": round(dt, 4),
+               "gaussians_per_second": round(len(cloud) / dt) if dt > 0 else None,
+               "decoder": active_path()}
+    if a.json:
+        print(json.dumps(summary))
+    else:
+        print(f"decoded {len(cloud)} Gaussians (SH degree {cloud.sh_degree}) in {dt:.3f} s "
+              f"({active_path()} decoder) -> {a.output}", file=sys.stderr)
+    return 0
+
+
+def _decode_to_file(a):
+    """Decode ``a.input`` and write ``a.output``: (cloud, seconds, truncation message or None),
+    or the exit code of a one-line error already printed."""
+    from .io_util import check_output_path
     tiles = region = None
     if a.tiles is not None:
         try:
@@ -46,6 +73,7 @@ def decode_main(argv=None) -> int:
         return _fail("gsz-decode", GszError(f"--layers must be >= 1, got {a.layers}"))
     truncated = None
     try:
+        check_output_path(a.output, inputs=[a.input])     # before the decode, not after it
         t0 = time.perf_counter()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", GszTruncatedWarning)
@@ -63,18 +91,8 @@ def decode_main(argv=None) -> int:
             return 2
         return _fail("gsz-decode", e)
     except OSError as e:
-        return _fail("gsz-decode", e)
-    from .native import active_path
-    summary = {"input": a.input, "output": a.output, "num_gaussians": len(cloud), "truncated": truncated,
-               "sh_degree": cloud.sh_degree, "decode_seconds": round(dt, 4),
-               "gaussians_per_second": round(len(cloud) / dt) if dt > 0 else None,
-               "decoder": active_path()}
-    if a.json:
-        print(json.dumps(summary))
-    else:
-        print(f"decoded {len(cloud)} Gaussians (SH degree {cloud.sh_degree}) in {dt:.3f} s "
-              f"({active_path()} decoder) -> {a.output}", file=sys.stderr)
-    return 0
+        return _fail("gsz-decode", GszError(f"cannot write: {e.strerror or e}", a.output))
+    return cloud, dt, truncated
 
 
 def info_main(argv=None) -> int:
@@ -82,11 +100,14 @@ def info_main(argv=None) -> int:
     p.add_argument("input", help="input .gsz file")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     a = p.parse_args(argv)
-    from .decode import inspect
     try:
+        from .decode import inspect
         info = inspect(a.input)
     except GszError as e:
         return _fail("gsz-info", e)
+    except KeyboardInterrupt:
+        print("gsz-info: interrupted", file=sys.stderr)
+        return 130
     from .native import active_path, unavailable_reason
     decoder = {"path": active_path(), "native_unavailable": unavailable_reason() or None}
     if a.json:

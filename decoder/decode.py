@@ -29,7 +29,8 @@ CHUNK_NAMES = {CHUNK_GEOM: "geometry (octree)", CHUNK_ATTR: "attributes (RAHT + 
 
 
 def read_meta(container: Container) -> dict:
-    """The informative META chunk as a dict ({} when absent or unreadable: it is optional)."""
+    """The informative META chunk as a dict ({} when absent, unreadable or nested deeper than
+    MAX_META_NESTING: it is optional); an ``options`` entry that is not an object is dropped."""
     c = container.find(CHUNK_META)
     if c is None:
         return {}
@@ -37,9 +38,29 @@ def read_meta(container: Container) -> dict:
     try:
         raw = zstandard.ZstdDecompressor().decompress(bytes(c.data), max_output_size=1 << 24)
         meta = json.loads(raw.decode("utf-8"))
-        return meta if isinstance(meta, dict) else {}
-    except (zstandard.ZstdError, ValueError, UnicodeDecodeError):
-        return {}
+    except (zstandard.ZstdError, ValueError, UnicodeDecodeError, RecursionError):
+        return {}                 # RecursionError: JSON nested deeper than Python's stack
+    if not isinstance(meta, dict) or _nesting(meta) > MAX_META_NESTING:
+        return {}                 # printing or re-serialising deep nesting would recurse too
+    if not isinstance(meta.get("options", {}), dict):
+        meta = {k: v for k, v in meta.items() if k != "options"}   # gsz-info reads it as an object
+    return meta
+
+
+#: Deepest JSON nesting of a META object gsz reports (the reference encoder writes 3 levels).
+MAX_META_NESTING = 64
+
+
+def _nesting(obj) -> int:
+    """Nesting depth of a parsed JSON value, without recursion."""
+    deepest, stack = 0, [(obj, 1)]
+    while stack:
+        o, d = stack.pop()
+        if isinstance(o, (dict, list)):
+            deepest = max(deepest, d)
+            if d <= MAX_META_NESTING:
+                stack.extend((v, d + 1) for v in (o.values() if isinstance(o, dict) else o))
+    return deepest
 
 
 def _decode_tile(container: Container, parts: list, header, state: LayerState, overlap: bool) -> list:

@@ -27,6 +27,11 @@ class GszTruncatedError(GszFormatError):
     ``decode(..., partial=True)`` decodes the complete layers of such a file instead."""
 
 
+class GszOutputError(GszError, OSError):
+    """An output file cannot be written (unwritable or missing folder, a directory or device in
+    its place, the input itself, a full disk); also an OSError, the failure it replaces."""
+
+
 class CloudValidationError(GszError, ValueError):
     """A GaussianCloud's arrays are inconsistent (shapes, dtypes, non-finite values)."""
 

@@ -54,16 +54,25 @@ def group_model_table(num_channels: int, num_blocks: int, bits=None,
     return table, num_channels * 16
 
 
-def read_channel_set(r: Reader, *, max_length: int) -> np.ndarray:
-    """Parse one quantised channel set from ``r``; returns the dequantised float64 [C, L]."""
+def read_channel_set(r: Reader, *, max_length: int, shape: tuple | None = None,
+                     name: str = "channel set") -> np.ndarray:
+    """Parse one quantised channel set from ``r``; returns the dequantised float64 [C, L].
+
+    shape   the (C, L) its use prescribes (GSZ.md §5): C, then L's bound ``max_length``, then
+            L are checked as soon as they are read, before anything is allocated or decoded
+            (a hostile C or L would otherwise cost C * L symbols of work first)."""
     c = r.u8()
     length = r.u32()
     b = r.u16()
-    r.check(c >= 1, "channel set with zero channels")
-    r.check(b >= 1, "channel set with zero blocks")
+    r.check(c >= 1, f"{name} with zero channels")
+    if shape is not None:
+        r.check(c == shape[0], f"{name} has {c} channels, expected {shape[0]}")
+    r.check(length <= max_length, f"{name}: channel length {length} exceeds the point count {max_length}")
+    if shape is not None:
+        r.check(length == shape[1], f"{name} has channel length {length}, expected {shape[1]}")
+    r.check(b >= 1, f"{name} with zero blocks")
     mode = r.u8()
     r.check(mode in MODEL_MODES, f"unknown model mode {mode}")
-    r.check(length <= max_length, f"channel length {length} exceeds the point count {max_length}")
     bits = r.array(np.uint8, c * b).reshape(c, b)
     mins = r.array(np.float32, c * b).reshape(c, b)
     maxs = r.array(np.float32, c * b).reshape(c, b)

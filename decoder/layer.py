@@ -23,12 +23,15 @@ from .cloud import GaussianCloud
 from .container import LAYER_SHIFT, TILE_SHIFT, Chunk
 from .errors import GszError, GszFormatError
 from .geometry import read_geometry_header
+from .io_util import check_input_file
 from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHVQ, CHUNK_TILE
 from .sh import read_sh
 
 
 def open_gsz(path: str):
-    """Open a .gsz file for reading; a GszError naming the file when it cannot be opened."""
+    """Open a .gsz file for reading; a GszError naming the file when it cannot be opened or is
+    not a regular file of bounded size (a device or FIFO would be read forever)."""
+    check_input_file(path)
     try:
         return open(path, "rb")
     except FileNotFoundError:
@@ -49,6 +52,8 @@ def load_bytes(src):
             return memoryview(f.read()), path
         except OSError as e:
             raise GszError(f"cannot read: {e.strerror or e}", path) from None
+        except MemoryError:
+            raise GszError("too large to read into memory", path) from None
 
 
 def guard(fn, path):
@@ -211,6 +216,11 @@ class LayerState:
 #: attribute and SH streams decode on the calling one (native path; below it the hand-off costs
 #: more than it saves).
 OVERLAP_MIN_POINTS = 4096
+#: ... and only when the layer's chunks hold at least one byte per this many declared points: the
+#: overlap allocates and decodes M-sized attribute arrays before the octree has confirmed M, so a
+#: hostile M must first be plausible for the bytes (real files: <= 1 point per byte); beyond it
+#: the octree decodes first, as on the NumPy path (GSZ.md §11).
+OVERLAP_MAX_POINTS_PER_BYTE = 4
 _pool = None
 _pool_lock = threading.Lock()
 
@@ -272,7 +282,8 @@ def decode_layer(chunks: dict, header, state: LayerState, *, overlap: bool = Tru
         raise GszFormatError(f"layers hold more Gaussians than {state.what} {state.limit}")
     gh = read_geometry_header(chunks[CHUNK_GEOM], max_points=room)
     m = gh.num_points
-    if overlap and native.enabled() and m >= OVERLAP_MIN_POINTS and _cores() >= 2:
+    if (overlap and native.enabled() and m >= OVERLAP_MIN_POINTS and _cores() >= 2
+            and m <= OVERLAP_MAX_POINTS_PER_BYTE * sum(len(v) for v in chunks.values())):
         cloud = _decode_layer_overlapped(chunks, header, state, gh)
     else:
         codes = gh.decode_codes()

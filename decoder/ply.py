@@ -17,7 +17,7 @@ import numpy as np
 
 from .cloud import SH_REST_COUNT, GaussianCloud
 from .errors import PlyFormatError
-from .io_util import atomic_write
+from .io_util import atomic_write, check_input_file
 
 _BASE = ["x", "y", "z"]
 _DC = ["f_dc_0", "f_dc_1", "f_dc_2"]
@@ -37,10 +37,7 @@ def read_ply(path, *, check_finite: bool = True) -> GaussianCloud:
     from plyfile import PlyData, PlyParseError
 
     path = os.fspath(path)
-    if not os.path.exists(path):
-        raise PlyFormatError("file not found", path)
-    if os.path.isdir(path):
-        raise PlyFormatError("is a directory, expected a .ply file", path)
+    check_input_file(path, PlyFormatError)     # a regular file of bounded size, before opening
     try:
         with open(path, "rb") as f:
             magic = f.read(4)
@@ -105,7 +102,7 @@ def read_ply(path, *, check_finite: bool = True) -> GaussianCloud:
     if check_finite:
         for fname, props in (("positions", _BASE), ("scales", _SCALE), ("rotations", _ROT),
                              ("opacities", ["opacity"]), ("sh_dc", _DC), ("sh_rest", rest_names)):
-            arr = getattr(cloud, fname).reshape(n, -1)
+            arr = getattr(cloud, fname).reshape(n, len(props))     # not -1: n may be 0
             bad = ~np.isfinite(arr)
             if bad.any():
                 r, c = np.argwhere(bad)[0]

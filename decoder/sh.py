@@ -51,8 +51,7 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
     if kcb:
         r.check(codebook is None, f"a second SH codebook ({kcb} entries): an earlier layer carried one")
         r.check(kcb <= MAX_CODEBOOK, f"codebook size {kcb} outside 1..{MAX_CODEBOOK}")
-        codebook = read_channel_set(r, max_length=kcb)
-        r.check(codebook.shape == (d, kcb), f"codebook has shape {codebook.shape}, expected ({d}, {kcb})")
+        codebook = read_channel_set(r, max_length=kcb, shape=(d, kcb), name="codebook")
     else:
         r.check(codebook is not None or p == m,
                 "codeword indices but no SH codebook in this or an earlier layer")
@@ -63,8 +62,7 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
     # the float32 output applies anyway): one contiguous gather, not two masked scatters
     rows = np.zeros((0, d), np.float32)
     if p:
-        kept = read_channel_set(r, max_length=p)
-        r.check(kept.shape == (d, p), f"kept SH set has shape {kept.shape}, expected ({d}, {p})")
+        kept = read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set")
         flags = decode_stream_single(r.blob(), m)
         r.check(bool(np.all((flags == 0) | (flags == 1))), "kept flag outside 0/1")
         kept_mask = flags.astype(bool)
@@ -92,8 +90,7 @@ def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebo
     flags = None
     kept = np.zeros((d, 0), np.float64)
     if p:
-        kept = read_channel_set(r, max_length=p)
-        r.check(kept.shape == (d, p), f"kept SH set has shape {kept.shape}, expected ({d}, {p})")
+        kept = read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set")
         flags = decode_stream_single(r.blob(), m)
     idx = decode_stream_single(r.blob(), m - p)
     r.expect_end()

@@ -64,9 +64,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _read_inputs(a, prog):
     """The input cloud and, when --cameras is given, its train cameras."""
+    import numpy as np
+
+    from gsz.decoder.errors import PlyFormatError
     from gsz.decoder.ply import read_ply
     with prog.stage("read", a.input):
         cloud = read_ply(a.input)
+    if len(cloud) == 0:
+        raise PlyFormatError("has 0 vertices: nothing to encode", a.input)
+    zero = ~(np.abs(cloud.rotations).sum(axis=1) > 0)    # the importance renderer needs a rotation
+    if zero.any():
+        raise PlyFormatError(f"{int(zero.sum())} vertices have an all-zero rotation quaternion "
+                             f"(rot_0..rot_3), first at vertex {int(np.argmax(zero))}", a.input)
     cameras = None
     if a.cameras:
         from .cameras import load_cameras
@@ -84,6 +93,7 @@ def _run_fixed(a, prog) -> dict:
                          layers=a.layers, first_layer=a.first_layer, seed=a.seed,
                          tile_gaussians=a.tile_gaussians or None, executor=a.executor,
                          workers=a.workers).validate()
+    _check_paths(a)                           # after the options: their errors come first
     cloud, cameras = _read_inputs(a, prog)
     result = encode(cloud, opts, cameras=cameras, progress=prog)
     return _finish(a, result, {})
@@ -99,8 +109,8 @@ def _run_search(a, prog) -> dict:
     if fixed_only:
         raise GszError("--size/--ratio/--profile choose the reserve, depth, bit-widths and kept SH "
                        f"themselves; drop {'/'.join(fixed_only)}")
-    in_bytes = os.path.getsize(a.input) if os.path.isfile(a.input) else None
-    target = budget_from_args(size=a.size, ratio=a.ratio, profile=a.profile, ply_bytes=in_bytes)
+    _check_paths(a)
+    target = budget_from_args(size=a.size, ratio=a.ratio, profile=a.profile, ply_bytes=a.input_bytes)
     style = size_style(a.size) if a.size is not None else "auto"
     prog.log(f"target size {format_size(target, style)} ({target:,} bytes)")
     cloud, cameras = _read_inputs(a, prog)
@@ -124,21 +134,40 @@ def _run_search(a, prog) -> dict:
 def _finish(a, result, extra: dict) -> dict:
     """Write the file atomically and complete the report."""
     from gsz.decoder.io_util import atomic_write
-    atomic_write(a.output, result.data)
+    atomic_write(a.output, result.data)       # a GszError naming a.output when it fails
     r = result.report
-    in_bytes = os.path.getsize(a.input)
+    in_bytes = a.input_bytes
     r.update(input=a.input, output=a.output, input_bytes=in_bytes, ratio=in_bytes / r["bytes"], **extra)
     return r
 
 
-def main(argv=None) -> int:
-    a = build_parser().parse_args(argv)
-    from .progress import Progress
+def _check_paths(a) -> None:
+    """Input and output checks after the options' and before the long encode: a readable regular input file, an output
+    that is not an input and whose folder is writable, a report folder that can be one."""
+    from gsz.decoder.errors import PlyFormatError
+    from gsz.decoder.io_util import check_input_file, check_output_path
+    a.input_bytes = check_input_file(a.input, PlyFormatError)
+    check_output_path(a.output, inputs=[a.input, a.cameras])
+    if a.report:
+        if os.path.exists(a.report) and not os.path.isdir(a.report):
+            raise GszError("--report: is a file, expected a folder", a.report)
+        check_output_path(os.path.join(a.report, "report.json"), inputs=[a.input, a.cameras])
 
+
+def _run(a):
+    """(report, progress) of the encode ``a`` asks for, its output written."""
+    from .progress import Progress
     prog = Progress(quiet=a.quiet)
     searching = any(v is not None for v in (a.size, a.ratio, a.profile))
+    return (_run_search(a, prog) if searching else _run_fixed(a, prog)), prog
+
+
+def main(argv=None) -> int:
     try:
-        r = _run_search(a, prog) if searching else _run_fixed(a, prog)
+        a = build_parser().parse_args(argv)   # imports torch: Ctrl-C may land here too
+        from gsz.decoder.io_util import sigterm_as_interrupt
+        with sigterm_as_interrupt():
+            r, prog = _run(a)
     except GszError as e:
         print(f"gsz-encode: error: {e}", file=sys.stderr)
         return 2

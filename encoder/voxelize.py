@@ -68,6 +68,11 @@ from gsz.decoder.rotation import quaternion_to_matrix
 DEFAULT_REL_ERROR = 5e-4
 #: Relative padding of the bounding cube, so the maximum centre falls strictly inside.
 CUBE_PAD = 2.0 ** -30
+#: Padding steps of (1 + CUBE_PAD) tried before the cube grows by doubling float64 spacings.
+PAD_STEPS = 4096
+#: Largest cube side / scene extent accepted when float64 precision forces a bigger cube: the
+#: finest grid (depth 21) then still puts >= 2^10 voxels across the scene.
+MAX_CUBE_GROWTH = float(1 << (MAX_DEPTH - 10))
 #: Percentiles of the robust box used for the error budget.
 ROBUST_PERCENTILES = (1.0, 99.0)
 
@@ -129,17 +134,35 @@ def bounding_cube(positions: np.ndarray) -> tuple[np.ndarray, float]:
     """The cube ``(origin [3] float64, side float)`` holding every centre.
 
     origin = per-axis minimum; side = largest per-axis extent * (1 + 2^-30).  A degenerate cloud
-    (a single point, all points equal) gets side 1.0 (any positive side holds it).
+    (a single point, all points equal) gets side 1.0 (any positive side holds it), grown where
+    float64 spacing at the centres needs more.  Raises VoxelizeError when float64 cannot hold a
+    grid fine enough for the scene there (|coordinate| >> extent, e.g. a scene moved to x = 3e38).
     """
     x = _check_positions(positions)
     if x.shape[0] == 0:
         raise VoxelizeError("cannot build a bounding cube of zero points")
-    lo = x.min(axis=0)
-    extent = float((x.max(axis=0) - lo).max())
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    extent = float((hi - lo).max())
     side = extent * (1.0 + CUBE_PAD) if extent > 0 else 1.0
     # Guard: at huge |origin| the padding could vanish in rounding; make sure max lands inside.
-    while np.any(lo + side <= x.max(axis=0)):
+    # The small steps keep every cube that ever ended this way (same encoder bytes) ...
+    for _ in range(PAD_STEPS):
+        if not np.any(lo + side <= hi):
+            return lo, side
         side = math.nextafter(side * (1.0 + CUBE_PAD), math.inf)
+    # ... and past them, doubling steps of the coordinates' float64 spacing end in < 2100 steps.
+    step = float(np.spacing(np.abs(np.concatenate([lo, hi])).max()))
+    while np.any(lo + side <= hi):
+        side += step
+        step *= 2.0
+        if not math.isfinite(side):
+            raise VoxelizeError("Gaussian centres too large for a float64 voxel grid "
+                                f"(|coordinate| up to {np.abs(x).max():.3g})")
+    if extent > 0 and side > MAX_CUBE_GROWTH * extent:
+        raise VoxelizeError(
+            f"Gaussian centres span only {extent:.3g} at coordinates up to {np.abs(x).max():.3g}: "
+            f"float64 needs a voxel cube of side {side:.3g} there, too coarse to keep the scene; "
+            "move the scene near the origin (subtract its centre) and encode again")
     return lo, side
 
 

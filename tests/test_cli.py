@@ -112,3 +112,155 @@ def test_layers_flag_without_a_number_means_the_measured_streaming_default():
     assert p.parse_args(["in.ply", "-o", "o.gsz"]).layers == 1
     assert p.parse_args(["in.ply", "-o", "o.gsz", "--layers"]).layers == STREAMING_LAYERS == 3
     assert p.parse_args(["in.ply", "-o", "o.gsz", "--layers", "5"]).layers == 5
+
+
+# ---------------------------------------------------------------- issue 19: paths and signals
+TINY = ["--bits", "8", "--codebook", "16", "--train-views", "1", "--importance-width", "32", "-q"]
+
+
+@pytest.fixture(scope="module")
+def small_pair(tmp_path_factory):
+    """A 300-Gaussian PLY and its .gsz (encodes in well under a second)."""
+    import numpy as np
+    d = tmp_path_factory.mktemp("small")
+    c = gsz.read_ply(SAMPLE_SH0)
+    gsz.write_ply(c.subset(np.arange(300)), d / "s.ply")
+    from gsz.encoder.cli import main
+    assert main([str(d / "s.ply"), "-o", str(d / "s.gsz"), *TINY]) == 0
+    return d / "s.ply", d / "s.gsz"
+
+
+def _one_line_error(capsys, *names):
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err and ".tmp-" not in err, err
+    for name in names:
+        assert str(name) in err, err
+    return err
+
+
+def test_output_that_is_the_input_is_refused(small_pair, tmp_path, capsys):
+    from gsz.decoder.cli import decode_main
+    from gsz.encoder.cli import main
+    ply, g = (tmp_path / "a.ply", tmp_path / "a.gsz")
+    ply.write_bytes(small_pair[0].read_bytes())
+    g.write_bytes(small_pair[1].read_bytes())
+    os.symlink(ply, tmp_path / "alias.ply")
+    os.link(g, tmp_path / "hard.gsz")
+    before = (ply.read_bytes(), g.read_bytes())
+    for out in (ply, tmp_path / "alias.ply", f"{tmp_path}/./a.ply"):
+        assert main([str(ply), "-o", str(out), *TINY]) == 2
+        assert "is the input file" in _one_line_error(capsys, out)
+    for out in (g, tmp_path / "hard.gsz"):
+        assert decode_main([str(g), "-o", str(out)]) == 2
+        assert "is the input file" in _one_line_error(capsys, out)
+    assert (ply.read_bytes(), g.read_bytes()) == before
+
+
+def test_unwritable_output_fails_before_the_encode(small_pair, tmp_path, capsys):
+    from gsz.encoder.cli import main
+    ply = small_pair[0]
+    (tmp_path / "afile").write_bytes(b"x")
+    cases = [("", "output path is empty"), (str(tmp_path), "is a directory"),
+             (str(tmp_path / "afile" / "x.gsz"), "is a file, not a folder"),
+             (str(tmp_path / "new") + os.sep, "path separator")]
+    if os.path.isdir("/sys"):
+        cases.append(("/sys/gsz-out.gsz", "Permission denied"))     # even root cannot write there
+    for out, words in cases:
+        assert main([str(ply), "-o", out, *TINY[:-1]]) == 2        # not quiet: stages would show
+        err = capsys.readouterr().err
+        assert words in err and "[gsz] importance" not in err and "Traceback" not in err, err
+        assert len(err.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
+def test_write_failure_after_the_encode_names_the_output(small_pair, tmp_path, capsys, monkeypatch):
+    import errno
+
+    import gsz.decoder.io_util as io_util
+    from gsz.encoder.cli import main
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(io_util.os, "fsync", full)
+    out = tmp_path / "o.gsz"
+    assert main([str(small_pair[0]), "-o", str(out), *TINY]) == 2
+    assert "No space left on device" in _one_line_error(capsys, out)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_zero_vertex_ply_and_device_inputs(tmp_path, capsys):
+    from gsz.decoder.cli import decode_main, info_main
+    from gsz.decoder.ply import cloud_to_ply_bytes
+    from gsz.encoder.cli import main
+    empty = tmp_path / "empty.ply"
+    empty.write_bytes(cloud_to_ply_bytes(gsz.read_ply(SAMPLE_SH0).subset([])))
+    assert main([str(empty), "-o", str(tmp_path / "e.gsz"), *TINY]) == 2
+    assert "0 vertices" in _one_line_error(capsys, empty)
+    bad_q = tmp_path / "zero_q.ply"
+    c = gsz.read_ply(SAMPLE_SH0).subset(list(range(50)))
+    c.rotations[[7, 9]] = 0.0
+    gsz.write_ply(c, bad_q)
+    assert main([str(bad_q), "-o", str(tmp_path / "q.gsz"), *TINY]) == 2
+    assert "2 vertices have an all-zero rotation quaternion" in _one_line_error(capsys, bad_q, "vertex 7")
+    assert main(["/dev/zero", "-o", str(tmp_path / "z.gsz"), *TINY]) == 2
+    assert "not a regular file" in _one_line_error(capsys, "/dev/zero")
+    assert decode_main(["/dev/zero", "-o", str(tmp_path / "z.ply")]) == 2
+    assert "not a regular file" in _one_line_error(capsys, "/dev/zero")
+    assert info_main(["/dev/zero"]) == 2
+    assert "not a regular file" in _one_line_error(capsys, "/dev/zero")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.ply", "zero_q.ply"]
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("when", ["decode", "write"])
+def test_interrupted_decode_exits_130_with_one_line_and_no_output(small_pair, tmp_path, capsys,
+                                                                  monkeypatch, sig, when):
+    import signal
+    import time
+
+    import gsz.decoder.io_util as io_util
+    from gsz.decoder.cli import decode_main
+    decode_mod = sys.modules["gsz.decoder.decode"]      # gsz.decoder.decode is the function
+    real_decode = decode_mod.decode
+
+    def hit(*a, **k):                   # a real signal, delivered to this process
+        os.kill(os.getpid(), getattr(signal, sig))
+        time.sleep(2)
+        raise AssertionError("the signal did not interrupt")
+    if when == "decode":
+        monkeypatch.setattr(decode_mod, "decode", lambda *a, **k: (hit(), real_decode(*a, **k)))
+    else:
+        monkeypatch.setattr(io_util.os, "fsync", hit)
+    out = tmp_path / "o.ply"
+    assert decode_main([str(small_pair[1]), "-o", str(out)]) == 130
+    assert "interrupted; no output written" in _one_line_error(capsys)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_decode_to_dev_null_keeps_it_a_device(small_pair, capsys):
+    import stat
+    from gsz.decoder.cli import decode_main
+    before = os.stat(os.devnull)
+    if not stat.S_ISCHR(before.st_mode):
+        pytest.skip(f"{os.devnull} is not a character device on this machine")
+    assert decode_main([str(small_pair[1]), "-o", os.devnull, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["num_gaussians"] > 0
+    after = os.stat(os.devnull)
+    assert stat.S_ISCHR(after.st_mode) and after.st_ino == before.st_ino
+
+
+def test_ctrl_c_during_encode_start_up_is_one_line(tmp_path, capsys, monkeypatch):
+    import signal
+    import time
+
+    import gsz.encoder.cli as cli
+    real = cli.build_parser
+
+    def slow_imports():                  # Ctrl-C while torch and the pipeline import
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(2)
+        return real()
+    monkeypatch.setattr(cli, "build_parser", slow_imports)
+    assert cli.main([str(SAMPLE_SH0), "-o", str(tmp_path / "x.gsz")]) == 130
+    assert "interrupted; no output written" in _one_line_error(capsys)
+    assert list(tmp_path.iterdir()) == []

@@ -1,4 +1,5 @@
 """PLY reading/writing: exact round trips, every SH degree, clear errors naming file and property."""
+import os
 import warnings
 
 import numpy as np
@@ -143,3 +144,27 @@ def test_written_files_get_normal_permissions(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert (p.stat().st_mode & 0o777) == (0o666 & ~umask)
+
+
+def test_zero_vertex_ply_reads_as_an_empty_cloud(tmp_path):
+    # A region decode can write one; reading it back must not crash in a reshape.
+    for degree in (0, 3):
+        p = tmp_path / f"empty{degree}.ply"
+        gsz.write_ply(_random_cloud(5, degree).subset([]), p)
+        c = gsz.read_ply(p)
+        assert len(c) == 0 and c.sh_degree == degree and c.sh_rest.shape == (0, 15 if degree else 0, 3)
+
+
+def test_device_fifo_and_huge_inputs_are_refused_before_reading(tmp_path):
+    from gsz.decoder.io_util import MAX_INPUT_BYTES
+    with pytest.raises(PlyFormatError, match=r"/dev/zero: is not a regular file"):
+        gsz.read_ply("/dev/zero")
+    fifo = tmp_path / "pipe.ply"
+    os.mkfifo(fifo)                         # opening it would block: refused from its stat
+    with pytest.raises(PlyFormatError, match="pipe.ply: is not a regular file"):
+        gsz.read_ply(fifo)
+    huge = tmp_path / "huge.ply"
+    with open(huge, "wb") as f:             # sparse: no disk space used
+        f.truncate(MAX_INPUT_BYTES + 1)
+    with pytest.raises(PlyFormatError, match="huge.ply: is .* bytes, more than"):
+        gsz.read_ply(huge)
