@@ -1,0 +1,36 @@
+"""The size search's SH coding paths: the codebook at low rates, the scalar path at high rates."""
+import pytest
+
+from gsz.decoder import decode
+
+from codec_util import sample
+
+FAST_SEARCH = dict(train_views=8, eval_views=3, eval_width=240, importance_width=240)
+
+
+def _search(target, **kw):
+    from gsz.encoder.search import SearchOptions, encode_to_budget
+    return encode_to_budget(sample("sh3"), target, options=SearchOptions(**FAST_SEARCH, **kw))
+
+
+def _test_psnr(cloud):
+    from gsz.encoder.cameras import load_cameras
+    from gsz.encoder.evaluate import evaluate
+    cams = load_cameras(None, sample("sh3"), n_test=3, width=320).test
+    return evaluate(sample("sh3"), cloud, cams)["psnr"]
+
+
+def test_high_rate_uses_the_scalar_path_and_beats_the_codebook():
+    target = 300_000
+    scalar = _search(target)
+    codebook = _search(target, sh_scalar=False)
+    assert scalar.report["sh_path"] == "scalar" and codebook.report["sh_path"] == "vq"
+    assert scalar.report["sh_keep"] == scalar.report["voxels"]          # every vector coded
+    assert len(scalar.data) <= target and decode(scalar.data).equals(scalar.cloud)
+    assert _test_psnr(scalar.cloud) > _test_psnr(codebook.cloud) + 1.0
+
+
+@pytest.mark.parametrize("target", [120_000])
+def test_low_rate_keeps_the_codebook(target):
+    res = _search(target)
+    assert res.report["sh_path"] == "vq" and res.report["codebook_size"] > 1
