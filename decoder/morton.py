@@ -64,18 +64,24 @@ def morton_encode(ijk: np.ndarray) -> np.ndarray:
     return (_spread3(u[:, 0]) << np.uint64(2)) | (_spread3(u[:, 1]) << np.uint64(1)) | _spread3(u[:, 2])
 
 
-def morton_decode(codes: np.ndarray) -> np.ndarray:
-    """Voxel coordinates of Morton codes (inverse of :func:`morton_encode`).
-
-    codes: uint64 [M] (values >= 2^63 are rejected: they cannot come from 21-bit coordinates).
-    Returns int64 [M, 3] (x, y, z).
-    """
+def _checked_codes(codes) -> np.ndarray:
+    """uint64 [M] view of ``codes``; GszFormatError unless 1-D and below 2^63."""
     c = np.asarray(codes)
     if c.ndim != 1:
         raise GszFormatError(f"morton_decode expects a 1-D code array, got shape {c.shape}")
     c = c.astype(np.uint64, copy=False)
     if c.size and int(c.max()) >= (1 << (3 * MAX_DEPTH)):
         raise GszFormatError("Morton code out of range (more than 63 bits)")
+    return c
+
+
+def morton_decode(codes: np.ndarray) -> np.ndarray:
+    """Voxel coordinates of Morton codes (inverse of :func:`morton_encode`).
+
+    codes: uint64 [M] (values >= 2^63 are rejected: they cannot come from 21-bit coordinates).
+    Returns int64 [M, 3] (x, y, z).
+    """
+    c = _checked_codes(codes)
     out = np.empty((c.shape[0], 3), dtype=np.int64)
     out[:, 0] = _compact3(c >> np.uint64(2))
     out[:, 1] = _compact3(c >> np.uint64(1))
@@ -85,12 +91,7 @@ def morton_decode(codes: np.ndarray) -> np.ndarray:
 
 def morton_decode_planes(codes: np.ndarray) -> np.ndarray:
     """:func:`morton_decode` as three rows: int64 [3, M] (x, y, z), the same checks."""
-    c = np.asarray(codes)
-    if c.ndim != 1:
-        raise GszFormatError(f"morton_decode expects a 1-D code array, got shape {c.shape}")
-    c = c.astype(np.uint64, copy=False)
-    if c.size and int(c.max()) >= (1 << (3 * MAX_DEPTH)):
-        raise GszFormatError("Morton code out of range (more than 63 bits)")
+    c = _checked_codes(codes)
     out = np.empty((3, c.shape[0]), dtype=np.int64)
     out[0] = _compact3(c >> np.uint64(2))
     out[1] = _compact3(c >> np.uint64(1))
