@@ -55,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="where per-tile work runs: local (worker processes), inline, ray (a local "
                         "Ray, needs gsz[cluster]) or ray://HOST:PORT (an existing cluster); the "
                         "file is the same whichever")
-    p.add_argument("--workers", type=int, default=None, help="worker processes (default: the machine's cores)")
+    p.add_argument("--workers", type=int, default=None, help="worker processes (default: the machine's cores less one; 1 runs the work in the encoder's own process)")
     p.add_argument("--seed", type=int, default=d.seed, help="RNG seed (VQ)")
     p.add_argument("--json", action="store_true", help="print a JSON report on stdout")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")

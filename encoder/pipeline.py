@@ -148,7 +148,7 @@ class EncodeOptions:
                      decodable alone (format 1.2); None: never split
     executor         where per-tile work runs: "local" worker processes, "inline", "ray" or
                      "ray://HOST:PORT" (:mod:`gsz.encoder.executor`); the bytes do not depend on it
-    workers          worker processes / local Ray CPUs (None: the machine's cores)
+    workers          worker processes / local Ray CPUs (None: the machine's cores less one)
     seed             RNG seed (VQ); the same input and options give byte-identical output
     """
 

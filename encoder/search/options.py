@@ -51,7 +51,7 @@ class SearchOptions:
                     allocation spans every tile's groups, so the budget holds for the file
     executor        where per-tile work runs: "local" (worker processes), "inline", "ray" or
                     "ray://HOST:PORT" (gsz.encoder.executor); the bytes do not depend on it
-    workers         worker processes / local Ray CPUs (None: the machine's cores)
+    workers         worker processes / local Ray CPUs (None: the machine's cores less one)
     sh_scalar       weigh the scalar SH path (every vector quantised group-wise, its widths
                     in the allocation) against the codebook at high rates
     layer0_share    wanted fraction of the file bytes before layer 0 is decodable: when the
