@@ -211,10 +211,20 @@ def test_zero_vertex_ply_and_device_inputs(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.ply", "zero_q.ply"]
 
 
+@pytest.fixture
+def sigint_raises():
+    """SIGINT raising KeyboardInterrupt, as in a terminal: a process started in the background of
+    a non-interactive shell inherits SIGINT ignored, and Python then leaves it ignored."""
+    import signal
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, old)
+
+
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
 @pytest.mark.parametrize("when", ["decode", "write"])
 def test_interrupted_decode_exits_130_with_one_line_and_no_output(small_pair, tmp_path, capsys,
-                                                                  monkeypatch, sig, when):
+                                                                  monkeypatch, sig, when, sigint_raises):
     import signal
     import time
 
@@ -249,7 +259,7 @@ def test_decode_to_dev_null_keeps_it_a_device(small_pair, capsys):
     assert stat.S_ISCHR(after.st_mode) and after.st_ino == before.st_ino
 
 
-def test_ctrl_c_during_encode_start_up_is_one_line(tmp_path, capsys, monkeypatch):
+def test_ctrl_c_during_encode_start_up_is_one_line(tmp_path, capsys, monkeypatch, sigint_raises):
     import signal
     import time
 
