@@ -21,7 +21,7 @@ def _test_psnr(cloud):
 
 
 def test_high_rate_uses_the_scalar_path_and_beats_the_codebook():
-    target = 300_000
+    target = 240_000
     scalar = _search(target)
     codebook = _search(target, sh_scalar=False)
     assert scalar.report["sh_path"] == "scalar" and codebook.report["sh_path"] == "vq"
