@@ -15,7 +15,7 @@ from .cloud import GaussianCloud
 from .container import DEFAULT_MAX_GAUSSIANS, Container, read_container
 from .errors import GszError, GszFormatError, GszTruncatedError
 # LAYER_DATA_CHUNKS, open_gsz and the layer names stay importable from here (their old home)
-from .layer import (LAYER_DATA_CHUNKS, LayerState, _cores, check_header_counts,  # noqa: F401
+from .layer import (LAYER_DATA_CHUNKS, LayerState, _cores, check_header_counts, check_tile_complete,  # noqa: F401
                     concat_clouds, decode_layer, guard, load_bytes, open_gsz, plan_layers, plan_parts,
                     tile_table)
 from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHVQ, CHUNK_TILE, KNOWN_CHUNKS
@@ -93,12 +93,9 @@ def decode_parts(container: Container, plan, tiles: list, chosen: list, count: i
                 if futures[t].exception() is not None:
                     raise futures[t].exception()
             clouds = {t: futures[t].result() for t in chosen}
-    for t in chosen:
-        if count == plan.num_layers and states[t].decoded_points != tiles[t].num_gaussians:
-            raise GszFormatError(
-                f"tile {t}: layers hold {states[t].decoded_points} Gaussians, the TILE chunk says "
-                f"{tiles[t].num_gaussians}" if tiled else
-                f"layers hold {states[t].decoded_points} Gaussians, header says {h.num_gaussians}")
+    if count == plan.num_layers:
+        for t in chosen:
+            check_tile_complete(states[t], t, tiled)
     order = sorted(((p.layer, p.tile), k) for t in chosen for k, p in enumerate(by_tile[t]))
     return [clouds[t][k] for (_, t), k in order]
 

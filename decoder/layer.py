@@ -212,6 +212,15 @@ class LayerState:
     codebook: np.ndarray | None = None      # the tile's SH codebook [D, K_cb], once seen
 
 
+def check_tile_complete(state: LayerState, tile: int, tiled: bool) -> None:
+    """After a tile's last layer: its parts must hold exactly its count (the TILE chunk's, or
+    the header's without tiles)."""
+    if state.decoded_points != state.limit:
+        raise GszFormatError(
+            f"tile {tile}: layers hold {state.decoded_points} Gaussians, the TILE chunk says {state.limit}"
+            if tiled else f"layers hold {state.decoded_points} Gaussians, header says {state.limit}")
+
+
 #: Layers with at least this many Gaussians decode their geometry on a worker thread while the
 #: attribute and SH streams decode on the calling one (native path; below it the hand-off costs
 #: more than it saves).

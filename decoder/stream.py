@@ -30,7 +30,7 @@ import numpy as np
 from .cloud import GaussianCloud
 from .container import (CHUNK_REQUIRED, DEFAULT_MAX_GAUSSIANS, HEADER_SIZE, MAGIC, parse_header,
                         parse_table, table_size)
-from .layer import (LayerState, check_header_counts, concat_clouds, decode_layer, guard, open_gsz,
+from .layer import (LayerState, check_header_counts, check_tile_complete, concat_clouds, decode_layer, guard, open_gsz,
                     plan_parts, tile_table)
 from .errors import GszError, GszFormatError, GszTruncatedWarning
 from .layout import KNOWN_CHUNKS
@@ -266,11 +266,8 @@ class StreamDecoder:
         with np.errstate(over="ignore", invalid="ignore"):
             cloud = decode_layer(chunks, self.header, state)
         tile_layers = sum(1 for p in self._plan.parts if p.tile == part.tile)
-        if part.layer == tile_layers - 1 and state.decoded_points != state.limit:
-            raise GszFormatError(
-                f"tile {part.tile}: layers hold {state.decoded_points} Gaussians, the TILE chunk says "
-                f"{state.limit}" if self._plan.tile_chunk is not None else
-                f"layers hold {state.decoded_points} Gaussians, header says {self.header.num_gaussians}")
+        if part.layer == tile_layers - 1:
+            check_tile_complete(state, part.tile, self._plan.tile_chunk is not None)
         self._parts.append(cloud)
         layer_complete = k + 1 == len(parts) or parts[k + 1].layer != part.layer
         if layer_complete:
