@@ -8,6 +8,7 @@ for layered files; the best candidate on train views wins.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import time
 from collections import OrderedDict
@@ -137,6 +138,9 @@ class BudgetSearch:
         self.log: list = []               # every tau's calibration
         self.screened: list = []          # exact-attribute bounds rendered or inferred
         self.dropped: list = []           # candidates dropped after their hardest views
+        # the scalar SH path lost to the codebook as rendered once: not weighed again (what
+        # decides it -- palette-like or continuous SH, the rate -- is the same at every tau)
+        self.scalar_lost = False
         self.t0 = self.c0 = None
 
     # --- stages -------------------------------------------------------------------------------
@@ -276,25 +280,36 @@ class BudgetSearch:
         if regular and self.cannot_win(tau, d):
             return
         stage = self.stage_for(tau, d, fl)
-        enc = encode_tau(stage, self.target, sopts, self.sh_models(stage), progress, self.log,
-                         self.judge.weights, min_keep=min_keep)
-        if enc is None:
-            progress.log(f"tau {tau}: budget not reachable")
-            return
+        encs = encode_tau(stage, self.target,
+                          dataclasses.replace(sopts, sh_scalar=False) if self.scalar_lost else sopts,
+                          self.sh_models(stage), progress, self.log, self.judge.weights, min_keep=min_keep)
         # re-split / kept-layer-0 variants may be chosen despite a lower PSNR: render them fully
         rival = self.best().view_psnr if self.candidates and regular else None
-        with progress.stage("eval", f"tau {tau}, depth {d}"):
-            p, views, partial = self.judge.score(enc.cloud, rival)
-        if partial:
+        scored, paths = [], []
+        for enc in encs:
+            paths.append(enc.sh_path)
+            what = f"tau {tau}, depth {d}" + (f", {enc.sh_path} SH" if enc.sh_path == "scalar" else "")
+            with progress.stage("eval", what):
+                p, views, partial = self.judge.score(enc.cloud, rival)
             enc.release()
-            progress.log(f"tau {tau}, depth {d}: {len(enc.data):,} bytes, {partial} hardest train views "
-                         f"{EVAL_DROP_MARGIN_DB:g}+ dB below the best candidate's: dropped")
-            self.dropped.append({"reserve": tau, "depth": d, "bytes": len(enc.data), "views": partial,
-                                 "partial_psnr": p})
+            if partial:
+                progress.log(f"{what}: {len(enc.data):,} bytes, {partial} hardest train views "
+                             f"{EVAL_DROP_MARGIN_DB:g}+ dB below the best candidate's: dropped")
+                self.dropped.append({"reserve": tau, "depth": d, "bytes": len(enc.data), "views": partial,
+                                     "partial_psnr": p})
+                continue
+            progress.log(f"{what}: {len(enc.data):,} bytes, train PSNR {p:.2f} dB")
+            scored.append(Candidate(p, tau, d, fl, views, enc))
+        if not paths:
+            progress.log(f"tau {tau}: budget not reachable")
             return
-        enc.release()
-        progress.log(f"tau {tau}, depth {d}: {len(enc.data):,} bytes, train PSNR {p:.2f} dB")
-        self.candidates.append(Candidate(p, tau, d, fl, views, enc))
+        if "scalar" in paths and scored and best_of(scored).encoded.sh_path != "scalar":
+            self.scalar_lost = True
+            progress.log("the codebook SH path renders better than the scalar path: the scalar path "
+                         "is not weighed again in this search")
+        if scored:
+            # one candidate per (tau, depth, split): the better SH path as rendered
+            self.candidates.append(best_of(scored))
 
     def refine_tau(self) -> None:
         """The grid neighbours of the best candidate's tau (at its depth), while they improve."""

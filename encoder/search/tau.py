@@ -4,6 +4,7 @@ best width and bytes are left -- spending the rest on the SH."""
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -16,10 +17,14 @@ from .tables import attribute_tables, container_overhead, group_meta_bytes, num_
 
 
 def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list, progress,
-               log: list, weights: dict | None = None, min_keep: int = 0) -> Encoded | None:
-    """Allocate + calibrate one tau.  Returns the best encode at or below target, or None when
-    the budget is unreachable at this tau.  ``min_keep``: keep at least this many exact SH
-    vectors (the most important ones)."""
+               log: list, weights: dict | None = None, min_keep: int = 0) -> Iterator[Encoded]:
+    """Allocate + calibrate one tau.  Yields its encodes at or below target, none when the
+    budget is unreachable at this tau (one at a time: the caller scores and releases each scene
+    before the next is made): the codebook path's, and the scalar SH path's too when
+    its estimate beats the codebook's -- the caller renders both and keeps the better (the two
+    estimates are not the same kind of number: on palette-coded SH the codebook's won by 0.8 dB
+    train PSNR where the scalar path's estimate said otherwise).  ``min_keep``: keep at least
+    this many exact SH vectors (the most important ones)."""
     with progress.stage("tables", f"tau {stage.reserve}: loss + rate matrices"):
         loss, rate, shapes = attribute_tables(stage, sopts.blocks, weights)
     meta_guess = 400
@@ -36,30 +41,36 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
             with progress.stage("sh-plan", "scalar SH: every vector quantised group-wise"):
                 scalar = scalar_sh(sh_model, loss, rate, target - base_fixed, weights, vq_total)
             if scalar is not None:
-                sh_plan = scalar[0]
-                progress.log(f"tau {stage.reserve}: scalar SH (every vector quantised group-wise, "
-                             f"1-16 bits in the allocation) beats the codebook")
-    if scalar is not None:
-        res = calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_plan, kept=scalar[1])
-    else:
-        res = calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_plan)
+                progress.log(f"tau {stage.reserve}: the scalar SH path (every vector quantised "
+                             f"group-wise, 1-16 bits in the allocation) is estimated better than the "
+                             f"codebook: both are encoded and rendered")
+    res = calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_plan)
     # every attribute group at its best width and the file still short of the budget (the depth
     # walk reads this, whether or not the SH then spend the rest)
     saturated = res is not None and res.left_over(target, sopts.tolerance)
-    if scalar is not None and res is not None:
-        # the SH take every byte the attributes leave: what the depth walk reads is whether
-        # every attribute group sits at its best width (as the codebook path's saturation)
-        saturated = bool(np.array_equal(res.best.pick[:loss.shape[0]], solve_max(loss, rate)))
-    if saturated and sh_plan is not None and scalar is None:
+    if saturated and sh_plan is not None:
         res = spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fixed,
                               sh_model, sh_plan, res, weights)
-    if res is None:
-        return None                   # calibrate logged why
-    log.append({"reserve": stage.reserve, "bytes": len(res.best.data), "rounds": res.history})
+    if res is not None:
+        yield _finish(stage, res, saturated, "vq", log)
+    if scalar is not None:
+        res = calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, scalar[0],
+                        kept=scalar[1])
+        if res is not None:
+            # the SH take every byte the attributes leave: what the depth walk reads is whether
+            # every attribute group sits at its best width (as the codebook path's saturation)
+            saturated = bool(np.array_equal(res.best.pick[:loss.shape[0]], solve_max(loss, rate)))
+            yield _finish(stage, res, saturated, "scalar", log)
+
+
+def _finish(stage: Stage, res: Calibrated, saturated: bool, path: str, log: list) -> Encoded:
+    """The calibrated encode with what the search reads about it."""
+    log.append({"reserve": stage.reserve, "bytes": len(res.best.data), "rounds": res.history,
+                **({"sh_path": path} if res.sh_plan is not None else {})})
     plan = res.sh_plan
     return dataclasses.replace(res.best, rounds=res.history, attributes_saturated=saturated,
                                sh_keep=None if plan is None else int(plan.keep),
-                               sh_path=None if plan is None else ("scalar" if scalar is not None else "vq"),
+                               sh_path=None if plan is None else path,
                                codebook_size=0 if plan is None else int(plan.stats["codebook_size"]),
                                depth=stage.depth, num_points=stage.num_points,
                                layer0_points=stage.layer0_points,
@@ -69,9 +80,7 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
 #: The scalar SH path is weighed only when the codebook path keeps at least this share of the
 #: vectors exact (high rates, where a codebook is the wrong tool); below it the codebook wins
 #: and the scalar tables (every vector at every width) would cost time for nothing.  When the
-#: codebook path already keeps every vector, spend_saturated covers the rest (at 1.2 M SH-3 12x
-#: weighing the scalar path there cost 0.6 dB train PSNR and 1.6 GB: its estimate compares
-#: against the codebook path at a fixed 8 bits, not against the saturated spending).
+#: codebook path already keeps every vector, spend_saturated covers the rest.
 SCALAR_MIN_KEEP = 0.08
 
 
