@@ -19,7 +19,7 @@ import os
 import numpy as np
 
 #: ABI number the Python side expects (GSZ_NATIVE_ABI in csrc/gsz_common.h).
-ABI = 7
+ABI = 8
 
 _module = None
 _why_not = ""

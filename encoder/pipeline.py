@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
 
@@ -117,9 +117,66 @@ def layer_sizes(m: int, layers: int, first_layer: float) -> list[int]:
     return sizes
 
 
-@dataclass
-class EncodeOptions:
-    """Every knob of the codec at a fixed configuration (the size search chooses them later).
+@dataclass(kw_only=True)
+class SceneOptions:
+    """The knobs a fixed configuration (:class:`EncodeOptions`) and the size search
+    (``SearchOptions``) share -- one home for each.
+
+    beta             exponent of the volume term of the importance
+    train_views      number of default train cameras (when no camera file is given)
+    importance_width render width of the importance pass (wider cameras are downscaled to
+                     it); the default is the width scenes are evaluated and viewed at
+                     (DEFAULT_VIEW_WIDTH): at 400 px the alpha-blending weight of small
+                     Gaussians hid below a pixel and pruning removed detail that shows at
+                     800 px (plaza tau 0.7, 12 bits: 36.43 -> 38.42 dB test PSNR)
+    vq_iters         mini-batch k-means iterations (None: the codebook trainer's default)
+    layers           importance-ordered layers (1 = a single-layer file); layer 0 holds the
+                     most important Gaussians and decodes on its own (progressive streaming);
+                     the search's bit allocation runs over the groups of every layer at once
+    first_layer      fraction of the Gaussians in layer 0 when layers > 1 (later layers grow
+                     geometrically, see :func:`layer_sizes`)
+    tile_gaussians   split a scene of more voxels into spatial tiles of at most this many, each
+                     decodable alone (format 1.2); None: never split.  The search's one bit
+                     allocation spans every tile's groups, so the budget holds for the file
+    executor         where per-tile work runs: "local" worker processes, "inline", "ray" or
+                     "ray://HOST:PORT" (:mod:`gsz.encoder.executor`); the bytes do not depend on it
+    workers          worker processes / local Ray CPUs (None: the machine's cores less one)
+    seed             RNG seed (VQ); the same input and options give byte-identical output
+    """
+
+    beta: float = 0.1
+    train_views: int = 24
+    importance_width: int = DEFAULT_VIEW_WIDTH
+    vq_iters: int | None = None
+    layers: int = DEFAULT_LAYERS
+    first_layer: float = DEFAULT_FIRST_LAYER
+    tile_gaussians: int | None = DEFAULT_TILE_GAUSSIANS
+    executor: str = "local"
+    workers: int | None = None
+    seed: int = 0
+
+    def check_scene_options(self, bad) -> None:
+        """``bad(message)`` (which raises) on the first shared option out of range."""
+        if not (float(self.beta) >= 0):
+            bad(f"--beta must be >= 0, got {self.beta}")
+        if int(self.train_views) < 1:
+            bad(f"--train-views must be >= 1, got {self.train_views}")
+        if int(self.importance_width) < 16:
+            bad(f"--importance-width must be >= 16, got {self.importance_width}")
+        check_layer_options(self.layers, self.first_layer, bad)
+        check_tile_option(self.tile_gaussians, bad)
+        from .executor import check_executor
+        check_executor(self.executor, self.workers, bad)
+
+    def scene_options(self) -> dict:
+        """The shared fields and their values (to build the other kind of options from)."""
+        return {f.name: getattr(self, f.name) for f in fields(SceneOptions)}
+
+
+@dataclass(kw_only=True)
+class EncodeOptions(SceneOptions):
+    """Every knob of the codec at a fixed configuration (the size search chooses them later);
+    the fields shared with the search are :class:`SceneOptions`'.
 
     reserve          tau: fraction of Gaussians kept after importance pruning, (0, 1]
     bits             uniform bit-width of every quantisation group, 1..16
@@ -131,25 +188,7 @@ class EncodeOptions:
                      (1 block from ONE_BLOCK_MIN_BITS bits up, MANY_BLOCKS below)
     depth            octree depth 1..21 (None: chosen from the position-error budget)
     rel_error        position-error budget relative to the robust scene diagonal (auto depth)
-    beta             exponent of the volume term of the importance
     sh_bits          bit-width of SH codebook / kept vectors (None: same as ``bits``)
-    train_views      number of default train cameras (when no camera file is given)
-    importance_width render width of the importance pass (wider cameras are downscaled to
-                     it); the default is the width scenes are evaluated and viewed at
-                     (DEFAULT_VIEW_WIDTH): at 400 px the alpha-blending weight of small
-                     Gaussians hid below a pixel and pruning removed detail that shows at
-                     800 px (plaza tau 0.7, 12 bits: 36.43 -> 38.42 dB test PSNR)
-    vq_iters         mini-batch k-means iterations
-    layers           importance-ordered layers (1 = a single-layer file); layer 0 holds the
-                     most important Gaussians and decodes on its own (progressive streaming)
-    first_layer      fraction of the Gaussians in layer 0 when layers > 1 (later layers grow
-                     geometrically, see :func:`layer_sizes`)
-    tile_gaussians   split a scene of more voxels into spatial tiles of at most this many, each
-                     decodable alone (format 1.2); None: never split
-    executor         where per-tile work runs: "local" worker processes, "inline", "ray" or
-                     "ray://HOST:PORT" (:mod:`gsz.encoder.executor`); the bytes do not depend on it
-    workers          worker processes / local Ray CPUs (None: the machine's cores less one)
-    seed             RNG seed (VQ); the same input and options give byte-identical output
     """
 
     reserve: float = 0.8
@@ -159,17 +198,7 @@ class EncodeOptions:
     blocks: int | None = None
     depth: int | None = None
     rel_error: float | None = None
-    beta: float = 0.1
     sh_bits: int | None = None
-    train_views: int = 24
-    importance_width: int = DEFAULT_VIEW_WIDTH
-    vq_iters: int | None = None
-    layers: int = DEFAULT_LAYERS
-    first_layer: float = DEFAULT_FIRST_LAYER
-    tile_gaussians: int | None = DEFAULT_TILE_GAUSSIANS
-    executor: str = "local"
-    workers: int | None = None
-    seed: int = 0
 
     def validate(self) -> "EncodeOptions":
         def bad(msg):
@@ -190,16 +219,7 @@ class EncodeOptions:
             bad(f"--depth must be 1..21, got {self.depth}")
         if self.rel_error is not None and not (float(self.rel_error) > 0):
             bad(f"--rel-error must be > 0, got {self.rel_error}")
-        if not (float(self.beta) >= 0):
-            bad(f"--beta must be >= 0, got {self.beta}")
-        if int(self.train_views) < 1:
-            bad(f"--train-views must be >= 1, got {self.train_views}")
-        if int(self.importance_width) < 16:
-            bad(f"--importance-width must be >= 16, got {self.importance_width}")
-        check_layer_options(self.layers, self.first_layer, bad)
-        check_tile_option(self.tile_gaussians, bad)
-        from .executor import check_executor
-        check_executor(self.executor, self.workers, bad)
+        self.check_scene_options(bad)
         return self
 
 
@@ -837,7 +857,7 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
     return write_container(header, chunks), out_cloud, len(meta_bytes)
 
 
-def compute_train_importance(cloud: GaussianCloud, opts: EncodeOptions, *, cameras=None,
+def compute_train_importance(cloud: GaussianCloud, opts: SceneOptions, *, cameras=None,
                              progress: Progress | None = None) -> np.ndarray:
     """Importance I = I_d * (V/V_ref)^beta over the train views (default camera set if None)."""
     from .cameras import load_cameras

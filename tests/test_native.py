@@ -584,6 +584,21 @@ def test_rans_encoder_identical_bytes(case):
 
 
 @needs_native
+@pytest.mark.parametrize("case", range(5))
+def test_stream_encoders_identical_bytes(case):
+    """encode_stream / encode_stream_pair (the C encoder reading each symbol's table entry
+    itself) make the NumPy reference's bytes, both model layouts."""
+    from gsz.encoder.rans import encode_stream, encode_stream_pair
+    sym, mids, m = _model_sets()[case]
+    (ka, a), (kb, b) = both(lambda: encode_stream(sym, mids, m))
+    assert ka == kb == "ok" and a == b
+    merge = np.arange(m) // 2
+    (ka, a), (kb, b) = both(lambda: encode_stream_pair(sym, mids, m, merge, m // 2 + 1))
+    assert ka == kb == "ok" and a == b
+    assert a[0] == encode_stream(sym, mids, m) and a[1] == encode_stream(sym, merge[mids], m // 2 + 1)
+
+
+@needs_native
 def test_octree_encoder_identical_bits_models_and_payload():
     rng = np.random.default_rng(2)
     cases = [(_voxels(sample("sh0"), d), d) for d in (8, 11, 13)]

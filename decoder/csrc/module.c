@@ -299,36 +299,44 @@ static PyObject *payload_bytes(const REnc *o)
 }
 
 PyDoc_STRVAR(rans_encode_doc,
-"rans_encode(freq, cum, shift, lanes) -> bytes\n\n"
+"rans_encode(freq, cum, shift, lanes[, index]) -> bytes\n\n"
 "ENTROPY.md §4 payload of symbols given, in stream order, by their frequency freq (int64),\n"
 "cumulative frequency cum (int64) and model precision shift (uint8), over `lanes` interleaved\n"
-"lanes: byte-identical to gsz.encoder.rans._payload.");
+"lanes: byte-identical to gsz.encoder.rans._payload.  With `index` (int64, one per symbol) the\n"
+"three arrays are tables and symbol j takes their entry index[j] (no per-symbol copies).");
 
 static PyObject *py_rans_encode(PyObject *self, PyObject *args)
 {
-    PyObject *freq_obj, *cum_obj, *shift_obj;
+    PyObject *freq_obj, *cum_obj, *shift_obj, *index_obj = Py_None;
     long long lanes;
-    if (!PyArg_ParseTuple(args, "OOOL", &freq_obj, &cum_obj, &shift_obj, &lanes)) return NULL;
-    Py_buffer fb, cb, sb;
+    if (!PyArg_ParseTuple(args, "OOOL|O", &freq_obj, &cum_obj, &shift_obj, &lanes, &index_obj))
+        return NULL;
+    Py_buffer fb, cb, sb, ib = {0};
     if (getbuf(freq_obj, &fb, 8, 'i', 0, "freq") < 0) return NULL;
     if (getbuf(cum_obj, &cb, 8, 'i', 0, "cum") < 0) { PyBuffer_Release(&fb); return NULL; }
     if (getbuf(shift_obj, &sb, 1, 'x', 0, "shift") < 0) {
         PyBuffer_Release(&fb); PyBuffer_Release(&cb); return NULL;
     }
-    const int64_t n = fb.len / 8;
+    const int indexed = index_obj != Py_None;
+    if (indexed && getbuf(index_obj, &ib, 8, 'i', 0, "index") < 0) {
+        PyBuffer_Release(&fb); PyBuffer_Release(&cb); PyBuffer_Release(&sb); return NULL;
+    }
+    const int64_t ne = fb.len / 8, n = indexed ? ib.len / 8 : ne;
     PyObject *res = NULL;
     REnc enc = {0};
     Err e = {0};
-    if (cb.len / 8 != n || sb.len != n || lanes < 1 || lanes > (n > 1 ? n : 1)) {
+    if (cb.len / 8 != ne || sb.len != ne || lanes < 1 || lanes > (n > 1 ? n : 1)) {
         PyErr_SetString(PyExc_ValueError, "rans_encode: inconsistent arguments");
     } else {
+        const int64_t *idx = indexed ? ib.buf : NULL;
         Py_BEGIN_ALLOW_THREADS
-        rans_encode_run(fb.buf, cb.buf, sb.buf, n, lanes, &enc, &e);
+        rans_encode_run(fb.buf, cb.buf, sb.buf, ne, idx, n, lanes, &enc, &e);
         Py_END_ALLOW_THREADS
         res = e.failed ? raise_err(&e) : payload_bytes(&enc);
     }
     renc_free(&enc);
     PyBuffer_Release(&fb); PyBuffer_Release(&cb); PyBuffer_Release(&sb);
+    if (indexed) PyBuffer_Release(&ib);
     return res;
 }
 

@@ -96,8 +96,10 @@ typedef struct {
     int64_t lanes, wi, n;
 } REnc;
 
-int rans_encode_run(const int64_t *f, const int64_t *c, const uint8_t *p, int64_t n,
-                    int64_t lanes, REnc *o, Err *e);
+/* Symbol j has frequency f[g], cumulative frequency c[g] and precision p[g] with g = idx[j]
+ * (idx NULL: g = j), 0 <= g < ne. */
+int rans_encode_run(const int64_t *f, const int64_t *c, const uint8_t *p, int64_t ne,
+                    const int64_t *idx, int64_t n, int64_t lanes, REnc *o, Err *e);
 int bank_encode_run(const uint8_t *bits, const uint8_t *models, int64_t n, const int64_t *f0,
                     int64_t nm, int prec, int64_t lanes, REnc *o, Err *e);
 void renc_free(REnc *o);

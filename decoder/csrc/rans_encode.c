@@ -49,17 +49,19 @@ void renc_free(REnc *o)
     o->wb = NULL;
 }
 
-int rans_encode_run(const int64_t *f, const int64_t *c, const uint8_t *p, int64_t n,
-                    int64_t lanes, REnc *o, Err *e)
+int rans_encode_run(const int64_t *f, const int64_t *c, const uint8_t *p, int64_t ne,
+                    const int64_t *idx, int64_t n, int64_t lanes, REnc *o, Err *e)
 {
     if (renc_alloc(o, n, lanes, 1, e) < 0) return -1;
     uint64_t *st = o->st;
     int64_t lane = n ? (n - 1) % lanes : 0;
     for (int64_t j = n - 1; j >= 0; j--) {
+        const int64_t g = idx ? idx[j] : j;
+        if (g < 0 || g >= ne) return fail_value(e, "rans_encode: symbol entry out of range");
         /* a symbol of a valid model: prec <= 16 (0: a SINGLE model, f = 1), 1 <= f, c + f <= 2^prec */
-        if (p[j] > 16 || f[j] < 1 || c[j] < 0 || c[j] + f[j] > ((int64_t)1 << p[j]))
+        if (p[g] > 16 || f[g] < 1 || c[g] < 0 || c[g] + f[g] > ((int64_t)1 << p[g]))
             return fail_value(e, "rans_encode: symbol frequency out of range");
-        st[lane] = rans_put(st[lane], (uint64_t)f[j], (uint64_t)c[j], p[j], o->wb, &o->wi);
+        st[lane] = rans_put(st[lane], (uint64_t)f[g], (uint64_t)c[g], p[g], o->wb, &o->wi);
         if (--lane < 0) lane = lanes - 1;
     }
     return 0;

@@ -15,11 +15,9 @@ from collections import OrderedDict
 
 import numpy as np
 
-from ..pipeline import (EncodeOptions, EncodeOptionsError, EncodeResult, Stage, assemble,
-                        attribute_chunks, check_layer_options, check_tile_option, compute_train_importance,
-                        prepare_stage, sh_chunk, sh_set_blocks, voxelize_stage)
+from ..pipeline import (EncodeOptionsError, EncodeResult, Stage, assemble, attribute_chunks,
+                        compute_train_importance, prepare_stage, sh_chunk, sh_set_blocks, voxelize_stage)
 from ..progress import Progress
-from ..executor import check_executor
 from .candidate import Candidate, best_of
 from .codebooks import Codebooks
 from .depth_walk import walk_depth
@@ -111,12 +109,7 @@ class BudgetSearch:
                  geometry_pool, executor=None):
         def bad(msg):
             raise EncodeOptionsError(msg)
-        check_layer_options(sopts.layers, sopts.first_layer, bad)
-        check_tile_option(sopts.tile_gaussians, bad)
-        check_executor(sopts.executor, sopts.workers, bad)
-        # the importance pass's options, checked by their own rules (beta, train views, width)
-        self.eopts = EncodeOptions(train_views=sopts.train_views, importance_width=sopts.importance_width,
-                                   beta=sopts.beta, seed=sopts.seed).validate()
+        sopts.check_scene_options(bad)
         self.sopts, self.cloud, self.geometry_pool = sopts, cloud, geometry_pool
         self.executor = executor
         self.progress = progress or Progress(quiet=True)
@@ -178,7 +171,7 @@ class BudgetSearch:
         from ..voxelize import DEFAULT_REL_ERROR, choose_depth
         self.t0, self.c0 = time.perf_counter(), time.process_time()
         if importance is None:
-            importance = compute_train_importance(self.cloud, self.eopts, cameras=cameras,
+            importance = compute_train_importance(self.cloud, self.sopts, cameras=cameras,
                                                   progress=self.progress)
         self.importance = importance
         self.depth = choose_depth(self.cloud.positions, rel_error=DEFAULT_REL_ERROR)

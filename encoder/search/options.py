@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from gsz.decoder.errors import GszError
 
 from ..cameras import DEFAULT_VIEW_WIDTH
-from ..pipeline import DEFAULT_FIRST_LAYER, DEFAULT_LAYERS, DEFAULT_TILE_GAUSSIANS, MANY_BLOCKS
+from ..pipeline import MANY_BLOCKS, SceneOptions
 
 #: bit-width of the SH codebook and the kept exact SH vectors (the paper's setting), except where
 #: a budget above the 8-bit quality ceiling lets the kept vectors' groups join the allocation
@@ -23,9 +23,11 @@ class BudgetError(GszError, ValueError):
                          f"for this scene, {self.minimum:,} bytes", path)
 
 
-@dataclass
-class SearchOptions:
-    """Knobs of the search (defaults are what the benchmarks use).
+@dataclass(kw_only=True)
+class SearchOptions(SceneOptions):
+    """Knobs of the search (defaults are what the benchmarks use); the fields shared with a
+    fixed configuration (layers, tiles, executor, importance pass, seed) are
+    :class:`~gsz.encoder.pipeline.SceneOptions`'.
 
     reserves        tau grid, descending
     max_candidates  taus spread over the feasible range, encoded and compared by train PSNR
@@ -38,20 +40,14 @@ class SearchOptions:
     tolerance       accepted shortfall below the target (fraction)
     max_rounds      calibration rounds per tau
     solver          "fast" (convex hull + repair) or "cbc" (PuLP, the paper's ILP)
+    blocks          blocks per quantised channel of every channel set
+    codebook        SH codebook size (None: the search tries a few)
     eval_views      train views rendered to compare candidates: generated ones, or as many of
                     the caller's cameras spread evenly over them; eval_width their width at
                     most.  The default is gsz-eval's view width: at lower resolutions the
                     loss of small Gaussians hides below a pixel, and candidates that prune
                     more win on train views and lose on test views (plaza 12x, flowers 27x at
-                    640 px: about 1 dB of test PSNR; bench/RESULTS.md)
-    layers          importance-ordered layers of the file (progressive streaming); the bit
-                    allocation runs over the groups of every layer at once
-    first_layer     fraction of the Gaussians in layer 0 (when layers > 1)
-    tile_gaussians  spatial tiles of at most this many voxels (None: one tile); one bit
-                    allocation spans every tile's groups, so the budget holds for the file
-    executor        where per-tile work runs: "local" (worker processes), "inline", "ray" or
-                    "ray://HOST:PORT" (gsz.encoder.executor); the bytes do not depend on it
-    workers         worker processes / local Ray CPUs (None: the machine's cores less one)
+                    640 px: about 1 dB of test PSNR)
     sh_scalar       weigh the scalar SH path (every vector quantised group-wise, its widths
                     in the allocation) against the codebook at high rates
     layer0_share    wanted fraction of the file bytes before layer 0 is decodable: when the
@@ -61,7 +57,6 @@ class SearchOptions:
                     (pruned + voxelised) cloud and skip the tau when that bound is no better
                     than the best candidate's train PSNR
     overlap         train the SH codebooks on a worker thread during the set-up
-    beta            exponent of the importance's volume term (EncodeOptions.beta)
     """
 
     reserves: tuple = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)
@@ -77,17 +72,7 @@ class SearchOptions:
     codebook: int | None = None
     eval_views: int = 6
     eval_width: int = DEFAULT_VIEW_WIDTH
-    train_views: int = 24
-    importance_width: int = DEFAULT_VIEW_WIDTH
-    vq_iters: int | None = None
-    layers: int = DEFAULT_LAYERS
-    first_layer: float = DEFAULT_FIRST_LAYER
-    tile_gaussians: int | None = DEFAULT_TILE_GAUSSIANS
-    executor: str = "local"
-    workers: int | None = None
     sh_scalar: bool = True
     layer0_share: float = 0.1
     screen: bool = True
     overlap: bool = True
-    seed: int = 0
-    beta: float = 0.1

@@ -25,8 +25,8 @@ class ShPlan:
     """The SH payloads of one (codebook, keep-count) choice and what they were estimated at."""
 
     keep: int
-    chunk: list               # SHVQ payloads with every kept vector at SH_BITS
-    sh_rest: np.ndarray
+    chunk: list | None        # SHVQ payloads with every kept vector at SH_BITS (None: not coded)
+    sh_rest: np.ndarray | None
     stats: dict
     est_bytes: float
     est_loss: float
@@ -226,12 +226,15 @@ class ShModel:
         loss = (self.cum_vq[-1] - self.cum_vq[keep]) + base.cum_keep[min(keep, len(base.cum_keep) - 1)]
         return nbytes, loss
 
-    def encode(self, keep: int) -> ShPlan:
+    def encode(self, keep: int, code: bool = True) -> ShPlan:
+        """The plan of ``keep``; ``code=False`` leaves chunk and sh_rest None (the kept vectors'
+        widths are allocated later: coding them all at SH_BITS first would be wasted, and at
+        1.2 M vectors it is the largest transient of the search)."""
         # the compacted codebook's row order is the raw one's, so the raw codebook with the
         # stage's assignment gives exactly what sh_chunk would compute itself
         payloads = ShPayloads(self.stage, self.raw_codebook, keep, SH_BITS, self.blocks,
                               cb_blocks=self.cb_blocks, index=self.index)
-        chunk, sh_rest, stats = payloads.payloads()
+        chunk, sh_rest, stats = payloads.payloads() if code else (None, None, dict(payloads.stats))
         nb, loss = self.estimate(keep)
         return ShPlan(keep, chunk, sh_rest, stats, nb, loss, payloads)
 

@@ -90,7 +90,7 @@ def scalar_sh(model: ShModel, loss, rate, room: float, weights, vq_total: float 
     plus attributes in ``room`` bytes) is below the codebook path's ``vq_total``; else None."""
     from ..bit_allocation import InfeasibleBudgetError
     from .tables import group_meta_bytes
-    plan = model.encode(model.m)
+    plan = model.encode(model.m, code=False)
     kept = kept_tables(plan, 1.0 if weights is None else weights["sh"], min_bits=1)
     if not kept:
         return None
