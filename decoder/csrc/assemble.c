@@ -1,5 +1,7 @@
 /* gsz.decoder._native: float32 assembly of the decoded fields -- attribute planes, quaternions
  * from half-angle trig, voxel centres, SH rest vectors -- with the finiteness checks. */
+#include <string.h>
+#include <stdlib.h>
 #include "stages.h"
 
 int planes_to_f32_run(const double *src, int64_t M, int64_t k, float *out)
@@ -79,27 +81,49 @@ int all_finite_run(const uint32_t *p, int64_t n)
     return !bad;
 }
 
+/* Kept vectors per cache-friendly step of the transposed copy: the [D, P] channel set is read
+ * column by column, so one step reads D runs of SH_TILE values and writes SH_TILE rows. */
+#define SH_TILE 256
+
 int sh_assemble_run(const int64_t *flags, const double *kept, int64_t P, const int64_t *idx,
                     int64_t nidx, const double *cb, int64_t K, int64_t M, int64_t D, float *out,
                     Err *e)
 {
+    /* the codebook as rows (a codeword is one contiguous copy) and the output row of every kept
+     * vector; the [D, P] kept set is then copied tile by tile (reading it row by row, one
+     * Gaussian at a time, strides P values per component: D streams that miss the cache) */
+    float *rows = malloc((size_t)(K ? K : 1) * (size_t)(D ? D : 1) * sizeof *rows);
+    int64_t *at = malloc((size_t)(P ? P : 1) * sizeof *at);
+    if (!rows || !at) { free(rows); free(at); return fail_nomem(e); }
+    for (int64_t j = 0; j < K; j++)
+        for (int64_t d = 0; d < D; d++) rows[j * D + d] = (float)cb[d * K + j];
     int64_t kp = 0, ip = 0;
-    for (int64_t i = 0; i < M; i++) {
-        float *dst = out + i * D;
+    int rc = 0;
+    for (int64_t i = 0; i < M && !rc; i++) {
         const int64_t f = flags ? flags[i] : 0;
         if (f == 1) {
-            if (kp >= P) return fail(e, "SHVQ chunk: more kept flags set than kept vectors");
-            for (int64_t d = 0; d < D; d++) dst[d] = (float)kept[d * P + kp];
-            kp++;
+            if (kp >= P) rc = fail(e, "SHVQ chunk: more kept flags set than kept vectors");
+            else at[kp++] = i;
         } else if (f == 0) {
-            if (ip >= nidx) return fail(e, "SHVQ chunk: fewer codeword indices than Gaussians");
+            if (ip >= nidx) { rc = fail(e, "SHVQ chunk: fewer codeword indices than Gaussians"); break; }
             const int64_t j = idx[ip++];
-            if (j < 0 || j >= K) return fail(e, "SHVQ chunk: codeword index out of range");
-            for (int64_t d = 0; d < D; d++) dst[d] = (float)cb[d * K + j];
+            if (j < 0 || j >= K) rc = fail(e, "SHVQ chunk: codeword index out of range");
+            else memcpy(out + i * D, rows + j * D, (size_t)D * sizeof *out);
         } else {
-            return fail(e, "SHVQ chunk: kept flag outside 0/1");
+            rc = fail(e, "SHVQ chunk: kept flag outside 0/1");
         }
     }
-    if (kp != P || ip != nidx) return fail(e, "SHVQ chunk: kept flags do not match the kept count");
-    return 0;
+    if (!rc && (kp != P || ip != nidx)) rc = fail(e, "SHVQ chunk: kept flags do not match the kept count");
+    if (!rc) {
+        for (int64_t t0 = 0; t0 < P; t0 += SH_TILE) {
+            const int64_t t1 = t0 + SH_TILE < P ? t0 + SH_TILE : P;
+            for (int64_t d = 0; d < D; d++) {
+                const double *src = kept + d * P;
+                for (int64_t t = t0; t < t1; t++) out[at[t] * D + d] = (float)src[t];
+            }
+        }
+    }
+    free(rows);
+    free(at);
+    return rc;
 }
