@@ -1,0 +1,634 @@
+"""Current-results pages: one markdown page per topic in docs/results/, made from bench/out/*.json.
+
+    .venv/bin/python bench/results.py            # write docs/results/*.md
+    .venv/bin/python bench/results.py --check    # exit 1 when the committed pages are not what it writes
+
+Every figure on a page is a value of a committed JSON file (formatted, counted or compared, never
+typed in); every page names, per JSON, the command, commit and machine that made it, as recorded in
+the JSON.  Where a JSON does not record one, the page says "not recorded" and, where the run's
+notes (kept in git history) named it, quotes them from ``NOTES`` below.  Same JSON, same pages:
+nothing here reads the clock, the machine or git.  Standard library only.
+
+Decisions and the evidence behind them are short records in docs/design/; history is git's.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+JSON_DIR = ROOT / "bench" / "out"
+PAGES_DIR = ROOT / "docs" / "results"
+REGEN = ".venv/bin/python bench/results.py"
+
+#: What the run notes (bench/RESULTS.md, now in git history) said about JSON files that do not
+#: record their own command, commit or machine.  Quoted as notes, never as recorded values.
+VM = "2-core VM (AMD EPYC)"
+NOTES = {
+    "codec.json": dict(command=".venv/bin/python bench/bench_codec.py --noise --bits 8,10,12 --blocks 1,80",
+                       commit="a9d09ba", machine=VM + ", idle", when="2026-12-02 06:36-06:53 UTC"),
+    "done_means_codec.json": dict(command=".venv/bin/python bench/done_means_codec.py"),
+    "done_means_codec_noised.json": dict(command=".venv/bin/python bench/done_means_codec.py --noised"),
+    "decode.json": dict(commit="a9d09ba (the encoded files)", machine=VM + ", idle (decode.log: 2 cores)",
+                        when="2026-12-02 06:50 UTC"),
+    "eval_views.json": dict(command=".venv/bin/python bench/bench_eval_views.py", machine=VM + ", idle",
+                            when="2026-12-02"),
+    "eval_views_640_400.json": dict(command=".venv/bin/python bench/bench_eval_views.py --search-width 640 "
+                                    "--importance-width 400 --out bench/out/eval_views_640_400.json",
+                                    machine=VM + ", idle", when="2026-12-02"),
+    "eval_views_losses.json": dict(command=".venv/bin/python bench/bench_eval_views.py --points "
+                                   "showroom_lacadiere_crop_sh0:noised:12,houseplant_sh0:grid:40,"
+                                   "measuring_jug_sh3:noised:12", machine=VM + ", idle", when="2026-12-02"),
+    "loss_proxy.json": dict(command=".venv/bin/python bench/bench_loss_proxy.py --scenes "
+                            "houseplant_sh0,measuring_jug_sh3 --count 12"),
+    "loss_proxy_jug60.json": dict(command="the same on measuring_jug_sh3 with --ratio 60"),
+    "search_scaling.json": dict(command=".venv/bin/python bench/bench_search.py --scenes none --scaling "
+                                "--fractions 0.125,0.25,0.5,1", commit="390a095", machine=VM + ", idle",
+                                when="2026-12-02 05:43 UTC"),
+    "search_above_ceiling.json": dict(command=".venv/bin/python bench/bench_search.py --scenes "
+                                      "measuring_jug_sh3 --ratios 4,6 --noise", commit="fb9cefb",
+                                      machine=VM + ", idle", when="2026-12-02 02:54-03:04 UTC"),
+    "search_above_ceiling_2c45cc2.json": dict(command="the same command", commit="2c45cc2",
+                                              machine=VM + ", idle", when="2026-12-02 03:00 UTC"),
+    "stream.json": dict(command=".venv/bin/python bench/bench_stream.py", commit="71b11a3",
+                        machine=VM + ", a test run beside it for ~3 min", when="2026-12-02 05:15-05:29 UTC"),
+    "golden.json": dict(command=".venv/bin/python bench/golden.py --write bench/out/golden.json",
+                        commit="dc3d76e (last rewrite of the file)"),
+}
+
+NA = "not recorded"
+
+
+# --- formatting -------------------------------------------------------------------------------
+
+def n(x) -> str:
+    return f"{int(x):,}"
+
+
+def f1(x) -> str:
+    return "–" if x is None else f"{x:.1f}"
+
+
+def f2(x) -> str:
+    return "–" if x is None else f"{x:.2f}"
+
+
+def mb(x) -> str:
+    return f"{x / 1e6:.2f}"
+
+
+def pct(x, digits=1) -> str:
+    return f"{100 * x:+.{digits}f} %"
+
+
+def table(head: list, rows: list) -> list:
+    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return out + [""]
+
+
+def code(s) -> str:
+    return f"`{s}`"
+
+
+def cell(name: str, key: str, recorded) -> str:
+    """A provenance cell: the recorded value, else 'not recorded' (+ what the notes said)."""
+    if recorded:
+        return code(recorded) if key == "command" else str(recorded)
+    noted = NOTES.get(name, {}).get(key)
+    if not noted:
+        return NA
+    return (code(noted) if key == "command" and noted.startswith(".venv") else noted) + " †"
+
+
+def header(title: str, what: str, sources: list) -> list:
+    """Title, one line on what the page shows, and the provenance table.  ``sources``: dicts with
+    json (file name), label (optional), command, commit, machine, when (recorded values or None)."""
+    lines = [f"# {title}", "", what, "",
+             f"Generated by `bench/results.py` from:", ""]
+    rows = []
+    for s in sources:
+        name = s["json"]
+        label = code("bench/out/" + name) + (f" ({s['label']})" if s.get("label") else "")
+        rows.append([label] + [cell(name, k, s.get(k)) for k in ("command", "commit", "machine", "when")])
+    lines += table(["JSON", "command", "commit", "machine", "run"], rows)
+    if any("†" in c for r in rows for c in r):
+        lines += [f"†: {NA} in the JSON; from the run's notes (git history of bench/RESULTS.md).", ""]
+    return lines
+
+
+def machine_of(m: dict | None) -> str | None:
+    if not m:
+        return None
+    parts = [f"{m['nproc']} cores" if m.get("nproc") else None, m.get("cpu_model"),
+             f"Python {m['python']}" if m.get("python") else None]
+    return ", ".join(p for p in parts if p) or None
+
+
+def load(name: str, json_dir: Path):
+    p = json_dir / name
+    return json.loads(p.read_text()) if p.exists() else None
+
+
+def image(path: Path, alt: str) -> str:
+    return f"![{alt}](../../bench/out/{path.name})"
+
+
+SCENE_ORDER = ["tiny_graphdeco_iter7000_sh3", "measuring_jug_sh3", "houseplant_sh0",
+               "showroom_lacadiere_crop_sh0", "plaza_taebak_crop_sh0", "flowers_daffodils_sh2"]
+
+
+def scene_key(scene: str):
+    return (SCENE_ORDER.index(scene) if scene in SCENE_ORDER else len(SCENE_ORDER), scene)
+
+
+# --- rd.json: RD vs peers, and the size search at every point ------------------------------------
+
+def _rd_sources(rd: dict, which: str) -> list:
+    meta = rd["meta"]
+    gsz = meta.get("gsz", {})
+    commit = gsz.get("commit", "")[:7] or None
+    if commit and gsz.get("tracked_files_modified"):
+        commit += " (tracked files modified)"
+    src = [dict(json="rd.json", label="gsz rows", command=meta.get("command"), commit=commit,
+                machine=machine_of(meta.get("machine")),
+                when=f"{meta.get('started', '?')} – {meta.get('finished', '?')}")]
+    if which == "peers":
+        for r in rd.get("runs", []):
+            if "peers_not_run" in r:
+                continue
+            src.append(dict(json="rd.json", label="peer rows, run " + r.get("started", "?")[:10],
+                            command=r.get("command"), commit=(r.get("gsz", {}).get("commit") or "")[:7] or None,
+                            machine=machine_of(r.get("machine")),
+                            when=f"{r.get('started', '?')} – {r.get('finished') or 'not finished'}; "
+                                 + (r.get("splat_transform") or "")))
+    return src
+
+
+def _frac(t: dict) -> str:
+    f = t.get("bytes_fraction")
+    if f is None:
+        return "n/a"
+    return {"at_most": "≤ ", "more_than": "> "}.get(t.get("bytes_kind"), "") + f"{f:.2f}"
+
+
+def _gain(t: dict | None) -> str:
+    if t is None:
+        return "–"
+    d = t.get("delta_db")
+    return f"{'n/a' if d is None else f'{d:+.1f}'} / {_frac(t)}"
+
+
+def page_rd(rd: dict, json_dir: Path) -> str:
+    meta = rd["meta"]
+    rows = rd["rows"]
+    lines = header("Rate–distortion: gsz vs SOG, SPZ and compressed.ply",
+                   "Every shared scene and its noised variant: gsz's size search at PLY bytes / "
+                   + ", ".join(f"{r:g}" for r in sorted(meta["ratios"], reverse=True))
+                   + " and at the SOG file's bytes, against the PlayCanvas peers (splat-transform, SOG with "
+                   + code(" ".join(meta.get("sog_flags", []))) + ").", _rd_sources(rd, "peers"))
+    lines += [f"Scoring for every codec: gsz-eval's protocol, {meta['views']} default test views of the "
+              f"original at {meta['width']} px, 8-bit renders, PSNR against the original's renders.  "
+              "Every row (bytes, SSIM, timings): `bench/out/rd.csv`.", ""]
+    by = {}
+    for t in rd.get("targets", []):
+        by.setdefault((t["scene"], t["variant"]), {})[t["peer"]] = t
+    keys = sorted(by, key=lambda k: (scene_key(k[0]), k[1]))
+    met_db = sum(1 for k in keys if by[k].get("sog", {}).get("target_db_met"))
+    met_fr = sum(1 for k in keys if by[k].get("sog", {}).get("target_fraction_met"))
+    lines += ["## Against SOG (goals: ≥ +3 dB at SOG's bytes, ≤ 0.5× SOG's bytes at its PSNR)", "",
+              f"+3 dB met on {met_db} of {len(keys)} scene variants; 0.5× met on {met_fr} of {len(keys)}.  "
+              "Gain = gsz PSNR at the peer's bytes minus the peer's; ratio = bytes gsz needs for the peer's "
+              "PSNR / the peer's bytes (interpolated in log-bytes; ≤ / > where outside gsz's points; n/a: "
+              "the peer's bytes lie outside gsz's range).", ""]
+    trows = []
+    for k in keys:
+        s = by[k].get("sog")
+        if s is None:
+            trows.append([k[0], k[1]] + ["–"] * 4 + [_gain(by[k].get("spz")), _gain(by[k].get("compressed.ply"))])
+            continue
+        g = s.get("gsz_psnr_at_peer_bytes")
+        trows.append([k[0], k[1], n(s["peer_bytes"]), f2(s["peer_psnr"]),
+                      f"{f2(g)} ({s.get('psnr_kind', '?')})",
+                      f"{s['delta_db']:+.2f} {'met' if s.get('target_db_met') else 'NOT met'}"
+                      if s.get("delta_db") is not None else "n/a",
+                      f"{_frac(s)} {'met' if s.get('target_fraction_met') else 'NOT met'}",
+                      _gain(by[k].get("spz")), _gain(by[k].get("compressed.ply"))])
+    lines += table(["scene", "variant", "SOG B", "SOG dB", "gsz dB at SOG B", "gain dB", "bytes ratio",
+                    "SPZ gain / ratio", "compressed.ply gain / ratio"], trows)
+
+    budgets = [f"{r:g}x" for r in sorted(meta["ratios"], reverse=True)] + ["sog"]
+    peers = ["sog", "spz", "compressed.ply"]
+    grid = {}
+    for r in rows:
+        grid.setdefault((r["scene"], r["variant"]), {})[r["budget"] if r["codec"] == "gsz" else ("peer", r["codec"])] = r
+    lines += ["## RD points (test PSNR, dB)", "",
+              "gsz columns: the budget PLY bytes / ratio (\"sog\": the SOG file's bytes); the file is at most "
+              "the budget.  Peer cells: MB / dB.", ""]
+    prow, notes = [], []
+    for k in sorted(grid, key=lambda k: (scene_key(k[0]), k[1])):
+        g = grid[k]
+        any_row = next(iter(g.values()))
+        cells = [k[0], k[1], mb(any_row["ply_bytes"])]
+        for b in budgets:
+            r = g.get(b)
+            cells.append(f2(r["psnr"]) if r else "–")
+            if r and r.get("note"):
+                notes.append(f"* {k[0]} {k[1]} {b}: {n(r['bytes'])} B for a {n(r['target'])} B budget "
+                             f"({pct((r['bytes'] - r['target']) / r['target'])}).  Report note: {r['note']}")
+        for p in peers:
+            r = g.get(("peer", p))
+            cells.append(f"{mb(r['bytes'])} / {f2(r['psnr'])}" if r else "–")
+        prow.append(cells)
+    lines += table(["scene", "variant", "PLY MB"] + [f"gsz {b.replace('x', '×')}" for b in budgets]
+                   + ["SOG", "SPZ", "compressed.ply"], prow)
+    lines += notes + ([""] if notes else [])
+    pngs = [json_dir / f"rdpeers_{s}.png" for s in sorted({k[0] for k in grid}, key=scene_key)]
+    pngs = [p for p in pngs if p.exists()]
+    if pngs:
+        lines += ["## Plots (bytes, log scale → PSNR; `bench/rd.py` writes them)", ""]
+        lines += [image(p, "RD " + p.stem[len("rdpeers_"):]) for p in pngs] + [""]
+    lines += ["Reproduce: `.venv/bin/python bench/rd.py` (peers are installed into bench/.peers on first use; "
+              "~2 h on 2 cores), `--skip-peers` for gsz's rows alone.", ""]
+    return "\n".join(lines)
+
+
+def _monotone(rs: list) -> bool:
+    rs = sorted(rs, key=lambda r: r["bytes"])
+    return all(b["psnr"] >= a["psnr"] for a, b in zip(rs, rs[1:]))
+
+
+def page_search(rd: dict, scaling, above, above_old) -> str:
+    meta = rd["meta"]
+    g = [r for r in rd["rows"] if r["codec"] == "gsz" and "depth" in r]
+    src = _rd_sources(rd, "gsz")
+    if scaling is not None:
+        src.append(dict(json="search_scaling.json"))
+    if above is not None:
+        src.append(dict(json="search_above_ceiling.json"))
+    if above_old is not None:
+        src.append(dict(json="search_above_ceiling_2c45cc2.json"))
+    lines = header("Size search", "`encode_to_budget` (what `gsz-encode --size/--ratio` runs) at every budget of "
+                   "the RD benchmark: how close to the budget, what it chose, how long it took.", src)
+    so = meta.get("search_options", {})
+    lines += ["Options (the run's `SearchOptions`): " + ", ".join(f"{k} {so[k]}" for k in sorted(so)
+                                                                if not isinstance(so[k], (list, dict))) + ".", ""]
+    tol = so.get("tolerance", 0.005)
+    over = sum(1 for r in g if r["bytes"] > r["target"])
+    within = sum(1 for r in g if r["bytes"] >= r["target"] * (1 - tol))
+    groups = {}
+    for r in g:
+        groups.setdefault((r["scene"], r["variant"]), []).append(r)
+    mono = sum(1 for rs in groups.values() if _monotone(rs))
+    lines += [f"Over the budget: {over} of {len(g)} points; within {100 * tol:g} % below it: {within} of {len(g)}; "
+              f"test PSNR monotone in bytes: {mono} of {len(groups)} scene variants.  Test PSNR on the "
+              f"{meta['views']} default test views at {meta['width']} px (never seen by the search).", ""]
+    secs = {}
+    for r in g:
+        secs.setdefault(r["scene"], []).append(r["search_s"] + r["importance_s"])
+    lines += ["Wall seconds per point, search + importance, min – max: "
+              + "; ".join(f"{sc} {min(v):.0f} – {max(v):.0f}" for sc, v in sorted(secs.items(),
+                                                                               key=lambda kv: scene_key(kv[0]))) + ".", ""]
+    lines += ["Per point: the file's bytes (against the budget), the chosen τ / octree depth, SH codebook size "
+              "K / kept exact SH vectors, candidates encoded / screened out, wall seconds of the search (+ the "
+              "importance pass).  Test PSNR per point: [rd.md](rd.md); calibration rounds and CPU seconds: "
+              "`bench/out/rd.json`.", ""]
+    head = ["variant", "budget", "bytes (vs target)", "τ / depth", "K / kept", "enc. / scr.", "s (+imp.)"]
+    for scene in sorted({k[0] for k in groups}, key=scene_key):
+        rs = [r for k, v in sorted(groups.items()) if k[0] == scene for r in sorted(v, key=lambda r: r["bytes"])]
+        lines += [f"### {scene}", ""]
+        lines += table(head, [[r["variant"], r["budget"].replace("x", "×"),
+                               f"{n(r['bytes'])} ({pct((r['bytes'] - r['target']) / r['target'], 2)})",
+                               f"{r['reserve']} / {r['depth']}", f"{r['codebook_size']} / {n(r['sh_keep'])}",
+                               f"{r['candidates']} / {r['screened']}",
+                               f"{r['search_s']:.0f} (+{r['importance_s']:.0f})"] for r in rs])
+    if scaling is not None:
+        stages = ["importance", "vq", "tables", "sh-model", "calibrate", "eval", "screen", "geometry"]
+        lines += ["## Scaling with N (flowers subsampled, budget = PLY bytes × fraction / 20)", ""]
+        lines += table(["fraction", "N", "bytes / target", "search s", "CPU s", "encoded / screened", "τ"]
+                       + [f"{s} s" for s in stages],
+                       [[f"{r['scaling']:g}", n(r["n"]), f"{n(r['bytes'])} / {n(r['target'])}", f1(r["seconds"]),
+                         f1(r["cpu_seconds"]), f"{r['candidates']} / {r['screened']}", r["reserve"]]
+                        + [f1(r["stage_seconds"].get(s)) for s in stages] for r in scaling])
+    if above is not None:
+        lines += ["## Budgets above the 8-bit SH ceiling (measuring_jug_sh3)", "",
+                  "A budget above the best file the scene allows gives that file, smaller than the budget "
+                  "(the report's note says so).", ""]
+        old = {(r["variant"], r["ratio_target"]): r for r in (above_old or [])}
+        rows = []
+        for r in above:
+            o = old.get((r["variant"], r["ratio_target"]))
+            rows.append([r["variant"], f"{r['ratio_target']:g}×", n(r["target"]),
+                         f"{n(r['bytes'])} ({pct(r['deviation'])})", f2(r["psnr"]), r["depth"], n(r["sh_keep"]),
+                         f1(r["search_seconds"])]
+                        + ([f"{n(o['bytes'])} ({pct(o['deviation'])})", f2(o["psnr"]), o["depth"]] if o else []))
+        lines += table(["variant", "budget", "target B", "bytes", "test dB", "depth", "kept SH", "search s"]
+                       + (["2c45cc2 bytes", "2c45cc2 dB", "2c45cc2 depth"] if above_old else []), rows)
+    lines += ["Reproduce: `.venv/bin/python bench/rd.py --skip-peers` (every point; `--report` prints the "
+              "tables), `.venv/bin/python bench/bench_search.py --scaling` and "
+              "`--scenes measuring_jug_sh3 --ratios 4,6 --noise`.", ""]
+    return "\n".join(lines)
+
+
+# --- other topics ----------------------------------------------------------------------------------
+
+def page_eval_views(sets: list) -> str:
+    lines = header("Which train views judge the size search's candidates",
+                   "The search runs once per point; every candidate it encoded is rendered afterwards from the "
+                   "8 test views at 800 px and from several train-view sets (count @ width).  Regret = test PSNR "
+                   "lost by taking that train set's best candidate instead of the test-best one (dB; 0 = the "
+                   "train set ranks like the test views).", [dict(json=name) for name, _ in sets])
+    cols = []
+    for _, rows in sets:
+        for r in rows:
+            cols += [c for c in r["picks"] if c not in cols]
+    out = []
+    for name, rows in sets:
+        for r in rows:
+            out.append([f"{r['eval_width']} / {r['importance_width']}",
+                        f"{r['scene']} {r['variant']} {r['ratio']:g}×", len(r["candidates"])]
+                       + [f2(r["picks"][c]["regret"]) if c in r["picks"] else "–" for c in cols]
+                       + [f2(max(c["test 8@800"] for c in r["candidates"]))])
+    lines += ["Regret (dB) of each train set (count @ width); \"compare / importance px\": the widths the search "
+              "itself used to compare candidates and for the importance pass.", ""]
+    lines += table(["compare / importance px", "point", "candidates"] + [c.replace("train ", "") for c in cols]
+                   + ["best test dB"], out)
+    lines += ["Reproduce: `.venv/bin/python bench/bench_eval_views.py [--search-width W] [--importance-width W] "
+              "[--points scene:variant:ratio,...]`.", ""]
+    return "\n".join(lines)
+
+
+def page_loss_proxy(sets: list) -> str:
+    lines = header("Does the bit allocation's loss predict rendered fidelity?",
+                   "Per scene, 14 allocations of one solver budget (the optima of the unweighted and of the "
+                   "sensitivity-weighted Ω, and optima of Ω under random per-channel factors) encoded for real "
+                   "and rendered from 6 train views at 640 px; Spearman rank correlation of −ΣΩ with PSNR.",
+                   [dict(json=name) for name, _ in sets])
+    rows = []
+    for name, rs in sets:
+        for r in rs:
+            lo, hi = r["attr_bytes_range"]
+            rows.append([r["scene"], f"{r['ratio']:g}×", r["reserve"], r["allocations"], f"{n(lo)} – {n(hi)}",
+                         f2(r["spearman_unweighted"]), f2(r["spearman_weighted"]), f2(r["psnr_weighted_optimum"]),
+                         f2(r["psnr_unweighted_optimum"]), f"{f2(r['psnr_random_best'])} / {f2(r['psnr_random_median'])}"])
+    lines += table(["scene", "budget", "τ", "allocations", "attribute B", "Spearman unweighted", "weighted",
+                    "dB weighted opt.", "dB unweighted opt.", "dB random best / median"], rows)
+    lines += ["Reproduce: `.venv/bin/python bench/bench_loss_proxy.py --scenes houseplant_sh0,measuring_jug_sh3 "
+              "--count 12` (`--ratio 60` for the 60× row).", ""]
+    return "\n".join(lines)
+
+
+def page_codec(codec, dm, dm_noised) -> str:
+    src = [dict(json=nm) for nm, d in (("codec.json", codec), ("done_means_codec.json", dm),
+                                      ("done_means_codec_noised.json", dm_noised)) if d is not None]
+    lines = header("Codec at fixed configurations",
+                   "`gsz-encode --bits B` without the size search: uniform bit-widths, one block per channel "
+                   "or 80, on every shared scene and its noised variant (values moved off the delivery grid).  "
+                   "PSNR: gsz-eval's protocol (8 test views, 800 px).", src)
+    if codec:
+        configs = sorted({(r["bits"], r["blocks"]) for r in codec})
+        by = {}
+        for r in codec:
+            by.setdefault((r["scene"], r["variant"]), {})[(r["bits"], r["blocks"])] = r
+        lines += [f"## Ratio to the PLY / test PSNR (`--reserve {codec[0]['reserve']}`)", ""]
+        lines += table(["scene", "variant"] + [f"{b} bit, {k} blk" for b, k in configs],
+                       [[s, v] + [f"{c['ratio_vs_ply']:.1f}× / {c['psnr']:.2f}" if (c := cfg.get(x)) else "–"
+                                  for x in configs]
+                        for (s, v), cfg in sorted(by.items(), key=lambda kv: (scene_key(kv[0][0]), kv[0][1]))])
+        at = [r for r in codec if r["bits"] == max(b for b, _ in configs) and r["blocks"] == min(k for _, k in configs)]
+        if at:
+            r0 = at[0]
+            lines += [f"## Where the bytes go at {r0['bits']} bits, {r0['blocks']} block", ""]
+            lines += table(["scene", "variant", "Gaussians → voxels (depth)", "bytes", "B/Gaussian", "geometry",
+                            "attributes", "SH", "encode s", "decode s"],
+                           [[r["scene"], r["variant"], f"{n(r['gaussians'])} → {n(r['voxels'])} ({r['depth']})",
+                             n(r["bytes"]), f2(r["bytes_per_gaussian"]), n(r["components"]["geometry"]),
+                             n(r["components"]["attributes"]), n(r["components"].get("sh", 0)),
+                             f1(sum(r["encode_seconds"].values())), f2(r["decode_seconds"])]
+                            for r in sorted(at, key=lambda r: (scene_key(r["scene"]), r["variant"]))])
+    if dm or dm_noised:
+        noised = {r["scene"]: r for r in dm_noised or []}
+        base = dm or dm_noised
+        lines += ["## Acceptance through the command-line tools: ≥ 10× and ≥ 35 dB at uniform 12 bits", "",
+                  "`gsz-encode IN -o OUT <flags>`, `gsz-decode`, the PLY read back, `gsz-eval`.  Met: "
+                  + "; ".join(f"{sum(1 for r in d if r['meets'])} of {len(d)} scenes ({nm})"
+                              for nm, d in (("grid", dm), ("noised", dm_noised)) if d) + ".", ""]
+
+        def res(r):
+            return (f"{n(r['bytes'])} B, {r['ratio']:.2f}×, {r['psnr']:.2f} dB, "
+                    + ("meets" if r["meets"] else "**misses**")) if r else "–"
+        lines += table(["scene", "gsz-encode flags", "Gaussians (depth), grid", "grid", "noised"],
+                       [[r["scene"], code(" ".join(r["flags"])), f"{n(r['gaussians'])} ({r['depth']})",
+                         res(r if dm else None), res(noised.get(r["scene"]))] for r in base])
+    lines += ["Reproduce: `.venv/bin/python bench/bench_codec.py --noise --bits 8,10,12 --blocks 1,80`, "
+              "`.venv/bin/python bench/done_means_codec.py [--noised]`.  Why one block from 10 bits up: "
+              "[docs/design/default-blocks.md](../design/default-blocks.md).", ""]
+    return "\n".join(lines)
+
+
+def _uptimes(d: dict) -> str | None:
+    """'06:50:18, load 1.19 -> 1.09' from recorded ``uptime`` lines (time of day, 1-minute load)."""
+    ups = [d[k] for k in ("uptime_before", "uptime_after") if d.get(k)]
+    if not ups:
+        return None
+    loads = [u.split("load average:")[1].split(",")[0].strip() for u in ups if "load average:" in u]
+    return f"{ups[0].split()[0]}, load {' → '.join(loads)}"
+
+
+def page_decode(d: dict) -> str:
+    lines = header("Decode speed", "`gsz.decoder.decode(path)` on the NumPy reference path (`GSZ_NATIVE=0`) "
+                   "and the native accelerator (same output bit for bit).  Wall = best of the repeats; CPU = "
+                   "that run's process CPU time (both threads); stages are timed one after the other (thread "
+                   "CPU time).", [dict(json="decode.json", command=d.get("command"), when=_uptimes(d))])
+    stages = ["container", "geometry", "attributes", "sh", "finish"]
+    rows = []
+    for r in sorted(d["results"], key=lambda r: scene_key(Path(r["file"]).name.split("_r0")[0])):
+        for path in ("numpy", "native"):
+            p = r["paths"].get(path)
+            if p:
+                rows.append([Path(r["file"]).name.split("_r0")[0], n(p["gaussians"]), mb(r["bytes"]), path,
+                             f"{p['seconds']:.3f}", f"{p['cpu_seconds']:.3f}", f2(p["gaussians_per_second"] / 1e6)]
+                            + [f"{p['stages'].get(s, 0):.3f}" for s in stages])
+    lines += table(["scene", "Gaussians", "MB", "path", "wall s", "CPU s", "M Gaussians/s"]
+                   + [f"{s} s" for s in stages], rows)
+    lines += ["Files: every shared scene encoded with `gsz-encode --reserve 0.8 --bits 12 --blocks 1` "
+              "(bench/bench_decode.py caches them in bench/.cache/decode).  Reproduce: "
+              "`.venv/bin/python bench/bench_decode.py --repeats 7`.", ""]
+    return "\n".join(lines)
+
+
+def page_stream(rows: list, json_dir: Path) -> str:
+    lines = header("Progressive streaming", "Per scene at PLY / ratio: a layered file from the size search and "
+                   "single-layer files at the budget and at 95 % of it, scored on the 8 test views at 800 px.  "
+                   "Overhead = the layered file's bytes over the single-layer bytes with the same PSNR "
+                   "(interpolated in log-bytes; extrapolated where marked; ≤: the layered file is at least as good at its size).  Decode: whole-file `decode()` vs "
+                   "`StreamDecoder` fed 64 KiB pieces, best of 3.", [dict(json="stream.json")])
+    out = []
+    for r in sorted(rows, key=lambda r: (scene_key(r["scene"]), r["variant"])):
+        lp = sorted(r["layer_psnr"], key=lambda x: x["layer"])
+        out.append([r["scene"], r["variant"], f"{r['ratio']:g}×", r["layers"], n(r["layered_bytes"]),
+                    f"{100 * r['layer0_fraction']:.1f} %",
+                    " → ".join(f"{x['psnr']:.2f} ({100 * x['fraction']:.0f} %)" for x in lp),
+                    f"{f2(r['single_psnr'])} / {f2(r['single95_psnr'])}",
+                    ("≤ " if r.get("overhead_how") == "bound" else "") + pct(r["overhead"], 2)
+                    + (" (extrapolated)" if r.get("overhead_how") == "extrapolated" else ""),
+                    f"{r['decode_s']:.2f} / {r['stream_decode_s']:.2f}"])
+    lines += table(["scene", "variant", "budget", "layers", "file B", "layer 0 at", "dB after each layer (share "
+                    "of the file)", "single-layer dB at budget / 95 %", "overhead", "decode s whole / streamed"], out)
+    pngs = [json_dir / f"stream_{s}.png" for s in sorted({r["scene"] for r in rows}, key=scene_key)]
+    pngs = [p for p in pngs if p.exists()]
+    if pngs:
+        lines += ["## Bytes received → test PSNR", ""] + [image(p, p.stem) for p in pngs] + [""]
+    lines += ["Reproduce: `.venv/bin/python bench/bench_stream.py` (defaults `--ratio 12 --layers 3 --first-layer "
+              "0.1`).  Why one layer by default and 3 for `--layers`: [docs/design/layers.md](../design/layers.md).", ""]
+    return "\n".join(lines)
+
+
+def page_scale(s: dict) -> str:
+    lines = header("Real-size scenes (1-6 M Gaussians): single tile vs tiles",
+                   f"`{s['scene']}` at {s['ratio']:g}× (size search), tiles of at most {n(s['tile_gaussians'])} "
+                   "Gaussians; each variant is its own `gsz-encode --ratio` process under `/usr/bin/time -v`.",
+                   [dict(json="scale.json", command=s.get("command"), commit=s.get("commit"),
+                         machine=f"{s['cores']} cores" if s.get("cores") else None, when=_uptimes(s))])
+    rows = s["rows"]
+    lines += table(["variant", "tiles", "bytes (of target)", "τ", "depth", "voxels", "train dB", "wall s", "CPU s",
+                    "peak RSS MB", "decode native / NumPy MG/s", "sha256"],
+                   [[r["variant"], r.get("tiles", "–"), f"{n(r['bytes'])} ({r['of_target_pct']:.2f} %)", r["reserve"],
+                     r["depth"], n(r["voxels"]), f2(r["train_psnr"]), f1(r["wall_s"]), f1(r["cpu_s"]),
+                     n(r["peak_rss_mb"]), f"{r['decode_native_gps'] / 1e6:.2f} / {r['decode_numpy_gps'] / 1e6:.2f}",
+                     code(r["sha256"])] for r in rows])
+    stages = []
+    for r in rows:
+        stages += [k for k in r["stage_seconds"] if k not in stages]
+    lines += ["## Seconds and peak RSS (MB) per stage", ""]
+    lines += table(["stage"] + [r["variant"] for r in rows],
+                   [[st] + [("–" if st not in r["stage_seconds"] else f"{f1(r['stage_seconds'][st])} s")
+                            + (f", {n(r['stage_peak_mb']['stages'][st]['peak_mb'])} MB"
+                               if st in r.get("stage_peak_mb", {}).get("stages", {}) else "") for r in rows]
+                    for st in stages])
+    lines += ["Scene: `.venv/bin/python bench/big_scene.py --gaussians 1.2M --sh 3 -o bench/.cache/big_1.2M_sh3.ply`.  "
+              "Why and where tiles: [docs/design/tiles.md](../design/tiles.md).", ""]
+    return "\n".join(lines)
+
+
+def page_golden(gold: dict) -> str:
+    lines = header("Golden files (byte identity)", "Fixed and size-search encodes of the committed samples and "
+                   "shared scenes; a change that claims \"no behaviour change\" must reproduce every line "
+                   "(`bench/golden.py --check`).  Hashes are of the file and of the search report's decisions "
+                   "(timings excluded); they depend on the CPU's float sums (renderer), so compare on one machine.",
+                   [dict(json="golden.json")])
+    lines += table(["configuration", "bytes", "file sha256", "report hash"],
+                   [[k, n(v["bytes"]), code(v["sha256"]), code(v["report"])] for k, v in gold.items()])
+    lines += ["Check: `.venv/bin/python bench/golden.py --check bench/out/golden.json` (`--quick`: committed "
+              "samples only).", ""]
+    return "\n".join(lines)
+
+
+def page_sh_paths(entries: list) -> str:
+    lines = header("SH paths: codebook vs scalar", "The size search with and without the scalar SH path at the "
+                   "same budgets (`bench/bench_sh_paths.py`).",
+                   [dict(json="sh_paths.json", label=f"{e.get('scene')}{' noised' if e.get('noised') else ''}",
+                         commit=e.get("commit")) for e in entries])
+    for e in entries:
+        rows = e.get("rows", [])
+        lines += [f"## {e.get('scene')}{', noised' if e.get('noised') else ''} (test PSNR on {e.get('views')} "
+                  f"views at {e.get('width')} px)", ""]
+        keys = [k for k in (rows[0] if rows else {}) if not isinstance(rows[0][k], (list, dict))]
+        lines += table(keys, [[f2(r[k]) if isinstance(r[k], float) else r[k] for k in keys] for r in rows])
+    return "\n".join(lines)
+
+
+# --- assembly ---------------------------------------------------------------------------------------
+
+def build(json_dir: Path = JSON_DIR) -> dict:
+    """{file name: markdown} for every page the JSON in ``json_dir`` supports, and README.md."""
+    pages, used, index = {}, set(), []
+
+    def add(name, title, jsons, text):
+        pages[name] = text
+        used.update(jsons)
+        index.append((name, title, jsons))
+
+    rd = load("rd.json", json_dir)
+    if rd:
+        add("rd.md", "rate–distortion vs SOG, SPZ, compressed.ply", ["rd.json"], page_rd(rd, json_dir))
+        sc, ab, ab0 = (load(x, json_dir) for x in ("search_scaling.json", "search_above_ceiling.json",
+                                                    "search_above_ceiling_2c45cc2.json"))
+        add("search.md", "the size search at every RD point, scaling with N, budgets above the ceiling",
+            ["rd.json"] + [x for x, d in (("search_scaling.json", sc), ("search_above_ceiling.json", ab),
+                                          ("search_above_ceiling_2c45cc2.json", ab0)) if d is not None],
+            page_search(rd, sc, ab, ab0))
+    ev = [(x, d) for x in ("eval_views_640_400.json", "eval_views.json", "eval_views_losses.json")
+          if (d := load(x, json_dir)) is not None]
+    if ev:
+        add("eval_views.md", "which train views judge the search's candidates", [x for x, _ in ev], page_eval_views(ev))
+    lp = [(x, d) for x in ("loss_proxy.json", "loss_proxy_jug60.json") if (d := load(x, json_dir)) is not None]
+    if lp:
+        add("loss_proxy.md", "does the allocation's loss predict rendered PSNR", [x for x, _ in lp], page_loss_proxy(lp))
+    codec, dm, dmn = (load(x, json_dir) for x in ("codec.json", "done_means_codec.json", "done_means_codec_noised.json"))
+    if codec or dm or dmn:
+        add("codec.md", "fixed configurations, acceptance at 12 bits",
+            [x for x, d in (("codec.json", codec), ("done_means_codec.json", dm),
+                            ("done_means_codec_noised.json", dmn)) if d], page_codec(codec, dm, dmn))
+    for name, title, jsn, fn in (("decode.md", "decode speed, NumPy vs native", "decode.json", page_decode),
+                                 ("scale.md", "1-6 M Gaussians, single tile vs tiles", "scale.json", page_scale),
+                                 ("golden.md", "byte-identity record", "golden.json", page_golden),
+                                 ("sh_paths.md", "codebook vs scalar SH path", "sh_paths.json", page_sh_paths)):
+        d = load(jsn, json_dir)
+        if d:
+            add(name, title, [jsn], fn(d))
+    st = load("stream.json", json_dir)
+    if st:
+        add("stream.md", "progressive streaming: layer 0, overhead, PSNR per layer", ["stream.json"],
+            page_stream(st, json_dir))
+
+    left = sorted(p.name for p in json_dir.glob("*.json") if p.name not in used)
+    lines = ["# Current results", "",
+             "One page per topic, generated from the benchmark JSON in `bench/out/` (each page names the "
+             "command, commit and machine of its JSON).  Regenerate all of them with", "",
+             f"    {REGEN}", "",
+             f"and check that the committed pages are current with `{REGEN} --check` (a test does).  "
+             "Re-running a benchmark rewrites its JSON; then regenerate.  Decisions and their evidence: "
+             "[docs/design/](../design/README.md).  Older results: git history.", ""]
+    lines += table(["page", "topic", "from"], [[f"[{nm}]({nm})", t, ", ".join(code(j) for j in js)]
+                                              for nm, t, js in sorted(index)])
+    if left:
+        lines += ["JSON without a page yet: " + ", ".join(code(x) for x in left) + ".", ""]
+    pages["README.md"] = "\n".join(lines)
+    return {k: v.rstrip("\n") + "\n" for k, v in pages.items()}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--check", action="store_true", help="exit 1 when docs/results differs from what would be written")
+    ap.add_argument("--json-dir", type=Path, default=JSON_DIR)
+    ap.add_argument("--pages-dir", type=Path, default=PAGES_DIR)
+    a = ap.parse_args(argv)
+    pages = build(a.json_dir)
+    have = {p.name for p in a.pages_dir.glob("*.md")} if a.pages_dir.exists() else set()
+    if a.check:
+        stale = sorted(nm for nm, text in pages.items()
+                       if not (a.pages_dir / nm).exists() or (a.pages_dir / nm).read_text() != text)
+        extra = sorted(have - set(pages))
+        for nm in stale:
+            print(f"out of date: {a.pages_dir / nm}")
+        for nm in extra:
+            print(f"not generated (remove it): {a.pages_dir / nm}")
+        if stale or extra:
+            print(f"regenerate with: {REGEN}")
+            return 1
+        print(f"{len(pages)} pages current ({sum(len(t.encode()) for t in pages.values()):,} bytes)")
+        return 0
+    a.pages_dir.mkdir(parents=True, exist_ok=True)
+    for nm in sorted(have - set(pages)):
+        (a.pages_dir / nm).unlink()
+    for nm, text in sorted(pages.items()):
+        (a.pages_dir / nm).write_text(text)
+    print(f"wrote {len(pages)} pages to {a.pages_dir} ({sum(len(t.encode()) for t in pages.values()):,} bytes)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
