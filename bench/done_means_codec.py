@@ -18,7 +18,7 @@ volume exponent (flags of gsz-encode):
 * SH-2/3 scenes: the defaults (``--reserve 0.8``, one block per channel) give >= 10x already;
 * SH-0 scenes: an SH-0 PLY carries 68 B per Gaussian and a kept Gaussian costs ~11 B at 12
   bits, so >= 10x needs fewer than ~60 % of the Gaussians; these are the configurations found
-  by hand (bench/RESULTS.md lists the neighbours that missed).
+  by hand (docs/design/acceptance-flags.md lists the neighbours that missed).
 """
 from __future__ import annotations
 

@@ -289,7 +289,8 @@ def _frac(t):
 
 
 def report(state) -> str:
-    """Markdown: every row, then the target figures per scene variant (for bench/RESULTS.md)."""
+    """Markdown: every row, then the target figures per scene variant (docs/results/ pages come from
+    bench/results.py)."""
     rows = sorted(state["rows"], key=lambda r: (r["gaussians"], r["scene"], r["variant"] != "grid",
                                                  r["codec"] != "gsz", r["bytes"]))
     lines = ["| scene | variant | codec | budget | bytes | B/Gaussian | x vs PLY | PSNR dB | SSIM | encode s | decode s |",

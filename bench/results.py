@@ -31,7 +31,7 @@ NOTES = {
                        commit="a9d09ba", machine=VM + ", idle", when="2026-12-02 06:36-06:53 UTC"),
     "done_means_codec.json": dict(command=".venv/bin/python bench/done_means_codec.py"),
     "done_means_codec_noised.json": dict(command=".venv/bin/python bench/done_means_codec.py --noised"),
-    "decode.json": dict(commit="a9d09ba (the encoded files)", machine=VM + ", idle (decode.log: 2 cores)",
+    "decode.json": dict(commit="a9d09ba (the encoded files)", machine=VM + ", idle; decode.log: 2 cores",
                         when="2026-12-02 06:50 UTC"),
     "eval_views.json": dict(command=".venv/bin/python bench/bench_eval_views.py", machine=VM + ", idle",
                             when="2026-12-02"),
@@ -54,8 +54,8 @@ NOTES = {
                                               machine=VM + ", idle", when="2026-12-02 03:00 UTC"),
     "stream.json": dict(command=".venv/bin/python bench/bench_stream.py", commit="71b11a3",
                         machine=VM + ", a test run beside it for ~3 min", when="2026-12-02 05:15-05:29 UTC"),
-    "golden.json": dict(command=".venv/bin/python bench/golden.py --write bench/out/golden.json",
-                        commit="dc3d76e (last rewrite of the file)"),
+    "golden.json": dict(command="golden.py's usage: `.venv/bin/python bench/golden.py --write bench/out/golden.json`",
+                        commit="git log: dc3d76e rewrote the file"),
 }
 
 NA = "not recorded"
@@ -100,7 +100,7 @@ def cell(name: str, key: str, recorded) -> str:
     noted = NOTES.get(name, {}).get(key)
     if not noted:
         return NA
-    return (code(noted) if key == "command" and noted.startswith(".venv") else noted) + " †"
+    return f"{NA} (notes: " + (code(noted) if key == "command" and noted.startswith(".venv") else noted) + ")"
 
 
 def header(title: str, what: str, sources: list) -> list:
@@ -114,8 +114,9 @@ def header(title: str, what: str, sources: list) -> list:
         label = code("bench/out/" + name) + (f" ({s['label']})" if s.get("label") else "")
         rows.append([label] + [cell(name, k, s.get(k)) for k in ("command", "commit", "machine", "when")])
     lines += table(["JSON", "command", "commit", "machine", "run"], rows)
-    if any("†" in c for r in rows for c in r):
-        lines += [f"†: {NA} in the JSON; from the run's notes (git history of bench/RESULTS.md).", ""]
+    if any("(notes: " in c for r in rows for c in r):
+        lines += ["Notes: what the run notes said (bench/RESULTS.md, in git history), or where marked the git "
+                  "log, a log or the script.", ""]
     return lines
 
 
@@ -154,7 +155,7 @@ def _rd_sources(rd: dict, which: str) -> list:
         commit += " (tracked files modified)"
     src = [dict(json="rd.json", label="gsz rows", command=meta.get("command"), commit=commit,
                 machine=machine_of(meta.get("machine")),
-                when=f"{meta.get('started', '?')} – {meta.get('finished', '?')}")]
+                when=_span(meta.get("started"), meta.get("finished")))]
     if which == "peers":
         for r in rd.get("runs", []):
             if "peers_not_run" in r:
@@ -162,9 +163,17 @@ def _rd_sources(rd: dict, which: str) -> list:
             src.append(dict(json="rd.json", label="peer rows, run " + r.get("started", "?")[:10],
                             command=r.get("command"), commit=(r.get("gsz", {}).get("commit") or "")[:7] or None,
                             machine=machine_of(r.get("machine")),
-                            when=f"{r.get('started', '?')} – {r.get('finished') or 'not finished'}; "
-                                 + (r.get("splat_transform") or "")))
+                            when=_span(r.get("started"), r.get("finished")) + "; " + (r.get("splat_transform") or "")))
     return src
+
+
+def _span(start: str | None, end: str | None) -> str:
+    """'2026-12-02 04:14:12 – 04:48:02' (the end's date only when it differs)."""
+    if not start:
+        return NA
+    if not end:
+        return f"{start} – not finished"
+    return f"{start} – {end[11:] if end[:10] == start[:10] else end}"
 
 
 def _frac(t: dict) -> str:
@@ -397,13 +406,14 @@ def page_codec(codec, dm, dm_noised) -> str:
                        [[s, v] + [f"{c['ratio_vs_ply']:.1f}× / {c['psnr']:.2f}" if (c := cfg.get(x)) else "–"
                                   for x in configs]
                         for (s, v), cfg in sorted(by.items(), key=lambda kv: (scene_key(kv[0][0]), kv[0][1]))])
-        at = [r for r in codec if r["bits"] == max(b for b, _ in configs) and r["blocks"] == min(k for _, k in configs)]
+        at = [r for r in codec if r["bits"] == max(b for b, _ in configs) and r["blocks"] == min(k for _, k in configs)
+              and r["variant"] == "grid"]
         if at:
             r0 = at[0]
-            lines += [f"## Where the bytes go at {r0['bits']} bits, {r0['blocks']} block", ""]
-            lines += table(["scene", "variant", "Gaussians → voxels (depth)", "bytes", "B/Gaussian", "geometry",
+            lines += [f"## Where the bytes go at {r0['bits']} bits, {r0['blocks']} block (grid variants)", ""]
+            lines += table(["scene", "Gaussians → voxels (depth)", "bytes", "B/Gaussian", "geometry",
                             "attributes", "SH", "encode s", "decode s"],
-                           [[r["scene"], r["variant"], f"{n(r['gaussians'])} → {n(r['voxels'])} ({r['depth']})",
+                           [[r["scene"], f"{n(r['gaussians'])} → {n(r['voxels'])} ({r['depth']})",
                              n(r["bytes"]), f2(r["bytes_per_gaussian"]), n(r["components"]["geometry"]),
                              n(r["components"]["attributes"]), n(r["components"].get("sh", 0)),
                              f1(sum(r["encode_seconds"].values())), f2(r["decode_seconds"])]

@@ -16,7 +16,7 @@ Normative text: ``format_spec/TRANSFORMS.md`` section 2.  Summary:
 * AC layout in the stream ("level order"): the N-1 high-pass coefficients grouped by level,
   COARSEST level first (l = 3*depth-1 down to 0), ascending slot (= Morton) order within a
   level.  Coefficients of one level have similar variance, so contiguous quantisation blocks
-  stay homogeneous (measured against the Morton-leaf interleave in bench/RESULTS.md).
+  stay homogeneous (against the Morton-leaf interleave: docs/design/raht-layout.md).
 
 The encoder's forward transform (``gsz.encoder.raht``) uses this module's tree.
 """

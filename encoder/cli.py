@@ -44,7 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--layers", type=int, nargs="?", default=d.layers, const=STREAMING_LAYERS, metavar="L",
                    help="importance-ordered layers for progressive streaming; layer 0 = the most "
                         "important Gaussians, decodable on its own. --layers alone = "
-                        f"{STREAMING_LAYERS} (measured in bench/RESULTS.md); default 1 (single layer, "
+                        f"{STREAMING_LAYERS} (docs/design/layers.md); default 1 (single layer, "
                         "best fidelity per byte)")
     p.add_argument("--first-layer", type=float, default=d.first_layer,
                    help="fraction of the Gaussians in layer 0 (with --layers > 1)")

@@ -43,8 +43,7 @@ class EncodeOptionsError(GszError, ValueError):
 
 
 #: Default layer count (1: a single-layer file has the best fidelity per byte), the layer count
-#: of ``gsz-encode --layers`` without a number, and the layer-0 share; bench/bench_stream.py
-#: measured the trade-off (bench/RESULTS.md, "Progressive streaming").
+#: of ``gsz-encode --layers`` without a number, and the layer-0 share (docs/design/layers.md).
 DEFAULT_LAYERS = 1
 STREAMING_LAYERS = 3
 DEFAULT_FIRST_LAYER = 0.1
@@ -64,11 +63,7 @@ def default_blocks(bits: int) -> int:
     steps are fine; per-block min/max at the same width spends levels on blocks of tiny
     fine-level coefficients.  When the steps are coarse the coarsest coefficients (which set a
     single block's range) make the step too big for the fine ones and colour detail rounds
-    away, so below ONE_BLOCK_MIN_BITS blocks win.  Measured (bench/RESULTS.md, "Codec at fixed
-    configurations", tau 0.8, every scene grid and noised): one block at 10 and 12 bits was
-    smaller than 80 blocks at 2 bits fewer and at least as good on 22 of 24 pairs; at 12 bits
-    it is 15-20 % smaller than 80 blocks at <= 0.13 dB less on five of six scenes; at 8 bits it
-    lost 0.6-8.6 dB (jug: DC colour RMSE 0.17 against 0.02)."""
+    away, so below ONE_BLOCK_MIN_BITS blocks win (docs/design/default-blocks.md)."""
     return 1 if int(bits) >= ONE_BLOCK_MIN_BITS else MANY_BLOCKS
 
 
@@ -126,9 +121,8 @@ class SceneOptions:
     train_views      number of default train cameras (when no camera file is given)
     importance_width render width of the importance pass (wider cameras are downscaled to
                      it); the default is the width scenes are evaluated and viewed at
-                     (DEFAULT_VIEW_WIDTH): at 400 px the alpha-blending weight of small
-                     Gaussians hid below a pixel and pruning removed detail that shows at
-                     800 px (plaza tau 0.7, 12 bits: 36.43 -> 38.42 dB test PSNR)
+                     (DEFAULT_VIEW_WIDTH): below it small Gaussians hide under a pixel and
+                     pruning removes detail that shows at 800 px (docs/design/view-width.md)
     vq_iters         mini-batch k-means iterations (None: the codebook trainer's default)
     layers           importance-ordered layers (1 = a single-layer file); layer 0 holds the
                      most important Gaussians and decodes on its own (progressive streaming);

@@ -34,6 +34,6 @@ def leaf_interleaved_order(tree: RahtTree) -> np.ndarray:
     """Permutation taking stream-order AC to the reference code's Morton-leaf interleave.
 
     Returns int64 [N-1] idx such that ac_stream[idx] lists the AC coefficients by slot 1..N-1
-    (the MesonGS++ in-place layout).  Used only to compare the two layouts (bench/RESULTS.md).
+    (the MesonGS++ in-place layout).  Used only to compare the two layouts (docs/design/raht-layout.md).
     """
     return np.argsort(tree.ac_slots, kind="stable")

@@ -18,11 +18,9 @@ Depth
     voxel diagonal ``sqrt(3)/2 * side / 2^d``, is within a budget ``rel_error * D_robust``, where
     ``D_robust`` is the diagonal of the 1st..99th-percentile box of the centres (outliers do not
     inflate the budget; they do widen the cube and so push d up).  Default
-    ``rel_error = 5e-4`` was picked by measurement on the shared scenes (bench/RESULTS.md):
-    it lands on d = 11 for flowers, houseplant, plaza, jug and tiny_graphdeco and on d = 12
-    for showroom, with merged fractions 0.3-0.5 % (showroom 2.5 %, tiny 9 % from exact
-    duplicates).  ``max_merge`` optionally also demands a merged fraction (above the
-    exact-duplicate floor).
+    ``rel_error = 5e-4``: the G-PCC anchor's operating depth on most shared scenes
+    (docs/design/depth-choice.md).  ``max_merge`` optionally also demands a merged fraction
+    (above the exact-duplicate floor).
 
 Merge
     Gaussians whose centres share a voxel become one Gaussian at the voxel centre:
@@ -37,10 +35,8 @@ Merge
         most important member's (q and -q are the same rotation; a plain mean of antipodal
         quaternions cancels), weighted-averaged and renormalised;
       - ``"max"``: weighted mean of log-scales, the most important member's rotation.
-      Measured relative Frobenius error of the merged covariance against the weighted mean
-      covariance (merged voxels only, bench/RESULTS.md): average 0.61 / 0.34 / 0.19 and max
-      0.53 / 0.35 / 0.23 on flowers d10 / houseplant d10 / showroom d11 -- neither of the two
-      brief options wins everywhere, and both are far from 0, hence moment matching;
+      Both averaging options are far from the weighted mean covariance, which moment
+      matching reproduces exactly (docs/design/depth-choice.md);
     * importance: the SUM of the members' importances (the merged Gaussian now carries all
       their rendered contribution; the reference takes the max).  Downstream weights (VQ,
       kept-SH ranking) then see the voxel's total weight;

@@ -36,7 +36,7 @@ import torch
 
 from gsz.decoder.errors import GszError
 
-#: Defaults chosen by measurement (bench/bench_vq.py, bench/RESULTS.md).
+#: Defaults chosen by measurement: docs/design/vq.md.
 DEFAULT_ITERS = 50
 DEFAULT_BATCH = 16384
 DEFAULT_LLOYD = 1
@@ -82,10 +82,9 @@ def _check_weights(weights, n: int) -> np.ndarray:
 def _threads(n: int | None) -> Iterator[None]:
     """Run the torch maths with ``n`` intra-op threads (None: leave torch's setting).
 
-    Default 1: measured on the shared 2-core machine under other jobs' load, the chunked search
-    took 0.9 s with 1 thread and 3.7-14 s with 2 (OpenMP barriers stall when a core is taken),
-    and a fixed thread count keeps the float summation order, hence the codebook, identical
-    from run to run.  On a dedicated multi-core machine pass more.
+    Default 1: OpenMP barriers stall when another job holds a core, and a fixed thread count keeps
+    the codebook identical from run to run (docs/design/torch-threads.md).  On a dedicated
+    multi-core machine pass more.
     """
     if n is None:
         yield
@@ -110,8 +109,8 @@ class _Prepared:
 
     def __init__(self, c: torch.Tensor):
         k, dim = c.shape
-        # Group width: a multiple of 16 floats keeps the amin vectorised; measured at K = 8192,
-        # g = 64 took 1.2 s per 100k x 24-D vectors against 2.4 s for g = 91 (~sqrt K).
+        # Group width: a multiple of 16 floats keeps the amin vectorised; 64 beat ~sqrt(K)
+        # (docs/design/vq.md).
         g = 0 if k < _TWO_LEVEL_MIN_K else (32 if k < 2048 else 64)
         kp = int(math.ceil(k / g)) * g if g else k
         self.k, self.g = k, g

@@ -2,10 +2,9 @@
 from the best candidate one level at a time while train PSNR improves.
 
 The default is right only in the middle of the RD range.  Each level costs about 3 bits per voxel
-and halves the position error: at high budgets (attributes near their best widths) a deeper grid
-is worth far more than those bits (houseplant at 1.5 MB: depth 11 -> 13 is 53.7 -> 60.8 dB test
-PSNR), at low budgets the bits are better spent on attributes (houseplant 27x: depth 10 beats 11
-by ~1 dB).  The walk goes first in the direction the best allocation suggests; tau is refined
+and halves the position error: at high budgets a deeper grid is worth far more than those bits,
+at low budgets the bits are better spent on attributes (docs/design/depth-walk.md).  The walk
+goes first in the direction the best allocation suggests; tau is refined
 afterwards, at the depth the walk ends on (refining before the walk as well cost one encode
 whenever the walk moved, and the grid neighbour's verdict at the old depth is not the one needed).
 """

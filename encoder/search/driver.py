@@ -59,12 +59,10 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
 def _search_threads():
     """torch's own maths single-threaded for the search, the renderer on every core.
 
-    The search's torch work is many small ops (quantising one channel set block by block, SH
-    k-means chunks); on the shared 2-core machine two OpenMP threads stall at every barrier
-    when another job holds a core (measured: quantize_groups of a 24 x 170k SH set 1.1 s with 2
-    threads vs 0.03-0.05 s with 1; 47 such calls cost 32 s of a flowers search).  The renderer
-    hands out tiles dynamically, so it keeps the cores torch had.  Results do not depend on
-    either thread count."""
+    The search's torch work is many small ops, whose OpenMP threads stall at every barrier when
+    another job holds a core (docs/design/torch-threads.md).  The renderer hands out tiles
+    dynamically, so it keeps the cores torch had.  Results do not depend on either thread
+    count."""
     import torch
 
     from ..render import render_threads

@@ -44,10 +44,9 @@ class SearchOptions(SceneOptions):
     codebook        SH codebook size (None: the search tries a few)
     eval_views      train views rendered to compare candidates: generated ones, or as many of
                     the caller's cameras spread evenly over them; eval_width their width at
-                    most.  The default is gsz-eval's view width: at lower resolutions the
-                    loss of small Gaussians hides below a pixel, and candidates that prune
-                    more win on train views and lose on test views (plaza 12x, flowers 27x at
-                    640 px: about 1 dB of test PSNR)
+                    most.  The default is gsz-eval's view width: below it candidates that
+                    prune more win on train views and lose on test views
+                    (docs/design/view-width.md)
     sh_scalar       weigh the scalar SH path (every vector quantised group-wise, its widths
                     in the allocation) against the codebook at high rates
     layer0_share    wanted fraction of the file bytes before layer 0 is decodable: when the

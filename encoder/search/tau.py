@@ -22,8 +22,7 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
     budget is unreachable at this tau (one at a time: the caller scores and releases each scene
     before the next is made): the codebook path's, and the scalar SH path's too when
     its estimate beats the codebook's -- the caller renders both and keeps the better (the two
-    estimates are not the same kind of number: on palette-coded SH the codebook's won by 0.8 dB
-    train PSNR where the scalar path's estimate said otherwise).  ``min_keep``: keep at least
+    estimates are not the same kind of number; docs/design/sh-scalar.md).  ``min_keep``: keep at least
     this many exact SH vectors (the most important ones)."""
     with progress.stage("tables", f"tau {stage.reserve}: loss + rate matrices"):
         loss, rate, shapes = attribute_tables(stage, sopts.blocks, weights)
@@ -137,12 +136,11 @@ def choose_sh(sh_models: list, loss, rate, room: float, weights, min_keep: int) 
 def spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_model: ShModel,
                     sh_plan: ShPlan, res: Calibrated, weights) -> Calibrated:
     """A file below the budget with every attribute group at its best width: spend the rest on
-    the SH.  While not every vector is kept exact, keep more (the keep-count grid and its
-    estimate are coarse there: tiny_graphdeco at SOG's size stopped 2.5 % short with 32 % kept,
-    the estimate 14 % above the real SH bytes): the count from the measured shortfall and the
-    measured bytes per kept vector, twice at most.  Once all are exact, their groups join the
-    allocation at SH_BITS..16 bits (below a scene's maximum quality they would trade against the
-    attributes, which measured worse: jug noised 8x -0.4 dB).  Returns the best result."""
+    the SH (docs/design/sh-spend.md).  While not every vector is kept exact, keep more (the
+    keep-count grid and its estimate are coarse there): the count from the measured shortfall
+    and the measured bytes per kept vector, twice at most.  Once all are exact, their groups join
+    the allocation at SH_BITS..16 bits (below a scene's maximum quality they would trade against
+    the attributes, which did worse).  Returns the best result."""
     m = sh_model.m
     for _ in range(2):
         if sh_plan.keep >= m or not res.left_over(target, sopts.tolerance):
