@@ -115,8 +115,7 @@ def header(title: str, what: str, sources: list) -> list:
         rows.append([label] + [cell(name, k, s.get(k)) for k in ("command", "commit", "machine", "when")])
     lines += table(["JSON", "command", "commit", "machine", "run"], rows)
     if any("(notes: " in c for r in rows for c in r):
-        lines += ["Notes: what the run notes said (bench/RESULTS.md, in git history), or where marked the git "
-                  "log, a log or the script.", ""]
+        lines += ["Notes: the run notes (bench/RESULTS.md, in git history) or what the cell names.", ""]
     return lines
 
 
@@ -130,7 +129,7 @@ def machine_of(m: dict | None) -> str | None:
 
 def load(name: str, json_dir: Path):
     p = json_dir / name
-    return json.loads(p.read_text()) if p.exists() else None
+    return json.loads(p.read_text(encoding="utf-8")) if p.exists() else None
 
 
 def image(path: Path, alt: str) -> str:
@@ -304,15 +303,24 @@ def page_search(rd: dict, scaling, above, above_old) -> str:
               "K / kept exact SH vectors, candidates encoded / screened out, wall seconds of the search (+ the "
               "importance pass).  Test PSNR per point: [rd.md](rd.md); calibration rounds and CPU seconds: "
               "`bench/out/rd.json`.", ""]
-    head = ["variant", "budget", "bytes (vs target)", "τ / depth", "K / kept", "enc. / scr.", "s (+imp.)"]
+    variants = sorted({k[1] for k in groups})
+    order = {b: i for i, b in enumerate([f"{r:g}x" for r in sorted(meta["ratios"], reverse=True)] + ["sog"])}
+
+    def point(r):
+        if r is None:
+            return ["–"] * 5
+        return [f"{n(r['bytes'])} ({pct((r['bytes'] - r['target']) / r['target'], 2)})", f"{r['reserve']} / {r['depth']}",
+                f"{r['codebook_size']} / {n(r['sh_keep'])}", f"{r['candidates']} / {r['screened']}",
+                f"{r['search_s']:.0f} (+{r['importance_s']:.0f})"]
+    head = ["budget"] + [f"{h}{' (' + v + ')' if i == 0 else ''}" for v in variants
+                         for i, h in enumerate(["bytes", "τ / depth", "K / kept", "enc. / scr.", "s (+imp.)"])]
+    rows = []
     for scene in sorted({k[0] for k in groups}, key=scene_key):
-        rs = [r for k, v in sorted(groups.items()) if k[0] == scene for r in sorted(v, key=lambda r: r["bytes"])]
-        lines += [f"### {scene}", ""]
-        lines += table(head, [[r["variant"], r["budget"].replace("x", "×"),
-                               f"{n(r['bytes'])} ({pct((r['bytes'] - r['target']) / r['target'], 2)})",
-                               f"{r['reserve']} / {r['depth']}", f"{r['codebook_size']} / {n(r['sh_keep'])}",
-                               f"{r['candidates']} / {r['screened']}",
-                               f"{r['search_s']:.0f} (+{r['importance_s']:.0f})"] for r in rs])
+        by = {v: {r["budget"]: r for r in groups.get((scene, v), [])} for v in variants}
+        budgets = sorted({b for v in variants for b in by[v]}, key=lambda b: (order.get(b, len(order)), b))
+        rows.append([f"**{scene}**"] + [""] * (len(head) - 1))
+        rows += [[b.replace("x", "×")] + [c for v in variants for c in point(by[v].get(b))] for b in budgets]
+    lines += table(head, rows)
     if scaling is not None:
         stages = ["importance", "vq", "tables", "sh-model", "calibrate", "eval", "screen", "geometry"]
         lines += ["## Scaling with N (flowers subsampled, budget = PLY bytes × fraction / 20)", ""]
@@ -473,7 +481,8 @@ def page_stream(rows: list, json_dir: Path) -> str:
     lines = header("Progressive streaming", "Per scene at PLY / ratio: a layered file from the size search and "
                    "single-layer files at the budget and at 95 % of it, scored on the 8 test views at 800 px.  "
                    "Overhead = the layered file's bytes over the single-layer bytes with the same PSNR "
-                   "(interpolated in log-bytes; extrapolated where marked; ≤: the layered file is at least as good at its size).  Decode: whole-file `decode()` vs "
+                   "(interpolated in log-bytes; extrapolated where marked; ≤: the layered file is at least as "
+                   "good at its size).  Decode: whole-file `decode()` vs "
                    "`StreamDecoder` fed 64 KiB pieces, best of 3.", [dict(json="stream.json")])
     out = []
     for r in sorted(rows, key=lambda r: (scene_key(r["scene"]), r["variant"])):
@@ -496,30 +505,33 @@ def page_stream(rows: list, json_dir: Path) -> str:
     return "\n".join(lines)
 
 
-def page_scale(s: dict) -> str:
+def page_scale(sets: list) -> str:
     lines = header("Real-size scenes (1-6 M Gaussians): single tile vs tiles",
-                   f"`{s['scene']}` at {s['ratio']:g}× (size search), tiles of at most {n(s['tile_gaussians'])} "
-                   "Gaussians; each variant is its own `gsz-encode --ratio` process under `/usr/bin/time -v`.",
-                   [dict(json="scale.json", command=s.get("command"), commit=s.get("commit"),
-                         machine=f"{s['cores']} cores" if s.get("cores") else None, when=_uptimes(s))])
-    rows = s["rows"]
-    lines += table(["variant", "tiles", "bytes (of target)", "τ", "depth", "voxels", "train dB", "wall s", "CPU s",
-                    "peak RSS MB", "decode native / NumPy MG/s", "sha256"],
-                   [[r["variant"], r.get("tiles", "–"), f"{n(r['bytes'])} ({r['of_target_pct']:.2f} %)", r["reserve"],
-                     r["depth"], n(r["voxels"]), f2(r["train_psnr"]), f1(r["wall_s"]), f1(r["cpu_s"]),
-                     n(r["peak_rss_mb"]), f"{r['decode_native_gps'] / 1e6:.2f} / {r['decode_numpy_gps'] / 1e6:.2f}",
-                     code(r["sha256"])] for r in rows])
+                   "Size-search encodes of scenes built by `bench/big_scene.py`; each variant is its own "
+                   "`gsz-encode --ratio` process under `/usr/bin/time -v` (`single`: one tile, `tiled`: tiles of at "
+                   "most the JSON's tile_gaussians, on local worker processes).",
+                   [dict(json=name, command=s.get("command"), commit=s.get("commit"),
+                         machine=f"{s['cores']} cores" if s.get("cores") else None, when=_uptimes(s))
+                    for name, s in sets])
+    cols = [(f"{Path(s['scene']).stem} {r['variant']}", r) for _, s in sets for r in s["rows"]]
+    lines += table(["scene, variant", "ratio", "tiles", "bytes (of target)", "τ", "depth", "voxels", "train dB",
+                    "wall s", "CPU s", "peak RSS MB", "decode native / NumPy MG/s", "sha256"],
+                   [[f"`{Path(s['scene']).stem}`, {r['variant']}", f"{s['ratio']:g}×", r.get("tiles", "–"),
+                     f"{n(r['bytes'])} ({r['of_target_pct']:.2f} %)", r["reserve"], r["depth"], n(r["voxels"]),
+                     f2(r["train_psnr"]), f1(r["wall_s"]), f1(r["cpu_s"]), n(r["peak_rss_mb"]),
+                     f"{r['decode_native_gps'] / 1e6:.2f} / {r['decode_numpy_gps'] / 1e6:.2f}", code(r["sha256"])]
+                    for _, s in sets for r in s["rows"]])
     stages = []
-    for r in rows:
+    for _, r in cols:
         stages += [k for k in r["stage_seconds"] if k not in stages]
     lines += ["## Seconds and peak RSS (MB) per stage", ""]
-    lines += table(["stage"] + [r["variant"] for r in rows],
+    lines += table(["stage"] + [c for c, _ in cols],
                    [[st] + [("–" if st not in r["stage_seconds"] else f"{f1(r['stage_seconds'][st])} s")
                             + (f", {n(r['stage_peak_mb']['stages'][st]['peak_mb'])} MB"
-                               if st in r.get("stage_peak_mb", {}).get("stages", {}) else "") for r in rows]
+                               if st in r.get("stage_peak_mb", {}).get("stages", {}) else "") for _, r in cols]
                     for st in stages])
-    lines += ["Scene: `.venv/bin/python bench/big_scene.py --gaussians 1.2M --sh 3 -o bench/.cache/big_1.2M_sh3.ply`.  "
-              "Why and where tiles: [docs/design/tiles.md](../design/tiles.md).", ""]
+    lines += ["Scenes: `.venv/bin/python bench/big_scene.py --gaussians 1.2M --sh 3 -o bench/.cache/big_1.2M_sh3.ply` "
+              "(3M likewise).  Why and where tiles: [docs/design/tiles.md](../design/tiles.md).", ""]
     return "\n".join(lines)
 
 
@@ -537,20 +549,21 @@ def page_golden(gold: dict) -> str:
 
 
 def page_sh_paths(entries: list) -> str:
-    lines = header("SH paths: codebook vs scalar", "The size search with and without the scalar SH path at the "
-                   "same budgets (`bench/bench_sh_paths.py`).",
+    lines = header("SH paths: codebook vs scalar", "The size search with the scalar SH path off and allowed, at the "
+                   "same budgets.  Why the path exists: [docs/design/sh-scalar.md](../design/sh-scalar.md).",
                    [dict(json="sh_paths.json", label=f"{e.get('scene')}{' noised' if e.get('noised') else ''}",
-                         commit=e.get("commit")) for e in entries])
+                         command=e.get("command"), commit=e.get("commit")) for e in entries])
     for e in entries:
-        rows = e.get("rows", [])
         lines += [f"## {e.get('scene')}{', noised' if e.get('noised') else ''} (test PSNR on {e.get('views')} "
                   f"views at {e.get('width')} px)", ""]
-        keys = [k for k in (rows[0] if rows else {}) if not isinstance(rows[0][k], (list, dict))]
-        lines += table(keys, [[f2(r[k]) if isinstance(r[k], float) else r[k] for k in keys] for r in rows])
+        lines += table(["target B", "scalar path allowed", "bytes", "SH path", "kept SH", "K", "train dB", "test dB",
+                        "s"],
+                       [[n(r["target"]), "yes" if r.get("sh_scalar") else "no", n(r["bytes"]), r.get("sh_path") or "–",
+                         "–" if r.get("sh_keep") is None else n(r["sh_keep"]), r.get("codebook_size") or "–",
+                         f2(r.get("train_psnr")), f2(r.get("test_psnr")), f1(r.get("seconds"))]
+                        for r in e.get("rows", [])])
     return "\n".join(lines)
 
-
-# --- assembly ---------------------------------------------------------------------------------------
 
 def build(json_dir: Path = JSON_DIR) -> dict:
     """{file name: markdown} for every page the JSON in ``json_dir`` supports, and README.md."""
@@ -583,12 +596,15 @@ def build(json_dir: Path = JSON_DIR) -> dict:
             [x for x, d in (("codec.json", codec), ("done_means_codec.json", dm),
                             ("done_means_codec_noised.json", dmn)) if d], page_codec(codec, dm, dmn))
     for name, title, jsn, fn in (("decode.md", "decode speed, NumPy vs native", "decode.json", page_decode),
-                                 ("scale.md", "1-6 M Gaussians, single tile vs tiles", "scale.json", page_scale),
                                  ("golden.md", "byte-identity record", "golden.json", page_golden),
                                  ("sh_paths.md", "codebook vs scalar SH path", "sh_paths.json", page_sh_paths)):
         d = load(jsn, json_dir)
         if d:
             add(name, title, [jsn], fn(d))
+    sc = [(p.name, load(p.name, json_dir))
+          for p in sorted(json_dir.glob("scale*.json"), key=lambda p: (len(p.name), p.name))]
+    if sc:
+        add("scale.md", "1-6 M Gaussians, single tile vs tiles", [x for x, _ in sc], page_scale(sc))
     st = load("stream.json", json_dir)
     if st:
         add("stream.md", "progressive streaming: layer 0, overhead, PSNR per layer", ["stream.json"],
@@ -620,7 +636,7 @@ def main(argv=None) -> int:
     have = {p.name for p in a.pages_dir.glob("*.md")} if a.pages_dir.exists() else set()
     if a.check:
         stale = sorted(nm for nm, text in pages.items()
-                       if not (a.pages_dir / nm).exists() or (a.pages_dir / nm).read_text() != text)
+                       if not (a.pages_dir / nm).exists() or (a.pages_dir / nm).read_text(encoding="utf-8") != text)
         extra = sorted(have - set(pages))
         for nm in stale:
             print(f"out of date: {a.pages_dir / nm}")
@@ -635,7 +651,7 @@ def main(argv=None) -> int:
     for nm in sorted(have - set(pages)):
         (a.pages_dir / nm).unlink()
     for nm, text in sorted(pages.items()):
-        (a.pages_dir / nm).write_text(text)
+        (a.pages_dir / nm).write_text(text, encoding="utf-8")
     print(f"wrote {len(pages)} pages to {a.pages_dir} ({sum(len(t.encode()) for t in pages.values()):,} bytes)")
     return 0
 
