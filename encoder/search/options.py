@@ -49,6 +49,8 @@ class SearchOptions(SceneOptions):
                     (docs/design/view-width.md)
     sh_scalar       weigh the scalar SH path (every vector quantised group-wise, its widths
                     in the allocation) against the codebook at high rates
+    sh_drop         where the best file keeps no SH vector exact, also try the file without
+                    the SH rest (degree 0) at its tau and depth; the train views decide
     layer0_share    wanted fraction of the file bytes before layer 0 is decodable: when the
                     chosen file's layer 0 ends after more than 1.5x this, the layers are
                     re-split with a proportionally smaller layer 0 and that candidate re-encoded
@@ -72,6 +74,7 @@ class SearchOptions(SceneOptions):
     eval_views: int = 6
     eval_width: int = DEFAULT_VIEW_WIDTH
     sh_scalar: bool = True
+    sh_drop: bool = True
     layer0_share: float = 0.1
     screen: bool = True
     overlap: bool = True

@@ -21,7 +21,7 @@ def search_report(search, chosen: Candidate) -> dict:
         "mode": "size-search", "target_bytes": target, "bytes": len(data),
         "deviation": (len(data) - target) / target, "reserve": tau, "depth": enc.depth,
         "input_gaussians": len(search.cloud), "voxels": enc.num_points,
-        "bytes_per_gaussian": len(data) / enc.num_points, "sh_degree": search.cloud.sh_degree,
+        "bytes_per_gaussian": len(data) / enc.num_points, "sh_degree": search.cloud.sh_degree if sh else 0,
         "codebook_size": enc.codebook_size,
         "sh_keep": enc.sh_keep if sh else 0,
         "sh_path": enc.sh_path,
