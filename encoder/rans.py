@@ -482,164 +482,195 @@ def _cand_table(cands: list) -> np.ndarray:
     return out
 
 
+class _Fit:
+    """The model set under construction by :func:`_fit_vectorised` (one array per field, the
+    COARSE models' bins and levels by model id, which models go to the reference search)."""
+
+    def __init__(self, h: _Hist):
+        m_count = h.num_models
+        k = h.k
+        self.types = np.where(k == 0, EMPTY, np.where(k == 1, SINGLE, COARSE)).astype(np.int64)
+        z = np.zeros(m_count, np.int64)
+        (self.lo, self.span, self.prec, self.group, self.binshift, self.centre, self.r_left,
+         self.r_right) = (z.copy() for _ in range(8))
+        self.fallback = np.zeros(m_count, bool)
+        self.best = np.full(m_count, np.inf)
+        self.bins_of, self.levels_of = {}, {}
+
+
 def _fit_vectorised(h: _Hist, validate: bool = True) -> ModelSet:
     """fit_model_set's models from sparse histograms (the choices of _fit_one, see above)."""
-    m_count = h.num_models
     k = h.k
-    types = np.where(k == 0, EMPTY, np.where(k == 1, SINGLE, COARSE)).astype(np.int64)
     over = np.flatnonzero(k > (1 << MAX_PRECISION))
     if over.size:
         raise ValueError(f"{int(k[over[0]])} distinct symbols in one model: at most 65536 are "
                          f"codable")
+    f = _Fit(h)
     wide = k >= 2
-    z = np.zeros(m_count, np.int64)
-    lo, span, prec, group, binshift, centre, r_left, r_right = (z.copy() for _ in range(8))
     one = k == 1
-    lo[one] = h.lo[one] + h.eo[h.start[one]]
-    lo[wide] = h.lo[wide]
-    span[wide] = h.span[wide]
+    f.lo[one] = h.lo[one] + h.eo[h.start[one]]
+    f.lo[wide] = h.lo[wide]
+    f.span[wide] = h.span[wide]
     # precision: min(16, max(ceil(log2 K), ceil(log2 N_m))), at least 1
     nk = np.where(wide, _floor_log2(np.maximum(k - 1, 1)) + 1, 0)
     nt = np.where(wide, _floor_log2(np.maximum(h.total - 1, 1)) + 1, 0)
-    prec[wide] = np.maximum(1, np.minimum(MAX_PRECISION, np.maximum(nk, nt)))[wide]
-    fallback = np.zeros(m_count, bool)
-    w_idx = np.flatnonzero(wide)
-    inf = np.inf
-    bins_of, levels_of = {}, {}
-    best = np.full(m_count, inf)
-    if w_idx.size:
-        all_wide = bool(np.all(wide[k > 0]))
-        # COARSE: bin shift at the middle level group ...
-        cost_h = np.full((m_count, len(COARSE_BINSHIFTS)), inf)
-        for i, s in enumerate(COARSE_BINSHIFTS):
-            sel = wide & ((span >> max(s - 1, 0)) != 0) if s else wide
-            if not sel.any():
-                break
-            bins = _Bins(h, None if (s == 0 and all_wide) else sel, prec, s)
-            cost_h[bins.mm, i] = bins.cost(bins.codes(1), 1)
-        fallback[w_idx[_near_tie(cost_h[w_idx])]] = True
-        h_best = np.asarray(COARSE_BINSHIFTS)[np.argmin(cost_h, axis=1)]
-        # ... then the level group at that shift (order g = 1, 0, 2 as _fit_one)
-        for s in COARSE_BINSHIFTS:
-            sel = wide & (h_best == s)
-            if not sel.any():
-                continue
-            bins = _Bins(h, sel, prec, s)
-            qs = [bins.codes(g) for g in (1, 0, 2)]
-            costs = np.stack([cost_h[bins.mm].min(axis=1), bins.cost(qs[1], 0),
-                              bins.cost(qs[2], 2)], axis=1)
-            fallback[bins.mm[_near_tie(costs)]] = True
-            win = np.argmin(costs, axis=1)
-            best[bins.mm] = costs.min(axis=1)
-            group[bins.mm] = np.array([1, 0, 2])[win]
-            binshift[bins.mm] = s
-            wl = win[bins.loc]
-            q = np.where(wl == 0, qs[0], np.where(wl == 1, qs[1], qs[2]))
-            cuts = bins.ms[1:]
-            for m, b_, q_ in zip(bins.mm.tolist(), np.split(bins.bb, cuts), np.split(q, cuts)):
-                bins_of[m], levels_of[m] = b_, q_
-    # LAPLACE: centre at the mode, ratios from the mean distances, coordinate search
-    lap = np.flatnonzero(wide & (span + 1 <= (np.int64(1) << prec)))
-    if lap.size:
-        lmask = np.zeros(m_count, bool)
-        lmask[lap] = True
-        e = lmask[h.em]
-        le, lo_, lc = h.em[e], h.eo[e], h.ec[e]
-        li_of = np.zeros(m_count, np.int64)
-        li_of[lap] = np.arange(lap.size)
-        li = li_of[le]                                    # local model index per entry
-        starts = np.flatnonzero(np.r_[True, le[1:] != le[:-1]])
-        maxc = np.maximum.reduceat(lc, starts)
-        is_max = np.flatnonzero(lc == maxc[li])
-        _, first = np.unique(li[is_max], return_index=True)   # first entry at the maximum
-        cen = lo_[is_max[first]]
-        d = lo_ - cen[li]
-        ad = np.abs(d)
-        left = d < 0
-        cands = []
-        for side in (left, d > 0):
-            cnt = np.bincount(li[side], weights=lc[side], minlength=lap.size)
-            dist = np.bincount(li[side], weights=(ad * lc)[side], minlength=lap.size)
-            # (float weights: exact, the sums stay far below 2**53)
-            lists = []
-            for cs, ds in zip(cnt.tolist(), dist.tolist()):
-                if cs == 0:
-                    lists.append([0])
-                    continue
-                mean = float(np.int64(ds) / np.int64(cs))
-                one_minus = min(1.0, 1.0 / max(mean, 1.0))
-                u0 = int(np.argmin(np.abs(_LOG_RATIO_GAP - math.log(one_minus * RATIO_ONE))))
-                lists.append(sorted({int(u) for u in _RATIO_BY_GAP[
-                    max(0, _RATIO_RANK[u0] - 4):_RATIO_RANK[u0] + 5:2]}))
-            cands.append(lists)
-        c0, c1 = _cand_table(cands[0]), _cand_table(cands[1])
-        n0 = (c0 >= 0).sum(axis=1)
-        n1 = (c1 >= 0).sum(axis=1)
-        rows = np.arange(lap.size)
-        mid0, mid1 = c0[rows, n0 // 2], c1[rows, n1 // 2]
-        sp = span[lap]
-        tabs = _LaplaceTables(np.r_[c0[c0 >= 0], c1[c1 >= 0]], int(sp.max()))
-        total = (np.int64(1) << prec[lap]).astype(np.float64)
-        nbits = h.total[lap] * prec[lap].astype(np.float64)     # N * n: exact
-        free = total - (sp + 1)
-        lcf = lc.astype(np.float64)
-
-        def lap_cost(rl: np.ndarray, rr: np.ndarray) -> np.ndarray:
-            """Cost of LAPLACE(centre, rl, rr) for every local model: N n - sum c log2 f + 48."""
-            big_w = (1 << LAPLACE_SCALE_BITS) + tabs.prefix(rl, cen) + tabs.prefix(rr, sp - cen)
-            a = free / big_w.astype(np.float64)
-            w = tabs.weight_f(np.where(left, rl[li], rr[li]), ad)
-            f = 1.0 + a[li] * w
-            return nbits - np.add.reduceat(lcf * np.log2(f), starts) + 8 * 6
-
-        # side 0: the left ratio over its candidates, the right one at its estimate
-        tab0 = np.full((lap.size, 1 + c0.shape[1]), inf)
-        tab0[:, 0] = best[lap]
-        for j in range(c0.shape[1]):
-            has = n0 > j
-            tab0[has, 1 + j] = lap_cost(np.where(has, c0[:, j], mid0), mid1)[has]
-        fallback[lap[_near_tie(tab0)]] = True
-        win0 = np.argmin(tab0, axis=1)
-        rl_best = np.where(win0 > 0, c0[rows, np.maximum(win0 - 1, 0)], mid0)
-        # side 1: the right ratio over its candidates (the estimate is costed already)
-        c1x = np.where(c1 == mid1[:, None], -1, c1)
-        tab1 = np.full((lap.size, 1 + c1.shape[1]), inf)
-        tab1[:, 0] = tab0.min(axis=1)
-        for j in range(c1.shape[1]):
-            has = c1x[:, j] >= 0
-            if has.any():
-                tab1[has, 1 + j] = lap_cost(rl_best, np.where(has, c1x[:, j], mid1))[has]
-        fallback[lap[_near_tie(tab1)]] = True
-        win1 = np.argmin(tab1, axis=1)
-        rr_best = np.where(win1 > 0, c1[rows, np.maximum(win1 - 1, 0)], mid1)
-        is_lap = (win0 > 0) | (win1 > 0)
-        lm = lap[is_lap]
-        types[lm] = LAPLACE
-        centre[lm] = cen[is_lap]
-        r_left[lm] = rl_best[is_lap]
-        r_right[lm] = rr_best[is_lap]
-        group[lm] = 0
-        binshift[lm] = 0
-    # near ties: the reference search decides
-    for m in np.flatnonzero(fallback).tolist():
-        fit = _fit_one(int(h.lo[m]), int(h.lo[m] + h.span[m]), _dense_counts(h, m))
-        types[m] = fit["type"]
-        for key, arr in (("lo", lo), ("span", span), ("prec", prec), ("group", group),
-                         ("binshift", binshift), ("centre", centre), ("r_left", r_left),
-                         ("r_right", r_right)):
-            arr[m] = fit.get(key, 0)
-        if fit["type"] == COARSE:
-            q = np.asarray(fit["q"], dtype=np.int64)
-            b_ = np.flatnonzero(q)
-            bins_of[m], levels_of[m] = b_, q[b_]
-    co_ids = np.flatnonzero(types == COARSE).tolist()
-    models = ModelSet(types=types, lo=lo, span=span, prec=prec, group=group, binshift=binshift,
-                      centre=centre, r_left=r_left, r_right=r_right,
-                      bins=tuple(bins_of[m] for m in co_ids),
-                      levels=tuple(levels_of[m] for m in co_ids))
+    f.prec[wide] = np.maximum(1, np.minimum(MAX_PRECISION, np.maximum(nk, nt)))[wide]
+    if wide.any():
+        _fit_coarse(h, f, wide)
+    _fit_laplace(h, f, wide)
+    _fit_near_ties(h, f)
+    co_ids = np.flatnonzero(f.types == COARSE).tolist()
+    models = ModelSet(types=f.types, lo=f.lo, span=f.span, prec=f.prec, group=f.group,
+                      binshift=f.binshift, centre=f.centre, r_left=f.r_left, r_right=f.r_right,
+                      bins=tuple(f.bins_of[m] for m in co_ids),
+                      levels=tuple(f.levels_of[m] for m in co_ids))
     if validate:
         models.validate()
     return models
+
+
+def _fit_coarse(h: _Hist, f: _Fit, wide: np.ndarray) -> None:
+    """COARSE fits of the models with 2+ distinct values: the bin shift at the middle level
+    group, then the level group at that shift (near ties marked for the reference search)."""
+    m_count, k = h.num_models, h.k
+    span, prec, fallback, best = f.span, f.prec, f.fallback, f.best
+    w_idx = np.flatnonzero(wide)
+    inf = np.inf
+    all_wide = bool(np.all(wide[k > 0]))
+    cost_h = np.full((m_count, len(COARSE_BINSHIFTS)), inf)
+    for i, s in enumerate(COARSE_BINSHIFTS):
+        sel = wide & ((span >> max(s - 1, 0)) != 0) if s else wide
+        if not sel.any():
+            break
+        bins = _Bins(h, None if (s == 0 and all_wide) else sel, prec, s)
+        cost_h[bins.mm, i] = bins.cost(bins.codes(1), 1)
+    fallback[w_idx[_near_tie(cost_h[w_idx])]] = True
+    h_best = np.asarray(COARSE_BINSHIFTS)[np.argmin(cost_h, axis=1)]
+    # ... then the level group at that shift (order g = 1, 0, 2 as _fit_one)
+    for s in COARSE_BINSHIFTS:
+        sel = wide & (h_best == s)
+        if not sel.any():
+            continue
+        bins = _Bins(h, sel, prec, s)
+        qs = [bins.codes(g) for g in (1, 0, 2)]
+        costs = np.stack([cost_h[bins.mm].min(axis=1), bins.cost(qs[1], 0),
+                          bins.cost(qs[2], 2)], axis=1)
+        fallback[bins.mm[_near_tie(costs)]] = True
+        win = np.argmin(costs, axis=1)
+        best[bins.mm] = costs.min(axis=1)
+        f.group[bins.mm] = np.array([1, 0, 2])[win]
+        f.binshift[bins.mm] = s
+        wl = win[bins.loc]
+        q = np.where(wl == 0, qs[0], np.where(wl == 1, qs[1], qs[2]))
+        cuts = bins.ms[1:]
+        for m, b_, q_ in zip(bins.mm.tolist(), np.split(bins.bb, cuts), np.split(q, cuts)):
+            f.bins_of[m], f.levels_of[m] = b_, q_
+
+
+def _laplace_candidates(li, lc, ad, side, n_models) -> list:
+    """Per local model, the ratio indices to try on one side: around the one whose mean
+    distance matches the side's mean distance ([0] for an empty side)."""
+    cnt = np.bincount(li[side], weights=lc[side], minlength=n_models)
+    dist = np.bincount(li[side], weights=(ad * lc)[side], minlength=n_models)
+    # (float weights: exact, the sums stay far below 2**53)
+    lists = []
+    for cs, ds in zip(cnt.tolist(), dist.tolist()):
+        if cs == 0:
+            lists.append([0])
+            continue
+        mean = float(np.int64(ds) / np.int64(cs))
+        one_minus = min(1.0, 1.0 / max(mean, 1.0))
+        u0 = int(np.argmin(np.abs(_LOG_RATIO_GAP - math.log(one_minus * RATIO_ONE))))
+        lists.append(sorted({int(u) for u in _RATIO_BY_GAP[
+            max(0, _RATIO_RANK[u0] - 4):_RATIO_RANK[u0] + 5:2]}))
+    return lists
+
+
+def _fit_laplace(h: _Hist, f: _Fit, wide: np.ndarray) -> None:
+    """LAPLACE fits where they beat the COARSE one: centre at the mode, ratios from the mean
+    distances, a coordinate search over nearby ratios (near ties marked)."""
+    m_count, inf = h.num_models, np.inf
+    span, prec, fallback, best = f.span, f.prec, f.fallback, f.best
+    lap = np.flatnonzero(wide & (span + 1 <= (np.int64(1) << prec)))
+    if not lap.size:
+        return
+    lmask = np.zeros(m_count, bool)
+    lmask[lap] = True
+    e = lmask[h.em]
+    le, lo_, lc = h.em[e], h.eo[e], h.ec[e]
+    li_of = np.zeros(m_count, np.int64)
+    li_of[lap] = np.arange(lap.size)
+    li = li_of[le]                                    # local model index per entry
+    starts = np.flatnonzero(np.r_[True, le[1:] != le[:-1]])
+    maxc = np.maximum.reduceat(lc, starts)
+    is_max = np.flatnonzero(lc == maxc[li])
+    _, first = np.unique(li[is_max], return_index=True)   # first entry at the maximum
+    cen = lo_[is_max[first]]
+    d = lo_ - cen[li]
+    ad = np.abs(d)
+    left = d < 0
+    cands = [_laplace_candidates(li, lc, ad, side, lap.size) for side in (left, d > 0)]
+    c0, c1 = _cand_table(cands[0]), _cand_table(cands[1])
+    n0 = (c0 >= 0).sum(axis=1)
+    n1 = (c1 >= 0).sum(axis=1)
+    rows = np.arange(lap.size)
+    mid0, mid1 = c0[rows, n0 // 2], c1[rows, n1 // 2]
+    sp = span[lap]
+    tabs = _LaplaceTables(np.r_[c0[c0 >= 0], c1[c1 >= 0]], int(sp.max()))
+    total = (np.int64(1) << prec[lap]).astype(np.float64)
+    nbits = h.total[lap] * prec[lap].astype(np.float64)     # N * n: exact
+    free = total - (sp + 1)
+    lcf = lc.astype(np.float64)
+
+    def lap_cost(rl: np.ndarray, rr: np.ndarray) -> np.ndarray:
+        """Cost of LAPLACE(centre, rl, rr) for every local model: N n - sum c log2 f + 48."""
+        big_w = (1 << LAPLACE_SCALE_BITS) + tabs.prefix(rl, cen) + tabs.prefix(rr, sp - cen)
+        a = free / big_w.astype(np.float64)
+        w = tabs.weight_f(np.where(left, rl[li], rr[li]), ad)
+        fr = 1.0 + a[li] * w
+        return nbits - np.add.reduceat(lcf * np.log2(fr), starts) + 8 * 6
+
+    # side 0: the left ratio over its candidates, the right one at its estimate
+    tab0 = np.full((lap.size, 1 + c0.shape[1]), inf)
+    tab0[:, 0] = best[lap]
+    for j in range(c0.shape[1]):
+        has = n0 > j
+        tab0[has, 1 + j] = lap_cost(np.where(has, c0[:, j], mid0), mid1)[has]
+    fallback[lap[_near_tie(tab0)]] = True
+    win0 = np.argmin(tab0, axis=1)
+    rl_best = np.where(win0 > 0, c0[rows, np.maximum(win0 - 1, 0)], mid0)
+    # side 1: the right ratio over its candidates (the estimate is costed already)
+    c1x = np.where(c1 == mid1[:, None], -1, c1)
+    tab1 = np.full((lap.size, 1 + c1.shape[1]), inf)
+    tab1[:, 0] = tab0.min(axis=1)
+    for j in range(c1.shape[1]):
+        has = c1x[:, j] >= 0
+        if has.any():
+            tab1[has, 1 + j] = lap_cost(rl_best, np.where(has, c1x[:, j], mid1))[has]
+    fallback[lap[_near_tie(tab1)]] = True
+    win1 = np.argmin(tab1, axis=1)
+    rr_best = np.where(win1 > 0, c1[rows, np.maximum(win1 - 1, 0)], mid1)
+    is_lap = (win0 > 0) | (win1 > 0)
+    lm = lap[is_lap]
+    f.types[lm] = LAPLACE
+    f.centre[lm] = cen[is_lap]
+    f.r_left[lm] = rl_best[is_lap]
+    f.r_right[lm] = rr_best[is_lap]
+    f.group[lm] = 0
+    f.binshift[lm] = 0
+
+
+def _fit_near_ties(h: _Hist, f: _Fit) -> None:
+    """Models whose vectorised choice was a near tie: the reference search (_fit_one) decides."""
+    for m in np.flatnonzero(f.fallback).tolist():
+        fit = _fit_one(int(h.lo[m]), int(h.lo[m] + h.span[m]), _dense_counts(h, m))
+        f.types[m] = fit["type"]
+        for key in ("lo", "span", "prec", "group", "binshift", "centre", "r_left", "r_right"):
+            getattr(f, key)[m] = fit.get(key, 0)
+        if fit["type"] == COARSE:
+            q = np.asarray(fit["q"], dtype=np.int64)
+            b_ = np.flatnonzero(q)
+            f.bins_of[m], f.levels_of[m] = b_, q[b_]
 
 
 def fit_model_set(symbols: np.ndarray, model_ids: np.ndarray, num_models: int) -> ModelSet:
