@@ -11,6 +11,7 @@ import struct
 
 import numpy as np
 
+from . import native
 from .cloud import GaussianCloud
 from .container import DEFAULT_MAX_GAUSSIANS, Container, read_container
 from .errors import GszError, GszFormatError, GszTruncatedError
@@ -87,7 +88,7 @@ def decode_parts(container: Container, plan, tiles: list, chosen: list, count: i
     else:
         from concurrent.futures import ThreadPoolExecutor
         with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="gsz-tile") as pool:
-            futures = {t: pool.submit(_decode_tile, container, by_tile[t], h, states[t], False)
+            futures = {t: pool.submit(native.carry(_decode_tile), container, by_tile[t], h, states[t], False)
                        for t in chosen}
             for t in chosen:                        # the first failing tile's error
                 if futures[t].exception() is not None:

@@ -83,7 +83,7 @@ def read_channel_set(r: Reader, *, max_length: int, shape: tuple | None = None,
     # decode_stream(blob, group_model_ids(...)) one group (a run of one model) at a time
     lengths = split_lengths(length, b)
     models, pos = read_model_set(blob, 0)
-    dec = RansDecoder(memoryview(blob)[pos:], c * length, models)
+    dec = RansDecoder(memoryview(blob)[pos:], c * length, models, use_native=False)
     table, _ = group_model_table(c, b, bits, mode)
     symbols = dec.decode_runs(table.ravel(), np.tile(lengths, c)).reshape(c, length)
     dec.finish()
@@ -94,7 +94,7 @@ def _decode_native(blob, c: int, length: int, b: int, bits, mins, maxs, mode: in
     """read_channel_set's decode and dequantisation in one C pass (no per-symbol model-id or
     symbol arrays); same model ids, checks and float64 arithmetic as the NumPy path."""
     models, pos = read_model_set(blob, 0)
-    dec = RansDecoder(memoryview(blob)[pos:], c * length, models)
+    dec = RansDecoder(memoryview(blob)[pos:], c * length, models, use_native=True)
     bits = np.asarray(bits, dtype=np.int64)
     if mode == MODEL_PER_GROUP:
         table = np.arange(c * b, dtype=np.int64)

@@ -57,9 +57,12 @@ def load_bytes(src):
 
 
 def guard(fn, path):
-    """Run fn(); turn any low-level error on malformed data into one GszFormatError naming the file."""
+    """Run fn() on the decoder path in force now (pinned for this thread, whatever other threads
+    switch meanwhile); turn any low-level error on malformed data into one GszFormatError naming
+    the file."""
     try:
-        return fn()
+        with native.pinned():
+            return fn()
     except GszError as e:
         if path and not e.path:
             raise type(e)(str(e), path) from None
@@ -363,7 +366,7 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
     m = gh.num_points
     pool = _worker()
     job = _GeometryJob(gh)
-    pending = pool.submit(job)
+    pending = pool.submit(native.carry(job))
     try:
         dc, ac, direct, sh_rest, codebook = _read_attributes_and_sh(chunks, header, state, m)
     except BaseException:
@@ -380,7 +383,7 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
     positions, ok_pos = gh.native_positions(job.codes)
     tree = pending.result()
     colour = _ColourJob(tree, dc, ac)
-    pending = pool.submit(colour)
+    pending = pool.submit(native.carry(colour))
     try:
         half = native_half_angles(tree, dc, ac)
         colour.half = half

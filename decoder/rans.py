@@ -700,7 +700,8 @@ class RansDecoder:
     be used and give the same result as one call.  ``finish()`` checks the end conditions.
     """
 
-    def __init__(self, payload: bytes | memoryview, num_symbols: int, models: ModelSet):
+    def __init__(self, payload: bytes | memoryview, num_symbols: int, models: ModelSet, *,
+                 use_native: bool | None = None):
         b = np.frombuffer(payload, dtype=np.uint8)
         n = int(num_symbols)
         lanes, words, p = parse_payload_header(b, n)
@@ -715,7 +716,9 @@ class RansDecoder:
         self._pos = 0            # index of the next symbol
         self._wpos = 0           # index of the next word
         self._models = models
-        self._native = native.enabled()
+        # the path is chosen once: a caller that checked native.enabled() passes its answer, so
+        # a toggle in another thread cannot leave a native-only call on a NumPy decoder
+        self._native = native.enabled() if use_native is None else bool(use_native) and native.native_available()
         if self._native:
             self._nt = models.native_tables(lut_budget(n))
         else:
@@ -1013,7 +1016,7 @@ def decode_stream_single(blob: bytes | memoryview, count: int) -> np.ndarray:
     if not native.enabled():
         return decode_stream(blob, np.zeros(count, dtype=np.int64))
     models, pos = read_model_set(blob, 0)
-    dec = RansDecoder(memoryview(blob)[pos:], count, models)
+    dec = RansDecoder(memoryview(blob)[pos:], count, models, use_native=True)
     out = np.empty(count, dtype=np.int64)
     if count:
         dec.decode_blocks(np.zeros(1, np.int64), 1, count, 1, out)
