@@ -22,6 +22,11 @@ class GszFormatError(GszError, ValueError):
     """A .gsz bitstream is corrupt, truncated, hostile or of an unsupported version."""
 
 
+class GszLimitError(GszFormatError):
+    """A .gsz file declares more Gaussians than the decoder's limit allows: a decompression
+    bomb, or a trusted file that needs a larger ``max_gaussians`` (GSZ.md §11)."""
+
+
 class GszTruncatedError(GszFormatError):
     """A .gsz file ends before its last chunk (a download cut short, a partial copy).
     ``decode(..., partial=True)`` decodes the complete layers of such a file instead."""
