@@ -425,9 +425,9 @@ def concat_clouds(parts: list, sh_degree: int | None = None) -> GaussianCloud:
 
 #: The default limit on declared Gaussians per byte (GSZ.md §11): applied to the header's count
 #: against the file's length and to each part's M against its chunks' bytes.  Real files hold
-#: at most ~0.4 Gaussians per byte (1-bit attributes, no pruning; size-searched files 0.01-0.18),
-#: while a full octree with constant attributes holds thousands (a 965-byte valid file decodes
-#: to 2.1 M Gaussians): 32 keeps a margin of ~80 over the densest real file.
+#: at most ~0.7 Gaussians per byte (1-bit attributes, no pruning, a coarse grid; size-searched
+#: files 0.01-0.18), while a full octree with constant attributes holds hundreds (an 11 kB valid
+#: file decodes to 2.1 M Gaussians): 32 keeps a margin of ~45 over the densest real file.
 GAUSSIANS_PER_BYTE = 32
 _RAISE_IT = "if the file is trusted, pass max_gaussians= (--max-gaussians) to decode it"
 
