@@ -48,3 +48,9 @@ class CameraFormatError(GszError, ValueError):
 class GszTruncatedWarning(UserWarning):
     """A .gsz stream ended early: only its complete layers were decoded (the documented
     truncation signal of :class:`gsz.decoder.stream.StreamDecoder` and ``decode(partial=True)``)."""
+
+
+class GszInputWarning(UserWarning):
+    """An input scene held something gsz fixed or ignored to encode the rest well (an absurd
+    value clamped, a far-away Gaussian dropped, vertices after the ones a PLY header declares);
+    the message names the file, the property and the count."""
