@@ -885,7 +885,8 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
         result = _encode_stage(cloud, opts, importance, executor, progress, t_start)
     finally:
         executor.close()
-    result.report["input_fixes"] = fixes_report(fixes)
+    if fixes:                  # only then: the reports of clean scenes stay as they were
+        result.report["input_fixes"] = fixes_report(fixes)
     return result
 
 

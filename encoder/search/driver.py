@@ -67,7 +67,8 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
             result = search.run(importance, cameras)
     finally:
         executor.close()
-    result.report["input_fixes"] = fixes_report(fixes)
+    if fixes:                  # only then: the reports of clean scenes stay as they were
+        result.report["input_fixes"] = fixes_report(fixes)
     return result
 
 
