@@ -1,14 +1,15 @@
 """Time and peak RSS of decoding each hostile file of tests/data/bombs/ on both decoder paths
 (issue 19: each must be decoded or rejected within 5 s and 1.5 GB, with default limits).
 
-    .venv/bin/python bench/bench_bombs.py [--max-gaussians N] [more.gsz ...]
+    .venv/bin/python bench/bench_bombs.py [--max-gaussians N] [--amplified] [more.gsz ...]
 
 One fresh process per (file, path, limit), so the peak RSS is that decode's own; each runs under
 an 8 GiB address-space cap and a 120 s timeout, so a regression shows as a row, not a dead
 machine.  ``--max-gaussians N`` adds a row per file and path decoded with that explicit limit,
 which replaces the default Gaussians-per-byte limit (GSZ.md §11): the checks behind it (ChannelSet
 C and L, octree before attributes, model counts, body sizes, lanes) then decide, and a valid bomb
-decodes.  Exits 1 if any default-limit row misses the 5 s / 1.5 GB bound.
+decodes.  ``--amplified`` adds the larger bombs ``make_bombs.amplified()`` builds (written to a
+temporary folder, not committed).  Exits 1 if any default-limit row misses the 5 s / 1.5 GB bound.
 """
 from __future__ import annotations
 
@@ -56,8 +57,17 @@ def main(argv=None) -> int:
     p.add_argument("files", nargs="*", type=Path, help="files to decode (default: tests/data/bombs/*.gsz)")
     p.add_argument("--max-gaussians", type=int, default=None, metavar="N",
                    help="also decode each file with this explicit limit")
+    p.add_argument("--amplified", action="store_true", help="also the larger, uncommitted bombs")
     a = p.parse_args(argv)
     files = a.files or sorted((ROOT / "tests" / "data" / "bombs").glob("*.gsz"))
+    if a.amplified:
+        # built in a child process: building them here would raise this process's peak RSS,
+        # which the decode children inherit in ru_maxrss
+        import tempfile
+        tmp = Path(tempfile.mkdtemp(prefix="gsz-bombs-"))
+        subprocess.run([sys.executable, str(ROOT / "tests" / "data" / "bombs" / "make_bombs.py"), "--amplified",
+                        str(tmp)], check=True, capture_output=True)
+        files += sorted(tmp.glob("*.gsz"))
     limits = [None] + ([a.max_gaussians] if a.max_gaussians else [])
     ok = True
     print(f"{'file':32} {'bytes':>6} {'limit':>9} {'path':7} {'seconds':>8} {'peak MB':>8}  outcome")

@@ -136,7 +136,24 @@ def bombs() -> dict:
     return out
 
 
+def amplified() -> dict:
+    """{file name: bytes} of larger bombs, built on demand (``bench/bench_bombs.py --amplified``),
+    not committed: 256 layers of 8 Gaussians whose two ATTR streams declare 2^20 models each
+    (106 kB; before issue 19's model-count rule: 30 s native, 50 s NumPy), and the issue's
+    965-byte full octree of 2^21 Gaussians with one-lane streams (NumPy: 6.8 s)."""
+    geom = geom_chunk(1, 8, full_octree(1))
+    ac = single_models_stream(7, empty=(1 << 20) - 7, zstd=True)
+    sc = single_models_stream(3, empty=(1 << 20) - 3, zstd=True)
+    attr = bytes([0, 7]) + struct.pack("<7d", *[0.0] * 7) + channel_set(7, 7, ac) + channel_set(3, 8, sc)
+    d, m = 7, 8 ** 7
+    return {"models_2e20_x512_streams.gsz": gsz(8, geom, attr, layers=256),
+            "one_lane_full_octree_2e21.gsz": gsz(m, geom_chunk(d, m, full_octree(d)), attr_chunk(m))}
+
+
 if __name__ == "__main__":
-    for name, data in bombs().items():
-        (HERE / name).write_bytes(data)
+    # python make_bombs.py [--amplified DIR]: this folder's bombs, or the larger ones into DIR
+    amp = sys.argv[1:2] == ["--amplified"]
+    out_dir = Path(sys.argv[2]) if amp else HERE
+    for name, data in (amplified() if amp else bombs()).items():
+        (out_dir / name).write_bytes(data)
         print(f"{name}: {len(data)} bytes")
