@@ -14,6 +14,14 @@ def _fail(prog: str, e: Exception) -> int:
     return 2
 
 
+def add_max_gaussians(p: argparse.ArgumentParser) -> None:
+    """The --max-gaussians option of gsz-decode, gsz-info and gsz-view."""
+    from .layer import GAUSSIANS_PER_BYTE
+    p.add_argument("--max-gaussians", type=int, default=None, metavar="N",
+                   help="accept files of up to N Gaussians whatever their size (default: reject more "
+                        f"than 2^28, or more than {GAUSSIANS_PER_BYTE} per byte of the file: a decompression bomb)")
+
+
 def decode_main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="gsz-decode", description="Decode a .gsz file to a 3DGS PLY.")
     p.add_argument("input", help="input .gsz file")
@@ -28,6 +36,7 @@ def decode_main(argv=None) -> int:
                    metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
                    help="decode only the Gaussians inside this box (and only the tiles that meet it)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    add_max_gaussians(p)
     a = p.parse_args(argv)
     from .io_util import sigterm_as_interrupt
     try:
@@ -77,7 +86,8 @@ def _decode_to_file(a):
         t0 = time.perf_counter()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", GszTruncatedWarning)
-            cloud = decode(a.input, layers=a.layers, partial=a.partial, tiles=tiles, region=region)
+            cloud = decode(a.input, layers=a.layers, partial=a.partial, tiles=tiles, region=region,
+                           max_gaussians=a.max_gaussians)
         dt = time.perf_counter() - t0
         for w in caught:
             if issubclass(w.category, GszTruncatedWarning):
@@ -99,10 +109,11 @@ def info_main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="gsz-info", description="Show the header and chunk table of a .gsz file.")
     p.add_argument("input", help="input .gsz file")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_max_gaussians(p)
     a = p.parse_args(argv)
     try:
         from .decode import inspect
-        info = inspect(a.input)
+        info = inspect(a.input, max_gaussians=a.max_gaussians)
     except GszError as e:
         return _fail("gsz-info", e)
     except KeyboardInterrupt:
@@ -144,6 +155,12 @@ def info_main(argv=None) -> int:
     opts = info.get("meta", {}).get("options")
     if opts:
         print("encoder     " + " ".join(f"{k}={v}" for k, v in sorted(opts.items())))
+    lim = info["limit"]
+    print(f"limit       {lim['max_gaussians']:,} Gaussians"
+          + (f" (default: {lim['per_byte']} per byte, at most 2^28)" if lim["per_byte"] else " (--max-gaussians)"))
+    if lim["exceeded"]:
+        print(f"gsz-info: warning: {info['file']}: gsz-decode would reject this file: {lim['exceeded']}",
+              file=sys.stderr)
     return 0
 
 

@@ -79,6 +79,8 @@ class Chunk:
 class Container:
     header: FileHeader
     chunks: list
+    #: the file length its chunk table declares (the end of the last chunk, 0 when unknown)
+    size: int = 0
 
     def get(self, ctype: bytes, layer: int = 0) -> Chunk:
         for c in self.chunks:
@@ -188,7 +190,7 @@ def read_container(buf, *, known_types=None, strict_length: bool = True) -> Cont
     end = entries[-1][4] + entries[-1][2] if entries else pos
     if strict_length and len(mv) != end:
         raise GszFormatError(f"{len(mv) - end} unexpected trailing bytes after the last chunk")
-    return Container(header=header, chunks=chunks)
+    return Container(header=header, chunks=chunks, size=end)
 
 
 def read_container_from_file(f, size: int, *, wanted, known_types=None) -> Container:
@@ -223,4 +225,4 @@ def read_container_from_file(f, size: int, *, wanted, known_types=None) -> Conta
         if zlib.crc32(data) != crc:
             raise GszFormatError(f"chunk {i} ({ctype.decode()}) checksum mismatch (file corrupt)")
         chunks.append(Chunk(type=ctype, data=memoryview(data), flags=cflags, offset=offset))
-    return Container(header=header, chunks=chunks)
+    return Container(header=header, chunks=chunks, size=end)

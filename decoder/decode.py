@@ -11,13 +11,14 @@ import struct
 
 import numpy as np
 
+from . import native
 from .cloud import GaussianCloud
-from .container import DEFAULT_MAX_GAUSSIANS, Container, read_container
+from .container import Container, read_container
 from .errors import GszError, GszFormatError, GszTruncatedError
 # LAYER_DATA_CHUNKS, open_gsz and the layer names stay importable from here (their old home)
-from .layer import (LAYER_DATA_CHUNKS, LayerState, _cores, check_header_counts, check_tile_complete,  # noqa: F401
-                    concat_clouds, decode_layer, guard, load_bytes, open_gsz, plan_layers, plan_parts,
-                    tile_table)
+from .layer import (GAUSSIANS_PER_BYTE, LAYER_DATA_CHUNKS, LayerState, _cores, check_header_counts,  # noqa: F401
+                    check_max_gaussians, check_tile_complete, concat_clouds, decode_layer, guard, load_bytes,
+                    open_gsz, plan_layers, plan_parts, tile_table)
 from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHVQ, CHUNK_TILE, KNOWN_CHUNKS
 from .tiles import check_region, select_tiles
 from .stream import StreamDecoder
@@ -63,32 +64,38 @@ def _nesting(obj) -> int:
     return deepest
 
 
-def _decode_tile(container: Container, parts: list, header, state: LayerState, overlap: bool) -> list:
+def _decode_tile(container: Container, parts: list, header, state: LayerState, overlap: bool,
+                 tiled: bool) -> list:
     """The clouds of one tile's ``parts`` (its layers in order; they share the tile's codebook)."""
     with np.errstate(over="ignore", invalid="ignore"):     # errstate is per thread
         return [decode_layer({t: container.chunks[i].data for t, i in p.chunks.items()}, header, state,
-                             overlap=overlap) for p in parts]
+                             overlap=overlap, label=part_label(p, tiled)) for p in parts]
+
+
+def part_label(part, tiled: bool) -> str:
+    """How messages name a part: "layer 2", or "layer 2, tile 5" in a tiled file."""
+    return f"layer {part.layer}, tile {part.tile}" if tiled else f"layer {part.layer}"
 
 
 def decode_parts(container: Container, plan, tiles: list, chosen: list, count: int,
-                 threads: int | None = None) -> list:
+                 threads: int | None = None, per_byte: int | None = GAUSSIANS_PER_BYTE) -> list:
     """Decode the first ``count`` layers of the ``chosen`` tiles; the parts' clouds in decoded
     order ((layer, tile) ascending).  Tiles decode in parallel threads (the native path releases
     the GIL); the error reported is the one of the first failing tile, as a sequential decode
-    would report it."""
+    would report it.  ``per_byte``: the default per-part limit (None: the caller's max_gaussians)."""
     h = container.header
     tiled = plan.tile_chunk is not None
-    states = {t: LayerState(limit=tiles[t].num_gaussians, what=f"tile {t}'s" if tiled else "the header's")
-              for t in chosen}
+    states = {t: LayerState(limit=tiles[t].num_gaussians, what=f"tile {t}'s" if tiled else "the header's",
+                            per_byte=per_byte) for t in chosen}
     by_tile = {t: [p for p in plan.parts if p.tile == t and p.layer < count] for t in chosen}
     workers = min(len(chosen), threads or _cores())
     if workers <= 1:
-        clouds = {t: _decode_tile(container, by_tile[t], h, states[t], True) for t in chosen}
+        clouds = {t: _decode_tile(container, by_tile[t], h, states[t], True, tiled) for t in chosen}
     else:
         from concurrent.futures import ThreadPoolExecutor
         with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="gsz-tile") as pool:
-            futures = {t: pool.submit(_decode_tile, container, by_tile[t], h, states[t], False)
-                       for t in chosen}
+            futures = {t: pool.submit(native.carry(_decode_tile), container, by_tile[t], h, states[t], False,
+                                      tiled) for t in chosen}
             for t in chosen:                        # the first failing tile's error
                 if futures[t].exception() is not None:
                     raise futures[t].exception()
@@ -100,12 +107,12 @@ def decode_parts(container: Container, plan, tiles: list, chosen: list, count: i
     return [clouds[t][k] for (_, t), k in order]
 
 
-def decode_container(container: Container, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS,
+def decode_container(container: Container, *, max_gaussians: int | None = None,
                      layers: int | None = None, tiles=None, region=None) -> GaussianCloud:
     """Decode the first ``layers`` layers (all when None) of a parsed, verified container,
     only the ``tiles`` / the tiles meeting ``region`` when given (see :func:`decode`)."""
     h = container.header
-    check_header_counts(h, max_gaussians)
+    check_header_counts(h, max_gaussians, container.size)
     plan = plan_parts(container.chunks, h.sh_degree)
     count = plan.num_layers if layers is None else int(layers)
     if not 1 <= count <= plan.num_layers:
@@ -116,7 +123,8 @@ def decode_container(container: Container, *, max_gaussians: int = DEFAULT_MAX_G
         chosen = select_tiles(table, tiles, region)
     except ValueError as e:
         raise GszError(str(e)) from None
-    cloud = concat_clouds(decode_parts(container, plan, table, chosen, count), h.sh_degree)
+    per_byte = GAUSSIANS_PER_BYTE if max_gaussians is None else None
+    cloud = concat_clouds(decode_parts(container, plan, table, chosen, count, per_byte=per_byte), h.sh_degree)
     if region is not None:
         lo, hi = (np.asarray(v, np.float32) for v in check_region(region))
         inside = np.all((cloud.positions >= lo) & (cloud.positions <= hi), axis=1)
@@ -126,7 +134,7 @@ def decode_container(container: Container, *, max_gaussians: int = DEFAULT_MAX_G
 
 
 def decode(src, *, layers: int | None = None, partial: bool = False,
-           max_gaussians: int = DEFAULT_MAX_GAUSSIANS, tiles=None, region=None) -> GaussianCloud:
+           max_gaussians: int | None = None, tiles=None, region=None) -> GaussianCloud:
     """Decode a .gsz file (path or bytes) into a :class:`GaussianCloud`.
 
     layers      decode only the first ``layers`` importance layers (None: all); the Gaussians
@@ -139,11 +147,17 @@ def decode(src, *, layers: int | None = None, partial: bool = False,
     partial     accept a truncated file: decode its complete layers and emit one
                 :class:`GszTruncatedWarning` (the default raises GszFormatError instead)
 
+    max_gaussians  None (default): reject a file declaring more than 2^28 Gaussians or more
+                than GAUSSIANS_PER_BYTE per byte of file (or of a part's chunks: GSZ.md §11),
+                which bounds the memory and time a small hostile file can cost; an int: accept
+                up to that many Gaussians, whatever the file's size (a trusted file)
+
     Raises GszFormatError for corrupt, truncated, hostile or unsupported files (checksums are
-    verified before any payload is interpreted) and GszError when the file cannot be read.
-    ``max_gaussians`` bounds what a hostile header can make the decoder allocate.
+    verified before any payload is interpreted; GszLimitError, a subclass, for a file above
+    the limit) and GszError when the file cannot be read.
     """
     path = None if isinstance(src, (bytes, bytearray, memoryview)) else os.fspath(src)
+    max_gaussians = check_max_gaussians(max_gaussians, path)
     if layers is not None and int(layers) < 1:
         raise GszError(f"layers must be >= 1, got {layers}", path)
     if region is not None:
@@ -191,7 +205,7 @@ def _decode_tiles_from_file(path: str, *, layers, tiles, region, max_gaussians) 
         def chosen_tiles():
             f.seek(0)
             c = read_container_from_file(f, size, wanted=lambda t, fl: t == CHUNK_TILE, known_types=KNOWN_CHUNKS)
-            check_header_counts(c.header, max_gaussians)
+            check_header_counts(c.header, max_gaussians, c.size)
             plan = plan_parts(c.chunks, c.header.sh_degree)
             table = tile_table(c.chunks[plan.tile_chunk].data if plan.tile_chunk is not None else None,
                                plan, c.header)
@@ -208,10 +222,12 @@ def _decode_tiles_from_file(path: str, *, layers, tiles, region, max_gaussians) 
         return decode_container(c, max_gaussians=max_gaussians, layers=layers, tiles=sorted(keep), region=region)
 
 
-def inspect(src) -> dict:
+def inspect(src, *, max_gaussians: int | None = None) -> dict:
     """Header fields, chunk table, layers, tiles and metadata of a .gsz file (checksums
-    verified), as a dict."""
+    verified), as a dict; ``limit`` says whether :func:`decode` with ``max_gaussians`` would
+    accept its counts (the file is still inspected when it would not)."""
     data, path = load_bytes(src)
+    max_gaussians = check_max_gaussians(max_gaussians, path)
 
     def run():
         c = read_container(data)
@@ -227,8 +243,34 @@ def inspect(src) -> dict:
             "layers": layer_table(c, plan),
             "tiles": tile_rows(c, plan),
             "meta": read_meta(c),
+            "limit": limit_verdict(c, plan, max_gaussians),
         }
     return guard(run, path)
+
+
+def limit_verdict(container: Container, plan, max_gaussians: int | None) -> dict:
+    """What decode(max_gaussians=...) decides about a parsed file's counts, before decoding:
+    {"max_gaussians": the limit on the header's count, "per_byte": the per-byte limit or None,
+    "exceeded": the message decode would raise, or None}."""
+    from .errors import GszLimitError
+    from .layer import DEFAULT_MAX_GAUSSIANS, check_part_density
+    h = container.header
+    if max_gaussians is None:
+        cap = min(DEFAULT_MAX_GAUSSIANS, GAUSSIANS_PER_BYTE * container.size)
+        out = {"max_gaussians": cap, "per_byte": GAUSSIANS_PER_BYTE, "exceeded": None}
+    else:
+        out = {"max_gaussians": max_gaussians, "per_byte": None, "exceeded": None}
+    tiled = plan.tile_chunk is not None
+    try:
+        if h.num_gaussians:
+            check_header_counts(h, max_gaussians, container.size)
+        for p in plan.parts:
+            state = LayerState(limit=h.num_gaussians, per_byte=out["per_byte"])
+            check_part_density(_part_points(container, p), {t: container.chunks[i].data for t, i in p.chunks.items()},
+                               state, part_label(p, tiled))
+    except GszLimitError as e:
+        out["exceeded"] = str(e)
+    return out
 
 
 def _part_points(container: Container, part) -> int:

@@ -22,6 +22,11 @@ class GszFormatError(GszError, ValueError):
     """A .gsz bitstream is corrupt, truncated, hostile or of an unsupported version."""
 
 
+class GszLimitError(GszFormatError):
+    """A .gsz file declares more Gaussians than the decoder's limit allows: a decompression
+    bomb, or a trusted file that needs a larger ``max_gaussians`` (GSZ.md §11)."""
+
+
 class GszTruncatedError(GszFormatError):
     """A .gsz file ends before its last chunk (a download cut short, a partial copy).
     ``decode(..., partial=True)`` decodes the complete layers of such a file instead."""
@@ -43,3 +48,9 @@ class CameraFormatError(GszError, ValueError):
 class GszTruncatedWarning(UserWarning):
     """A .gsz stream ended early: only its complete layers were decoded (the documented
     truncation signal of :class:`gsz.decoder.stream.StreamDecoder` and ``decode(partial=True)``)."""
+
+
+class GszInputWarning(UserWarning):
+    """An input scene held something gsz fixed or ignored to encode the rest well (an absurd
+    value clamped, a far-away Gaussian dropped, vertices after the ones a PLY header declares);
+    the message names the file, the property and the count."""

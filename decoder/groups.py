@@ -54,6 +54,12 @@ def group_model_table(num_channels: int, num_blocks: int, bits=None,
     return table, num_channels * 16
 
 
+def model_count(num_channels: int, num_blocks: int, mode: int) -> int:
+    """The most models a channel set's stream may hold: the ids its model mode can name
+    (GSZ.md §5; a stream with more only costs the decoder work)."""
+    return num_channels * (num_blocks if mode == MODEL_PER_GROUP else 16)
+
+
 def read_channel_set(r: Reader, *, max_length: int, shape: tuple | None = None,
                      name: str = "channel set") -> np.ndarray:
     """Parse one quantised channel set from ``r``; returns the dequantised float64 [C, L].
@@ -82,8 +88,8 @@ def read_channel_set(r: Reader, *, max_length: int, shape: tuple | None = None,
         return _decode_native(blob, c, length, b, bits, mins, maxs, mode)
     # decode_stream(blob, group_model_ids(...)) one group (a run of one model) at a time
     lengths = split_lengths(length, b)
-    models, pos = read_model_set(blob, 0)
-    dec = RansDecoder(memoryview(blob)[pos:], c * length, models)
+    models, pos = read_model_set(blob, 0, max_models=model_count(c, b, mode), num_symbols=c * length)
+    dec = RansDecoder(memoryview(blob)[pos:], c * length, models, use_native=False)
     table, _ = group_model_table(c, b, bits, mode)
     symbols = dec.decode_runs(table.ravel(), np.tile(lengths, c)).reshape(c, length)
     dec.finish()
@@ -93,8 +99,8 @@ def read_channel_set(r: Reader, *, max_length: int, shape: tuple | None = None,
 def _decode_native(blob, c: int, length: int, b: int, bits, mins, maxs, mode: int) -> np.ndarray:
     """read_channel_set's decode and dequantisation in one C pass (no per-symbol model-id or
     symbol arrays); same model ids, checks and float64 arithmetic as the NumPy path."""
-    models, pos = read_model_set(blob, 0)
-    dec = RansDecoder(memoryview(blob)[pos:], c * length, models)
+    models, pos = read_model_set(blob, 0, max_models=model_count(c, b, mode), num_symbols=c * length)
+    dec = RansDecoder(memoryview(blob)[pos:], c * length, models, use_native=True)
     bits = np.asarray(bits, dtype=np.int64)
     if mode == MODEL_PER_GROUP:
         table = np.arange(c * b, dtype=np.int64)

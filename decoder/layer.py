@@ -20,8 +20,8 @@ from . import native
 from .attributes import (attributes_from_coefficients, native_half_angles, native_opacity_dc,
                          native_rotations, native_scales, native_tree, parse_attributes)
 from .cloud import GaussianCloud
-from .container import LAYER_SHIFT, TILE_SHIFT, Chunk
-from .errors import GszError, GszFormatError
+from .container import DEFAULT_MAX_GAUSSIANS, LAYER_SHIFT, TILE_SHIFT, Chunk
+from .errors import GszError, GszFormatError, GszLimitError
 from .geometry import read_geometry_header
 from .io_util import check_input_file
 from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHVQ, CHUNK_TILE
@@ -57,9 +57,12 @@ def load_bytes(src):
 
 
 def guard(fn, path):
-    """Run fn(); turn any low-level error on malformed data into one GszFormatError naming the file."""
+    """Run fn() on the decoder path in force now (pinned for this thread, whatever other threads
+    switch meanwhile); turn any low-level error on malformed data into one GszFormatError naming
+    the file."""
     try:
-        return fn()
+        with native.pinned():
+            return fn()
     except GszError as e:
         if path and not e.path:
             raise type(e)(str(e), path) from None
@@ -205,9 +208,12 @@ class LayerState:
     """What decoding the next layer of one tile needs from the layers before it.
 
     limit      Gaussians this tile's parts may hold in all (the header's count without tiles)
-    what       how messages name the limit ("the header's", "tile 3's")"""
+    what       how messages name the limit ("the header's", "tile 3's")
+    per_byte   the default Gaussians-per-byte limit of each part (None: the caller gave
+               max_gaussians, which replaces the default limits)"""
     limit: int
     what: str = "the header's"
+    per_byte: int | None = None
     decoded_points: int = 0
     codebook: np.ndarray | None = None      # the tile's SH codebook [D, K_cb], once seen
 
@@ -277,7 +283,8 @@ def _read_attributes_and_sh(chunks: dict, header, state: LayerState, m: int):
     return dc, ac, direct, sh_rest, codebook
 
 
-def decode_layer(chunks: dict, header, state: LayerState, *, overlap: bool = True) -> GaussianCloud:
+def decode_layer(chunks: dict, header, state: LayerState, *, overlap: bool = True,
+                 label: str = "layer") -> GaussianCloud:
     """Decode one part (a layer of a tile) from its chunk payloads {type: bytes-like}; updates
     ``state``.
 
@@ -291,6 +298,7 @@ def decode_layer(chunks: dict, header, state: LayerState, *, overlap: bool = Tru
         raise GszFormatError(f"layers hold more Gaussians than {state.what} {state.limit}")
     gh = read_geometry_header(chunks[CHUNK_GEOM], max_points=room)
     m = gh.num_points
+    check_part_density(m, chunks, state, label)
     if (overlap and native.enabled() and m >= OVERLAP_MIN_POINTS and _cores() >= 2
             and m <= OVERLAP_MAX_POINTS_PER_BYTE * sum(len(v) for v in chunks.values())):
         cloud = _decode_layer_overlapped(chunks, header, state, gh)
@@ -363,7 +371,7 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
     m = gh.num_points
     pool = _worker()
     job = _GeometryJob(gh)
-    pending = pool.submit(job)
+    pending = pool.submit(native.carry(job))
     try:
         dc, ac, direct, sh_rest, codebook = _read_attributes_and_sh(chunks, header, state, m)
     except BaseException:
@@ -380,7 +388,7 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
     positions, ok_pos = gh.native_positions(job.codes)
     tree = pending.result()
     colour = _ColourJob(tree, dc, ac)
-    pending = pool.submit(colour)
+    pending = pool.submit(native.carry(colour))
     try:
         half = native_half_angles(tree, dc, ac)
         colour.half = half
@@ -415,8 +423,51 @@ def concat_clouds(parts: list, sh_degree: int | None = None) -> GaussianCloud:
                          sh_degree=parts[0].sh_degree)
 
 
-def check_header_counts(h, max_gaussians: int) -> None:
-    if h.num_gaussians > max_gaussians:
-        raise GszFormatError(f"declares {h.num_gaussians} Gaussians, above the decoder limit {max_gaussians}")
-    if h.num_gaussians == 0:
+#: The default limit on declared Gaussians per byte (GSZ.md §11): applied to the header's count
+#: against the file's length and to each part's M against its chunks' bytes.  Real files hold
+#: at most ~0.7 Gaussians per byte (1-bit attributes, no pruning, a coarse grid; size-searched
+#: files 0.01-0.18), while a full octree with constant attributes holds hundreds (an 11 kB valid
+#: file decodes to 2.1 M Gaussians): 32 keeps a margin of ~45 over the densest real file.
+GAUSSIANS_PER_BYTE = 32
+_RAISE_IT = "if the file is trusted, pass max_gaussians= (--max-gaussians) to decode it"
+
+
+def check_max_gaussians(max_gaussians, source=None):
+    """``max_gaussians`` as given to decode/StreamDecoder/inspect: None (the default limits) or
+    a positive int; GszError naming ``source`` otherwise."""
+    if max_gaussians is None:
+        return None
+    if isinstance(max_gaussians, bool) or not isinstance(max_gaussians, (int, np.integer)) or max_gaussians < 1:
+        raise GszError(f"max_gaussians must be a positive integer or None, got {max_gaussians!r}", source)
+    return int(max_gaussians)
+
+
+def check_header_counts(h, max_gaussians: int | None, file_bytes: int | None = None) -> None:
+    """The header's num_gaussians: >= 1, then within ``max_gaussians`` when the caller gave
+    one, else within DEFAULT_MAX_GAUSSIANS and (once ``file_bytes``, the length the chunk table
+    declares, is known) GAUSSIANS_PER_BYTE per byte of file (GSZ.md §3, §11)."""
+    n = h.num_gaussians
+    if n == 0:
         raise GszFormatError("declares zero Gaussians")
+    if max_gaussians is not None:
+        if n > max_gaussians:
+            raise GszLimitError(f"declares {n:,} Gaussians, above the decoder limit {max_gaussians:,} (max_gaussians)")
+        return
+    if n > DEFAULT_MAX_GAUSSIANS:
+        raise GszLimitError(f"declares {n:,} Gaussians, above the decoder limit {DEFAULT_MAX_GAUSSIANS:,}; {_RAISE_IT}")
+    if file_bytes is not None and n > GAUSSIANS_PER_BYTE * file_bytes:
+        raise GszLimitError(
+            f"declares {n:,} Gaussians in a {file_bytes:,}-byte file ({n / file_bytes:,.0f} per byte), above "
+            f"the default limit of {GAUSSIANS_PER_BYTE} per byte ({GAUSSIANS_PER_BYTE * file_bytes:,}); {_RAISE_IT}")
+
+
+def check_part_density(m: int, chunks: dict, state: "LayerState", label: str) -> None:
+    """A part's M against its chunks' bytes under the default limit (GSZ.md §11), before its
+    octree is decoded: a streaming reader decodes a part before the file's length is proven."""
+    if state.per_byte is None:
+        return
+    nbytes = sum(len(v) for v in chunks.values())
+    if m > state.per_byte * nbytes:
+        raise GszLimitError(
+            f"{label}: {m:,} Gaussians in {nbytes:,} bytes of chunks ({m / max(1, nbytes):,.0f} per byte), above "
+            f"the default limit of {state.per_byte} per byte; {_RAISE_IT}")

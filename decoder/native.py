@@ -6,7 +6,13 @@ integer arithmetic and gives bit-identical output, about 10x faster.  It is used
 
 * it was built and imports (a stale build with another ABI number is ignored), and
 * the environment variable ``GSZ_NATIVE`` is not ``0`` when gsz is imported, and
-* :func:`set_enabled` has not switched it off (tests compare both paths in one process).
+* :func:`set_enabled` has not switched it off (tests compare both paths in one process), and
+* the calling thread is not inside :func:`numpy_only`.
+
+The choice is made once per decode: :func:`pinned` (entered by ``decode``, ``StreamDecoder.feed``
+and the stream helpers) fixes it for the calling thread, and :func:`carry` hands it to the
+decoder's worker threads, so a ``set_enabled`` or ``numpy_only`` in another thread never switches
+paths in the middle of a decode (which mixed the two paths' objects: issue 19).
 
 Nothing here changes the bitstream: both paths read and write identical bytes.
 """
@@ -15,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
+import threading
 
 import numpy as np
 
@@ -44,6 +51,8 @@ else:
             _why_not = f"stale extension build (ABI {getattr(_candidate, 'ABI', None)}, want {ABI})"
 
 _enabled = _module is not None
+#: per-thread override of _enabled (``path``: None, or the bool in force for this thread)
+_local = threading.local()
 
 
 def native_available() -> bool:
@@ -52,13 +61,14 @@ def native_available() -> bool:
 
 
 def enabled() -> bool:
-    """True when decoding (and octree encoding) currently use the C accelerator."""
-    return _enabled
+    """True when decoding (and octree encoding) on this thread currently use the C accelerator."""
+    own = getattr(_local, "path", None)
+    return _enabled if own is None else own
 
 
 def active_path() -> str:
-    """``"native"`` or ``"numpy"``: which implementation decoding uses now."""
-    return "native" if _enabled else "numpy"
+    """``"native"`` or ``"numpy"``: which implementation decoding on this thread uses now."""
+    return "native" if enabled() else "numpy"
 
 
 def unavailable_reason() -> str:
@@ -67,7 +77,8 @@ def unavailable_reason() -> str:
 
 
 def set_enabled(flag: bool) -> bool:
-    """Use the accelerator (if available) or force the NumPy reference; returns the old setting."""
+    """Use the accelerator (if available) or force the NumPy reference, process-wide (threads
+    inside :func:`numpy_only` or a pinned decode keep theirs); returns the old setting."""
     global _enabled
     old = _enabled
     _enabled = bool(flag) and _module is not None
@@ -75,13 +86,38 @@ def set_enabled(flag: bool) -> bool:
 
 
 @contextlib.contextmanager
-def numpy_only():
-    """Context manager: the NumPy reference path inside the block (process-wide, not per thread)."""
-    old = set_enabled(False)
+def _thread_path(flag: bool | None):
+    """This thread's override set to ``flag`` inside the block (None: no override)."""
+    old = getattr(_local, "path", None)
+    _local.path = flag
     try:
         yield
     finally:
-        set_enabled(old)
+        _local.path = old
+
+
+def numpy_only():
+    """Context manager: the NumPy reference path inside the block, on the calling thread only
+    (other threads' decodes keep their path)."""
+    return _thread_path(False)
+
+
+def pinned():
+    """Context manager: the path in force now stays in force on this thread for the block
+    (a decode's entry point; nested pins keep the outer one)."""
+    own = getattr(_local, "path", None)
+    return _thread_path(_enabled if own is None else own)
+
+
+def carry(fn):
+    """``fn`` wrapped to run with the calling thread's current path on whatever thread calls
+    it (the decoder's worker threads follow the decode that submitted the work)."""
+    flag = enabled()
+
+    def run(*args, **kwargs):
+        with _thread_path(flag):
+            return fn(*args, **kwargs)
+    return run
 
 
 def module():

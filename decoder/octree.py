@@ -49,7 +49,7 @@ import numpy as np
 from gsz.decoder import native
 from gsz.decoder.errors import GszFormatError
 from gsz.decoder.morton import MAX_DEPTH, morton_decode
-from gsz.decoder.rans import (COARSE, ModelSet, RansDecoder, lut_budget, parse_payload_header,
+from gsz.decoder.rans import (COARSE, OCTREE_MAX_ROWS, ModelSet, RansDecoder, lut_budget, parse_payload_header,
                               read_varint)
 
 # ---------------------------------------------------------------- model constants (normative)
@@ -571,12 +571,12 @@ def decode_octree_codes(payload, depth: int, num_points: int, helper=None) -> np
     if native.enabled() and num_points <= native.module().MAX_POINTS:
         # the payload header is validated here exactly as RansDecoder does (ENTROPY.md 4.1);
         # the C code re-checks what it relies on
-        lanes, _, p = parse_payload_header(body, num_symbols)
+        lanes, _, p = parse_payload_header(body, num_symbols, OCTREE_MAX_ROWS)
         tables = native.octree_tables(bank_precision(num_symbols))
         raw = native.module().octree_decode(tables, int(depth), int(num_points), int(num_symbols),
                                             int(lanes), body[p:], helper)
         return np.frombuffer(raw, dtype="<u8").astype(np.uint64, copy=False)
-    dec = RansDecoder(body, num_symbols, bank_model_set(num_symbols))
+    dec = RansDecoder(body, num_symbols, bank_model_set(num_symbols), max_rows=OCTREE_MAX_ROWS)
     # the bank's binary row loop (model ids come from P16_TO_MODEL: valid by construction);
     # its symbols are 0/1 by construction too
     read = dec.binary_reader()

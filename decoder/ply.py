@@ -16,7 +16,7 @@ import warnings
 import numpy as np
 
 from .cloud import SH_REST_COUNT, GaussianCloud
-from .errors import PlyFormatError
+from .errors import GszInputWarning, PlyFormatError
 from .io_util import atomic_write, check_input_file
 
 _BASE = ["x", "y", "z"]
@@ -45,6 +45,7 @@ def read_ply(path, *, check_finite: bool = True) -> GaussianCloud:
                 raise PlyFormatError("not a PLY file (missing 'ply' magic line)", path)
             f.seek(0)
             ply = PlyData.read(f)
+            _warn_undeclared_data(f, ply, path)
     except PlyFormatError:
         raise
     except (PlyParseError, ValueError, EOFError, OSError, IndexError, KeyError) as e:
@@ -120,6 +121,30 @@ def read_ply(path, *, check_finite: bool = True) -> GaussianCloud:
                     f"property '{prop}' has {int(bad[:, c].sum())} non-finite values "
                     f"(first at vertex {int(r)})", path)
     return cloud
+
+
+def _warn_undeclared_data(f, ply, path: str) -> None:
+    """Warn (GszInputWarning) when data follow the elements the header declares: a header that
+    claims fewer vertices than the file holds would otherwise drop the rest silently."""
+    names = [el.name for el in ply.elements]
+    n = len(ply["vertex"].data) if "vertex" in names else 0
+    if ply.text:
+        with open(path, "rb") as again:      # plyfile reads text through a wrapper of f
+            raw = again.read()
+        head = raw.find(b"end_header")
+        lines = sum(1 for ln in raw[raw.index(b"\n", head) + 1:].splitlines() if ln.strip()) if head >= 0 else 0
+        extra = lines - sum(len(el.data) for el in ply.elements)
+        what = f"{extra:,} more data lines"
+    else:
+        extra = os.fstat(f.fileno()).st_size - f.tell()
+        vertex_last = names and names[-1] == "vertex"
+        item = ply["vertex"].data.dtype.itemsize if vertex_last else 0
+        what = (f"{extra:,} more bytes ({extra // item:,} vertices' worth)" if item and extra % item == 0
+                else f"{extra:,} more bytes")
+    if extra > 0:
+        warnings.warn(GszInputWarning(
+            f"{path}: the header declares {n:,} vertices ('element vertex {n}') but the file holds {what} "
+            "after them: ignored; fix the header if they belong to the scene"), stacklevel=3)
 
 
 def _rest_prop_name(flat_col: int, k: int) -> str:

@@ -37,6 +37,14 @@ MAX_MODELS = 1 << 20
 MAX_TABLE_BYTES = 1 << 24    # decompressed model-set body limit (hostile zstd frames)
 MIN_LUT_BUDGET = 1 << 16     # sum over used models of 2**n_m <= max(MIN_LUT_BUDGET, 4 * N)
 LUT_PER_SYMBOL = 4
+# Lanes a payload of N symbols needs: L >= min(LANES_REQUIRED_CAP, ceil(N / max_rows)), so that
+# the decoder steps through at most max_rows rows of lanes (a one-lane stream of millions of free
+# SINGLE symbols forced the NumPy decoder into a per-symbol loop: issue 19); max_rows is
+# MAX_ROWS for a RansStream, OCTREE_MAX_ROWS for the octree payload (its encoder's 16384 symbols
+# per lane round down).
+MAX_ROWS = 8192
+OCTREE_MAX_ROWS = 32768
+LANES_REQUIRED_CAP = 4096
 
 # model types
 EMPTY, SINGLE, COARSE, LAPLACE = 0, 1, 2, 3
@@ -502,8 +510,16 @@ def _normalise_all(w: np.ndarray, k: np.ndarray, prec: np.ndarray) -> np.ndarray
 _ZSTD = threading.local()     # one decompression context per thread (~20 us to create)
 
 
-def _unzstd(frame: bytes) -> bytes:
-    """Decompress exactly one zstd frame that declares its content size (<= MAX_TABLE_BYTES)."""
+def body_bound(max_models: int, num_symbols: int) -> int:
+    """Longest valid model-set body with at most ``max_models`` models for a stream of
+    ``num_symbols`` symbols (ENTROPY.md 3.1): every varint <= 9 bytes (7 varint columns per
+    model, 2 ratio bytes) and Σ nbins <= lut_budget(N) (each bin holds >= 1 value of 2**n)."""
+    return 9 + 65 * int(max_models) + 18 * lut_budget(num_symbols)
+
+
+def _unzstd(frame: bytes, limit: int = MAX_TABLE_BYTES) -> bytes:
+    """Decompress exactly one zstd frame that declares its content size (<= ``limit``), the
+    size checked before anything is decompressed."""
     import zstandard
     dctx = getattr(_ZSTD, "dctx", None)
     if dctx is None:
@@ -513,6 +529,9 @@ def _unzstd(frame: bytes) -> bytes:
         if size == zstandard.CONTENTSIZE_UNKNOWN or size > MAX_TABLE_BYTES:
             raise GszFormatError(f"rANS model set: zstd frame content size {size} missing or "
                                  f"above {MAX_TABLE_BYTES}")
+        if size > limit:
+            raise GszFormatError(f"rANS model set: zstd frame content size {size} above {limit}, "
+                                 "the longest valid body for this stream")
         out = dctx.decompress(frame, max_output_size=MAX_TABLE_BYTES, allow_extra_data=False)
         if size == 0:
             # allow_extra_data=False does not see bytes after an empty frame (zstandard 0.25)
@@ -529,9 +548,14 @@ def _unzstd(frame: bytes) -> bytes:
     return out
 
 
-def read_model_set(buf: memoryview | bytes, pos: int = 0) -> tuple[ModelSet, int]:
+def read_model_set(buf: memoryview | bytes, pos: int = 0, *, max_models: int | None = None,
+                   num_symbols: int | None = None) -> tuple[ModelSet, int]:
     """Parse a model set (ENTROPY.md section 3) starting at ``pos``.
 
+    max_models   the most models the stream's use can name (ChannelSet: C*B or 16*C; SHVQ
+                 streams: 1), None: MAX_MODELS; more is rejected before the models are read
+    num_symbols  the stream's N when known: a body longer than any valid one for N and
+                 max_models (:func:`body_bound`) is rejected before it is decompressed
     Returns (ModelSet, position after it).  Decoding tables are built lazily by the decoder.
     """
     b = np.frombuffer(buf, dtype=np.uint8)
@@ -541,8 +565,18 @@ def read_model_set(buf: memoryview | bytes, pos: int = 0) -> tuple[ModelSet, int
         raise GszFormatError(f"rANS model set: {length} bytes declared, {b.size - pos} available")
     raw = bytes(b[pos:pos + length])
     pos += length
+    cap = MAX_MODELS if max_models is None else min(MAX_MODELS, int(max_models))
+    limit = MAX_TABLE_BYTES if num_symbols is None else body_bound(cap, num_symbols)
     if compressed:
-        raw = _unzstd(raw)
+        raw = _unzstd(raw, min(limit, MAX_TABLE_BYTES))
+    elif len(raw) > limit:
+        raise GszFormatError(f"rANS model set: body of {len(raw)} bytes, above {limit}, "
+                             "the longest valid body for this stream")
+    if max_models is not None:
+        m_count = read_varint(np.frombuffer(raw, dtype=np.uint8), 0, "model count")[0]
+        if m_count > max_models:
+            raise GszFormatError(f"rANS model set: {m_count} models, more than the {max_models} "
+                                 "its use can name")
     if native.enabled():
         # the C parser makes the same accept/reject decision and the same arrays; on a reject it
         # returns None and the NumPy parser below raises the normative message (~0.5 ms of
@@ -676,10 +710,15 @@ def lut_budget(num_symbols: int) -> int:
     return max(MIN_LUT_BUDGET, LUT_PER_SYMBOL * int(num_symbols))
 
 
-def parse_payload_header(b: np.ndarray, num_symbols: int) -> tuple[int, int, int]:
+def min_lanes(num_symbols: int, max_rows: int = MAX_ROWS) -> int:
+    """Fewest lanes a payload of ``num_symbols`` may have (ENTROPY.md 4.1)."""
+    return min(LANES_REQUIRED_CAP, -(-int(num_symbols) // int(max_rows)))
+
+
+def parse_payload_header(b: np.ndarray, num_symbols: int, max_rows: int = MAX_ROWS) -> tuple[int, int, int]:
     """Lane count L, word count W and the offset of the initial states of a payload (ENTROPY.md
-    section 4.1), with its checks: 1 <= L <= max(1, N), exactly 4 L + 2 W bytes after the two
-    varints.  b: uint8 array of the whole payload."""
+    section 4.1), with its checks: min_lanes(N, max_rows) <= L <= max(1, N), exactly 4 L + 2 W
+    bytes after the two varints.  b: uint8 array of the whole payload."""
     n = int(num_symbols)
     if n < 0:
         raise GszFormatError("rANS: negative symbol count")
@@ -687,6 +726,9 @@ def parse_payload_header(b: np.ndarray, num_symbols: int) -> tuple[int, int, int
     words, p = read_varint(b, p, "word count")
     if lanes < 1 or lanes > max(1, n):
         raise GszFormatError(f"rANS: lane count {lanes} invalid for {n} symbols")
+    if lanes < min_lanes(n, max_rows):
+        raise GszFormatError(f"rANS: {lanes} lanes for {n} symbols, fewer than the "
+                             f"{min_lanes(n, max_rows)} required (at most {max_rows} symbols per lane)")
     if 4 * lanes + 2 * words != b.size - p:
         raise GszFormatError(f"rANS: payload holds {b.size - p} bytes after its header, "
                              f"expected {4 * lanes} state + {2 * words} word bytes")
@@ -700,10 +742,11 @@ class RansDecoder:
     be used and give the same result as one call.  ``finish()`` checks the end conditions.
     """
 
-    def __init__(self, payload: bytes | memoryview, num_symbols: int, models: ModelSet):
+    def __init__(self, payload: bytes | memoryview, num_symbols: int, models: ModelSet, *,
+                 use_native: bool | None = None, max_rows: int = MAX_ROWS):
         b = np.frombuffer(payload, dtype=np.uint8)
         n = int(num_symbols)
-        lanes, words, p = parse_payload_header(b, n)
+        lanes, words, p = parse_payload_header(b, n, max_rows)
         self._states = np.frombuffer(b, dtype="<u4", count=lanes, offset=p).astype(np.int64)
         if np.any(self._states < STATE_LOW):
             raise GszFormatError("rANS: initial state below 2**16")
@@ -715,7 +758,9 @@ class RansDecoder:
         self._pos = 0            # index of the next symbol
         self._wpos = 0           # index of the next word
         self._models = models
-        self._native = native.enabled()
+        # the path is chosen once: a caller that checked native.enabled() passes its answer, so
+        # a toggle in another thread cannot leave a native-only call on a NumPy decoder
+        self._native = native.enabled() if use_native is None else bool(use_native) and native.native_available()
         if self._native:
             self._nt = models.native_tables(lut_budget(n))
         else:
@@ -1009,11 +1054,11 @@ def _decode_scalar(out, mask, shift, base, lut, words, states, lanes, pos, wpos)
 
 def decode_stream_single(blob: bytes | memoryview, count: int) -> np.ndarray:
     """decode_stream of ``count`` symbols that all use model 0 (the SHVQ flag and index
-    streams), without a model-id array on the native path."""
+    streams: their model set may hold one model), without a model-id array on the native path."""
     if not native.enabled():
-        return decode_stream(blob, np.zeros(count, dtype=np.int64))
-    models, pos = read_model_set(blob, 0)
-    dec = RansDecoder(memoryview(blob)[pos:], count, models)
+        return decode_stream(blob, np.zeros(count, dtype=np.int64), max_models=1)
+    models, pos = read_model_set(blob, 0, max_models=1, num_symbols=count)
+    dec = RansDecoder(memoryview(blob)[pos:], count, models, use_native=True)
     out = np.empty(count, dtype=np.int64)
     if count:
         dec.decode_blocks(np.zeros(1, np.int64), 1, count, 1, out)
@@ -1021,13 +1066,14 @@ def decode_stream_single(blob: bytes | memoryview, count: int) -> np.ndarray:
     return out
 
 
-def decode_stream(blob: bytes | memoryview, model_ids: np.ndarray) -> np.ndarray:
+def decode_stream(blob: bytes | memoryview, model_ids: np.ndarray, max_models: int | None = None) -> np.ndarray:
     """Decode a self-contained stream (model set followed by payload) for the given model ids.
 
-    blob: bytes of ENTROPY.md section 5; model_ids: int array (N,).  Returns int64 values (N,).
+    blob: bytes of ENTROPY.md section 5; model_ids: int array (N,); max_models: the most models
+    the stream's use can name (None: MAX_MODELS).  Returns int64 values (N,).
     """
-    models, pos = read_model_set(blob, 0)
     mids = np.asarray(model_ids).ravel()
+    models, pos = read_model_set(blob, 0, max_models=max_models, num_symbols=mids.size)
     dec = RansDecoder(memoryview(blob)[pos:], mids.size, models)
     out = dec.decode(mids)
     dec.finish()

@@ -28,10 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .cloud import GaussianCloud
-from .container import (CHUNK_REQUIRED, DEFAULT_MAX_GAUSSIANS, HEADER_SIZE, MAGIC, parse_header,
-                        parse_table, table_size)
-from .layer import (LayerState, check_header_counts, check_tile_complete, concat_clouds, decode_layer, guard, open_gsz,
-                    plan_parts, tile_table)
+from .container import CHUNK_REQUIRED, HEADER_SIZE, MAGIC, parse_header, parse_table, table_size
+from .layer import (GAUSSIANS_PER_BYTE, LayerState, check_header_counts, check_max_gaussians, check_tile_complete,
+                    concat_clouds, decode_layer, guard, open_gsz, plan_parts, tile_table)
 from .errors import GszError, GszFormatError, GszTruncatedWarning
 from .layout import KNOWN_CHUNKS
 
@@ -92,17 +91,19 @@ class StreamResult:
 class StreamDecoder:
     """Incremental .gsz decoder (see module docstring).
 
-    max_gaussians   bound on the header's count (what a hostile file can make it allocate)
+    max_gaussians   None (default): the default limits of :func:`gsz.decoder.decode` (2^28, and
+                    GAUSSIANS_PER_BYTE per byte of the file once its chunk table has arrived and
+                    per byte of each part's chunks); an int: accept up to that many Gaussians
     max_layers      decode only the first ``max_layers`` layers (None: all); later bytes are
                     still checksum-verified but not decoded
     source          name used in messages (a file name or URL)
     """
 
-    def __init__(self, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS, max_layers: int | None = None,
+    def __init__(self, *, max_gaussians: int | None = None, max_layers: int | None = None,
                  source: str | None = None):
         if max_layers is not None and int(max_layers) < 1:
             raise GszError(f"max_layers must be >= 1, got {max_layers}", source)
-        self.max_gaussians = int(max_gaussians)
+        self.max_gaussians = check_max_gaussians(max_gaussians, source)
         self.max_layers = None if max_layers is None else int(max_layers)
         self.source = source
         self.header = None
@@ -209,6 +210,7 @@ class StreamDecoder:
         self._plan = plan_parts(entries, self.header.sh_degree)
         self._entries = entries
         self._expected = entries[-1][4] + entries[-1][2] if entries else end
+        check_header_counts(self.header, self.max_gaussians, self._expected)
         if self._plan.tile_chunk is None:
             self._set_tiles(None)
         del self._buf[:end]
@@ -217,8 +219,9 @@ class StreamDecoder:
     def _set_tiles(self, data) -> None:
         self._tiles = tile_table(data, self._plan, self.header)
         tiled = self._plan.tile_chunk is not None
-        self._states = {t: LayerState(limit=info.num_gaussians, what=f"tile {t}'s" if tiled else "the header's")
-                        for t, info in enumerate(self._tiles)}
+        per_byte = GAUSSIANS_PER_BYTE if self.max_gaussians is None else None
+        self._states = {t: LayerState(limit=info.num_gaussians, what=f"tile {t}'s" if tiled else "the header's",
+                                      per_byte=per_byte) for t, info in enumerate(self._tiles)}
 
     def _advance(self) -> list[StreamUpdate]:
         if self.header is None:
@@ -263,8 +266,10 @@ class StreamDecoder:
         part = parts[k]
         state = self._states[part.tile]
         chunks = {t: self._payloads.pop(i) for t, i in part.chunks.items()}
+        tiled = self._plan.tile_chunk is not None
         with np.errstate(over="ignore", invalid="ignore"):
-            cloud = decode_layer(chunks, self.header, state)
+            cloud = decode_layer(chunks, self.header, state,
+                                 label=f"layer {part.layer}, tile {part.tile}" if tiled else f"layer {part.layer}")
         tile_layers = sum(1 for p in self._plan.parts if p.tile == part.tile)
         if part.layer == tile_layers - 1:
             check_tile_complete(state, part.tile, self._plan.tile_chunk is not None)
@@ -300,7 +305,7 @@ def _pieces(source, chunk_size: int):
 
 
 def iter_layers(source, *, chunk_size: int = 65536, max_layers: int | None = None,
-                max_gaussians: int = DEFAULT_MAX_GAUSSIANS):
+                max_gaussians: int | None = None):
     """Yield a :class:`StreamUpdate` per completed layer of ``source``: a path, bytes, a file
     object / HTTP-like reader (``read(n)``), or an iterable of byte pieces.  A source that ends
     early emits one GszTruncatedWarning after its last complete layer."""

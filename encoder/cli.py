@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
@@ -95,7 +96,7 @@ def _run_fixed(a, prog) -> dict:
                          workers=a.workers).validate()
     _check_paths(a)                           # after the options: their errors come first
     cloud, cameras = _read_inputs(a, prog)
-    result = encode(cloud, opts, cameras=cameras, progress=prog)
+    result = encode(cloud, opts, cameras=cameras, progress=prog, source=a.input)
     return _finish(a, result, {})
 
 
@@ -121,7 +122,7 @@ def _run_search(a, prog) -> dict:
                           layers=a.layers, first_layer=a.first_layer, tile_gaussians=a.tile_gaussians or None,
                           executor=a.executor, workers=a.workers,
                           codebook=a.codebook)
-    result = encode_to_budget(cloud, target, options=sopts, cameras=cameras, progress=prog)
+    result = encode_to_budget(cloud, target, options=sopts, cameras=cameras, progress=prog, source=a.input)
     r = _finish(a, result, {"target": format_size(target, style)})
     if a.report:
         from .report import write_search_report
@@ -162,11 +163,31 @@ def _run(a):
     return (_run_search(a, prog) if searching else _run_fixed(a, prog)), prog
 
 
+@contextlib.contextmanager
+def _input_warnings_as_lines():
+    """GszInputWarnings (a fixed input value, ignored PLY vertices) printed as they come, one
+    'gsz-encode: warning: FILE: ...' line each; other warnings as Python prints them."""
+    import warnings
+
+    from gsz.decoder.errors import GszInputWarning
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def show(message, category, filename, lineno, file=None, line=None):
+            if issubclass(category, GszInputWarning):
+                print(f"gsz-encode: warning: {message}", file=sys.stderr, flush=True)
+            else:
+                shown(message, category, filename, lineno, file, line)
+        warnings.showwarning = show
+        warnings.simplefilter("always", GszInputWarning)
+        yield
+
+
 def main(argv=None) -> int:
     try:
         a = build_parser().parse_args(argv)   # imports torch: Ctrl-C may land here too
         from gsz.decoder.io_util import sigterm_as_interrupt
-        with sigterm_as_interrupt():
+        with sigterm_as_interrupt(), _input_warnings_as_lines():
             r, prog = _run(a)
     except GszError as e:
         print(f"gsz-encode: error: {e}", file=sys.stderr)

@@ -40,9 +40,10 @@ NOTE = (f"PSNR of identical images is reported as the cap ({PSNR_CAP_DB:g} dB), 
 ERROR_MAP_FULL_SCALE = 0.1
 
 
-def load_cloud(path) -> GaussianCloud:
+def load_cloud(path, *, max_gaussians: int | None = None) -> GaussianCloud:
     """A scene from a 3DGS ``.ply`` (:func:`gsz.read_ply`) or a ``.gsz`` file
-    (:func:`gsz.decoder.decode`, imported lazily).  Raises a :class:`GszError` naming the file."""
+    (:func:`gsz.decoder.decode`, imported lazily, with ``max_gaussians``).  Raises a
+    :class:`GszError` naming the file."""
     path = os.fspath(path)
     if not os.path.exists(path):
         raise GszError("file not found", path)
@@ -54,7 +55,7 @@ def load_cloud(path) -> GaussianCloud:
         except ImportError:
             raise GszError(".gsz support is unavailable in this installation "
                            "(gsz.decoder.decode cannot be imported)", path) from None
-        cloud = decode(path)
+        cloud = decode(path, max_gaussians=max_gaussians)
         if not isinstance(cloud, GaussianCloud):  # decode may return a richer result object
             cloud = getattr(cloud, "cloud", cloud)
         if not isinstance(cloud, GaussianCloud):

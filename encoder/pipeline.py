@@ -870,29 +870,38 @@ def compute_train_importance(cloud: GaussianCloud, opts: SceneOptions, *, camera
 
 
 def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, cameras=None,
-           importance: np.ndarray | None = None, progress: Progress | None = None) -> EncodeResult:
+           importance: np.ndarray | None = None, progress: Progress | None = None,
+           source: str | None = None) -> EncodeResult:
     """Compress ``cloud`` with ``options``; ``cameras`` are the train views for importance
     (default: the deterministic default camera set).  ``importance`` [N] skips the importance
-    pass when the caller already has it (e.g. several encodes of one scene).  Returns the .gsz
-    bytes, the cloud the decoder will reconstruct, and a report (sizes per component, seconds
-    per stage)."""
+    pass when the caller already has it (e.g. several encodes of one scene).  Absurd values are
+    bounded and far-away Gaussians dropped first (:mod:`gsz.encoder.sanitize`: one
+    GszInputWarning per fix, naming ``source``).  Returns the .gsz bytes, the cloud the decoder
+    will reconstruct, and a report (sizes per component, seconds per stage, input fixes)."""
+    from .sanitize import fixes_report, sanitize_cloud
     opts = (options or EncodeOptions()).validate()
     progress = progress or Progress(quiet=True)
     cloud.validate()
     n_in = len(cloud)
     t_start = time.perf_counter()
-    if importance is None:
-        importance = compute_train_importance(cloud, opts, cameras=cameras, progress=progress)
-    else:
+    if importance is not None:
         importance = np.asarray(importance, np.float64)
         if importance.shape != (n_in,) or not np.all(np.isfinite(importance)):
             raise EncodeOptionsError(f"importance must be {n_in} finite values")
+    cloud, fixes, kept = sanitize_cloud(cloud, source)
+    if importance is None:
+        importance = compute_train_importance(cloud, opts, cameras=cameras, progress=progress)
+    elif kept is not None:
+        importance = importance[kept]
     from .executor import make_executor
     executor = make_executor(opts.executor, opts.workers)
     try:
-        return _encode_stage(cloud, opts, importance, executor, progress, t_start)
+        result = _encode_stage(cloud, opts, importance, executor, progress, t_start)
     finally:
         executor.close()
+    if fixes:                  # only then: the reports of clean scenes stay as they were
+        result.report["input_fixes"] = fixes_report(fixes)
+    return result
 
 
 def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, t_start) -> EncodeResult:

@@ -14,7 +14,7 @@ import zstandard
 from gsz.decoder import native
 from gsz.decoder.errors import GszFormatError
 from gsz.decoder.rans import (COARSE, EMPTY, LAPLACE, LAPLACE_SCALE_BITS, MAX_LEVEL_EXP,
-                              MAX_PRECISION, MAX_SPAN, RATIO_ONE, SINGLE, STATE_LOW, VALUE_LIMIT,
+                              MAX_PRECISION, MAX_ROWS, MAX_SPAN, RATIO_ONE, SINGLE, STATE_LOW, VALUE_LIMIT,
                               WORD_BITS, ModelSet,
                               laplace_weights, level_weights, lut_budget, max_level_code,
                               ratio_from_code)
@@ -22,7 +22,8 @@ from gsz.decoder.rans import (COARSE, EMPTY, LAPLACE, LAPLACE_SCALE_BITS, MAX_LE
 ZSTD_LEVEL = 19
 MAX_LANES = 4096
 SYMBOLS_PER_LANE = 1024
-MAX_ROWS = 8192
+# MAX_ROWS (the decoder's): at most that many symbols per lane, so choose_lanes never writes a
+# lane count the decoder rejects (ENTROPY.md 4.1)
 BITS_PER_LANE = 8192         # a lane's final state costs ~32 bits: <= ~0.4 % of the payload
 
 

@@ -183,26 +183,74 @@ def test_bomb_files_are_what_their_generator_writes():
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     made = mod.bombs()
-    assert sorted(made) == [p.name for p in BOMBS] and len(BOMBS) >= 4
+    assert sorted(made) == [p.name for p in BOMBS] and len(BOMBS) >= 8
     for p in BOMBS:
-        assert p.read_bytes() == made[p.name] and p.stat().st_size < 4096
+        assert p.read_bytes() == made[p.name] and p.stat().st_size < 16384
 
 
-@pytest.mark.usefixtures("each_decoder_path")
-@pytest.mark.parametrize("bomb", BOMBS, ids=lambda p: p.stem)
-def test_resource_bombs_are_rejected_quickly_without_allocating(bomb):
-    # Issue 19 items 1-2: each declares 10^8..10^9 values of work in < 4 kB; before the fix
-    # they cost 0.5-1.5 GB and 1-22 s (native: attributes decoded before the octree confirmed
-    # M; NumPy: a 255-channel set decoded before C was checked).
+#: what a bomb that the default Gaussians-per-byte limit lets through is rejected for (issue 19
+#: item 4: ENTROPY.md §3.1, §3.2, §4.1); every other bomb declares more Gaussians than its bytes
+#: allow (item 3, GSZ.md §11)
+PAST_THE_LIMIT = {"models_2e20_for_3_ids": "1048576 models, more than the 3 its use can name",
+                  "model_set_body_16mib": "content size 16777216 above 1179852",
+                  "one_lane_12288_symbols": "1 lanes for 12288 symbols, fewer than the 2 required"}
+
+
+def _bounded(fn, seconds=5, traced_mb=200):
+    """fn() within ``seconds`` and ``traced_mb`` MB of traced allocations."""
     import time
     import tracemalloc
     tracemalloc.start()
     t0 = time.perf_counter()
     try:
-        with pytest.raises(GszFormatError, match=bomb.name):
-            decode(bomb)
-        seconds = time.perf_counter() - t0
-        peak = tracemalloc.get_traced_memory()[1]
+        fn()
+        spent, peak = time.perf_counter() - t0, tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
-    assert seconds < 5 and peak < 200 << 20, (seconds, peak >> 20)
+    assert spent < seconds and peak < traced_mb << 20, (spent, peak >> 20)
+
+
+@pytest.mark.usefixtures("each_decoder_path")
+@pytest.mark.parametrize("bomb", BOMBS, ids=lambda p: p.stem)
+def test_resource_bombs_are_rejected_quickly_without_allocating(bomb):
+    # Issue 19 items 1-4: each declares 10^7..10^9 values of work in < 12 kB; before the fixes
+    # they cost 0.5-1.5 GB and 1-130 s (native: attributes decoded before the octree confirmed
+    # M; NumPy: a 255-channel set decoded before C was checked; both: 2^20 models parsed, a
+    # one-lane stream looped per symbol, valid full octrees decoded to millions of Gaussians).
+    from gsz.decoder import GszLimitError
+
+    def rejected():
+        with pytest.raises(GszFormatError, match=bomb.name) as e:
+            decode(bomb)
+        if bomb.stem in PAST_THE_LIMIT:
+            assert PAST_THE_LIMIT[bomb.stem] in str(e.value) and not isinstance(e.value, GszLimitError)
+        else:
+            assert isinstance(e.value, GszLimitError) and "per byte" in str(e.value)
+    _bounded(rejected)
+
+
+@pytest.mark.usefixtures("each_decoder_path")
+@pytest.mark.parametrize("bomb", [b for b in BOMBS if b.stem != "full_octree_2e21"], ids=lambda p: p.stem)
+def test_bombs_stay_cheap_with_the_old_fixed_limit(bomb):
+    # max_gaussians=2^28 (the limit before the per-byte default): the checks behind the limit
+    # (ChannelSet C and L, octree before attributes, model count, body size, lanes) still hold
+    def rejected():
+        with pytest.raises(GszFormatError, match=bomb.name) as e:
+            decode(bomb, max_gaussians=1 << 28)
+        assert "limit" not in str(e.value)
+    _bounded(rejected)
+
+
+@pytest.mark.usefixtures("each_decoder_path")
+def test_a_legitimate_bomb_decodes_when_the_caller_allows_it():
+    # a valid 11 kB file of 2,097,152 Gaussians (a full octree, constant attributes): refused by
+    # default, decoded exactly when max_gaussians allows it
+    bomb = BOMBS[0].parent / "full_octree_2e21.gsz"
+    from gsz.decoder import GszLimitError
+    with pytest.raises(GszLimitError, match="2,097,152 Gaussians in a 11,199-byte file"):
+        decode(bomb)
+    with pytest.raises(GszLimitError, match="above the decoder limit 2,097,151"):
+        decode(bomb, max_gaussians=(1 << 21) - 1)
+    cloud = decode(bomb, max_gaussians=1 << 21)
+    assert len(cloud) == 1 << 21 and np.all(cloud.opacities == 0) and np.all(cloud.scales == 0)
+    assert np.unique(cloud.positions, axis=0).shape[0] == 1 << 21

@@ -91,14 +91,16 @@ def _components_of(src) -> dict:
     return comps
 
 
-def scene_from_file(path, name: str | None = None) -> Scene:
-    """Load a .ply or .gsz (GszError naming the file on failure) with its size and, for a
-    .gsz, its per-component bytes."""
+def scene_from_file(path, name: str | None = None, *, max_gaussians: int | None = None) -> Scene:
+    """Load a .ply or .gsz (GszError naming the file on failure; a .gsz within
+    ``max_gaussians``, see :func:`gsz.decoder.decode`) with its size and, for a .gsz, its
+    per-component bytes."""
     from gsz.encoder.evaluate import load_cloud
     path = os.fspath(path)
-    cloud = load_cloud(path)
+    cloud = load_cloud(path, max_gaussians=max_gaussians)
     comps = _components_of(path) if path.lower().endswith(".gsz") else {}
-    return Scene(name or os.path.basename(path), cloud, path, os.path.getsize(path), comps)
+    return Scene(name or os.path.basename(path), cloud, path, os.path.getsize(path), comps,
+                 max_gaussians=max_gaussians)
 
 
 def scene_from_bytes(name: str, data: bytes, cloud: GaussianCloud | None = None) -> Scene:
@@ -239,7 +241,7 @@ class ViewerApp(ViewState):
         self.stream_scene = scene
         self.stream_rate = self.stream_rate if rate is None else float(rate)
         self._stream_version = 0
-        self.stream = StreamPlayback(data, rate)
+        self.stream = StreamPlayback(data, rate, max_gaussians=scene.max_gaussians)
         self._poll_stream()
 
     def stop_stream(self) -> None:

@@ -73,6 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
     lab.add_argument("--labels", dest="labels", action="store_true", default=None,
                      help="screenshot: draw the size / PSNR labels (default when comparing)")
     lab.add_argument("--no-labels", dest="labels", action="store_false")
+    from gsz.decoder.cli import add_max_gaussians
+    add_max_gaussians(p)
     return p
 
 
@@ -155,10 +157,11 @@ def _load_scenes(args):
     if args.layers is not None and (args.layers < 1 or args.budgets):
         raise _UsageError("--layers must be >= 1 and applies to a .gsz FILE (not with --budgets)")
     if args.compare:
-        b = _first_layers(scene_from_file(args.file, "decoded"), args.layers)
-        a = scene_from_file(args.compare, "original")
+        b = _first_layers(scene_from_file(args.file, "decoded", max_gaussians=args.max_gaussians), args.layers)
+        a = scene_from_file(args.compare, "original", max_gaussians=args.max_gaussians)
         return a, b, None
-    a = _first_layers(scene_from_file(args.file, "original" if args.budgets else None), args.layers)
+    a = _first_layers(scene_from_file(args.file, "original" if args.budgets else None,
+                                      max_gaussians=args.max_gaussians), args.layers)
     jobs = None
     if args.budgets:
         from .budgets import BudgetJobs, parse_budgets

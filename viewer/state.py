@@ -44,6 +44,7 @@ class Scene:
     cloud       GaussianCloud
     file_bytes  size of the file it came from (None if unknown)
     components  per-component bytes of a .gsz (chunk name -> bytes, from ``inspect()``)
+    max_gaussians  the decoder limit it was loaded with (a stream replay uses it too)
     """
 
     name: str
@@ -55,6 +56,7 @@ class Scene:
     sorter: DepthSorter | None = None
     whole: GaussianCloud | None = None      # for a layer prefix / a stream: the whole file's cloud
     note: str = ""                          # shown after the label (e.g. streaming progress)
+    max_gaussians: int | None = None
 
     @property
     def frame_cloud(self) -> GaussianCloud:

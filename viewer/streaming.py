@@ -34,8 +34,10 @@ def parse_rate(text: str) -> float:
 class StreamPlayback:
     """Replay ``data`` (a .gsz file's bytes) through the streaming decoder at ``rate`` B/s."""
 
-    def __init__(self, data: bytes, rate: float | None, *, piece: int = PIECE, start: bool = True):
+    def __init__(self, data: bytes, rate: float | None, *, piece: int = PIECE, start: bool = True,
+                 max_gaussians: int | None = None):
         self.data = bytes(data)
+        self.max_gaussians = max_gaussians
         self.rate = None if rate is None else float(rate)
         self.piece = int(piece)
         self._lock = threading.Lock()
@@ -75,7 +77,7 @@ class StreamPlayback:
 
     def _run(self):
         from gsz.decoder.stream import StreamDecoder
-        dec = StreamDecoder()
+        dec = StreamDecoder(max_gaussians=self.max_gaussians)
         t0 = time.monotonic()
         try:
             for start in range(0, len(self.data), self.piece):

@@ -32,15 +32,27 @@ from .tau import encode_tau
 
 def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None = None,
                      importance: np.ndarray | None = None, cameras=None,
-                     progress: Progress | None = None) -> EncodeResult:
+                     progress: Progress | None = None, source: str | None = None) -> EncodeResult:
     """Encode ``cloud`` into at most ``target_bytes`` bytes with the best train-view fidelity.
 
     Returns EncodeResult(data, cloud, report); report has target, actual bytes, the chosen
     reserve/codebook/keep, the bit-width of every group, predicted vs actual size per calibration
     round, candidates with their train PSNR, and seconds per stage.  Raises BudgetError with the
-    smallest reachable size when the budget cannot be met.
+    smallest reachable size when the budget cannot be met.  Absurd input values are bounded and
+    far-away Gaussians dropped first, as :func:`gsz.encoder.pipeline.encode` does (``source``
+    names the scene in the warnings).
     """
     from concurrent.futures import ThreadPoolExecutor
+
+    from ..sanitize import fixes_report, sanitize_cloud
+    cloud.validate()
+    if importance is not None:
+        importance = np.asarray(importance, np.float64)
+        if importance.shape != (len(cloud),):
+            raise EncodeOptionsError(f"importance must be {len(cloud)} finite values")
+    cloud, fixes, kept = sanitize_cloud(cloud, source)
+    if importance is not None and kept is not None:
+        importance = importance[kept]
 
     # every candidate's octree is coded on this thread while the caller computes the candidate's
     # SH statistics and rate tables (flowers: ~1.4 s of each ~10 s candidate)
@@ -50,9 +62,12 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     try:
         with _search_threads(), ThreadPoolExecutor(max_workers=1, thread_name_prefix="gsz-geom") as pool:
             search = BudgetSearch(cloud, target_bytes, sopts, progress, pool, executor)
-            return search.run(importance, cameras)
+            result = search.run(importance, cameras)
     finally:
         executor.close()
+    if fixes:                  # only then: the reports of clean scenes stay as they were
+        result.report["input_fixes"] = fixes_report(fixes)
+    return result
 
 
 @contextlib.contextmanager
