@@ -18,15 +18,11 @@ sys.path.insert(0, str(HERE.parents[3]))
 
 from gsz.decoder.container import Chunk, FileHeader, write_container  # noqa: E402
 from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM  # noqa: E402
+from gsz.encoder.rans import varint_bytes  # noqa: E402
 
 
 def varint(v: int) -> bytes:
-    out = bytearray()
-    while True:
-        b, v = v & 0x7F, v >> 7
-        out.append(b | (0x80 if v else 0))
-        if not v:
-            return bytes(out)
+    return varint_bytes([v])
 
 
 def single_models_stream(num_models: int, *, lanes: int = 1, empty: int = 0, zstd: bool = False) -> bytes:
