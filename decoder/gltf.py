@@ -425,3 +425,18 @@ def read_gltf(path) -> GaussianCloud:
     except OSError as e:
         raise GltfFormatError(f"cannot read: {e.strerror or e}", path) from None
     return read_gltf_bytes(data, path)
+
+
+def glb_overhead(num_gaussians: int, sh_degree: int) -> int:
+    """An upper bound of what :func:`gsz_glb_bytes` adds to a .gsz of at most ``num_gaussians``
+    Gaussians of ``sh_degree``: its JSON, the GLB framing and padding.  The size search aims the
+    .gsz at the budget less this, so that the .glb keeps the budget.  (The bound takes the longest
+    JSON spelling of a float32 for the six bounding-box values -- plus 8 bytes for the minus
+    signs the frame flip takes from some of them -- and ``num_gaussians`` digits for every count,
+    both at least what the real file holds.)"""
+    from .container import FileHeader, write_container
+    worst = -1.1754943508222875e-38          # a float32 whose JSON spelling is 23 characters
+    header = FileHeader(num_gaussians=max(1, int(num_gaussians)), sh_degree=int(sh_degree),
+                        bbox_min=(worst,) * 3, bbox_max=(worst,) * 3)
+    dummy = write_container(header, [])
+    return len(gsz_glb_bytes(dummy)) - len(dummy) + 8 + 3    # + signs, + the BIN chunk's padding
