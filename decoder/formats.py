@@ -81,11 +81,22 @@ def load(path) -> GaussianCloud:
     if kind == PLY:
         from .ply import read_ply
         return read_ply(path)
-    if kind == GSZ:
+    if kind == GSZ or (kind == GLB and _plain_gsz_glb(path)):
         from .decode import decode
-        return decode(path)
+        return decode(path)                   # no glTF library needed
     from .gltf import read_gltf
     return read_gltf(path)
+
+
+def _plain_gsz_glb(path: str) -> bool:
+    """True for a .glb that is one untransformed gsz primitive (as gsz-encode writes them)."""
+    from .glb import is_plain_gsz_scene, parse_glb
+    with open(path, "rb") as f:
+        head = f.read(1 << 20)                # the JSON of a splat .glb is a few kB
+    try:
+        return is_plain_gsz_scene(parse_glb(head, partial=True).doc)
+    except GszError:
+        return False                          # the glTF reader gives the real error
 
 
 def save(cloud: GaussianCloud, path) -> None:

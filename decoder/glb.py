@@ -142,6 +142,27 @@ def gsz_primitives(doc: dict) -> list:
     return found
 
 
+_IDENTITY = {"matrix": [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1], "translation": [0, 0, 0],
+             "rotation": [0, 0, 0, 1], "scale": [1, 1, 1]}
+
+
+def is_plain_gsz_scene(doc: dict) -> bool:
+    """True when the scene is just its one gsz primitive, shown once without a transform: no
+    other ``KHR_gaussian_splatting`` primitive, at most one node naming its mesh, and no node
+    with a transform other than the identity.  Such a file loads as its decoded payload."""
+    found = gsz_primitives(doc)
+    meshes = doc.get("meshes") if isinstance(doc.get("meshes"), list) else []
+    splats = sum(1 for m in meshes if isinstance(m, dict) and isinstance(m.get("primitives"), list)
+                 for p in m["primitives"] if isinstance(p, dict) and isinstance(p.get("extensions"), dict)
+                 and KHR_GAUSSIAN_SPLATTING in p["extensions"])
+    nodes = doc.get("nodes") if isinstance(doc.get("nodes"), list) else []
+    if len(found) != 1 or splats != 1 or not all(isinstance(n, dict) for n in nodes):
+        return False
+    if sum(1 for n in nodes if n.get("mesh") == found[0][0]) > 1:
+        return False
+    return all(n.get(k, v) == v for n in nodes for k, v in _IDENTITY.items())
+
+
 def gsz_location(glb: Glb) -> tuple:
     """(file offset, length) of the .gsz payload of the GLB's one gsz primitive (GLTF.md §3).
 
