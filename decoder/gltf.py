@@ -20,7 +20,7 @@ import urllib.parse
 import numpy as np
 
 from .cloud import GaussianCloud
-from .container import FRAME_RDF, read_container
+from .container import DEFAULT_MAX_GAUSSIANS, FRAME_RDF, FRAME_UNSPECIFIED, read_container
 from .errors import GltfFormatError, GszError, GszFormatError
 from .glb import EXT_GSZ, KHR_GAUSSIAN_SPLATTING, gsz_primitives, is_glb, parse_glb
 from .io_util import atomic_write, check_input_file
@@ -256,6 +256,9 @@ def read_accessor(doc, buffers, index, what: str, path=None, *, kinds=("VEC3",))
     dtype, divisor = np.dtype(_COMPONENTS[acc.componentType][0]), _COMPONENTS[acc.componentType][1]
     width, count = _WIDTH[acc.type], _int(acc.count, f"{what}.count", path)
     if acc.bufferView is None:
+        if count > DEFAULT_MAX_GAUSSIANS:          # zeros cost memory the file never paid for
+            raise GltfFormatError(f"{what} declares {count:,} elements without data, above the "
+                                  f"{DEFAULT_MAX_GAUSSIANS:,} gsz reads", path)
         values = np.zeros((count, width), dtype)
     else:
         values = _view_array(doc, buffers, acc.bufferView, acc.byteOffset, count, dtype, width, what, path)
@@ -368,6 +371,8 @@ def read_gltf_bytes(data, path=None) -> GaussianCloud:
     primitive is decoded (:func:`gsz.decoder.decode`)."""
     try:
         return _read(data, path)
+    except MemoryError:
+        raise GltfFormatError("declares more data than can be allocated", path) from None
     except (TypeError, ValueError, KeyError, IndexError, AttributeError) as e:
         if isinstance(e, GszError):
             raise
@@ -376,7 +381,7 @@ def read_gltf_bytes(data, path=None) -> GaussianCloud:
 
 def _read(data, path) -> GaussianCloud:
     doc, doc_dict, buffers = _load(data, path)
-    clouds = []
+    clouds, decoded = [], []
     gsz = {(m, p) for m, p, _ in gsz_primitives(doc_dict)}
     for mesh, world in mesh_instances(doc, path):
         for p, prim in enumerate(doc.meshes[mesh].primitives or []):
@@ -388,9 +393,13 @@ def _read(data, path) -> GaussianCloud:
                 raise GltfFormatError(f"{where}: kernel {props.get('kernel')!r} is not the ellipse kernel gsz reads", path)
             identity = np.array_equal(world, np.eye(4))
             if (mesh, p) in gsz:
-                cloud, frame = _decode_primitive(data, path)
-                if identity:
-                    clouds.append(cloud)
+                if not is_glb(data):
+                    raise GltfFormatError(f"{where}: gsz reads the {EXT_GSZ} payload from a .glb's BIN "
+                                          "chunk only (the form gsz-encode writes)", path)
+                decoded = decoded or [_decode_primitive(data, path)]     # once for every instance
+                cloud, frame = decoded[0]
+                if identity and frame in (FRAME_RDF, FRAME_UNSPECIFIED):
+                    clouds.append(cloud)              # exactly the payload's values
                     continue
                 s = to_khr(cloud, frame, name=path)
             else:

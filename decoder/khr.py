@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .cloud import GaussianCloud, sh_rest_count
+from .cloud import GaussianCloud
 from .container import FRAME_RDF, FRAME_RUB, FRAME_UNSPECIFIED
 from .errors import GltfFormatError
 
@@ -107,6 +107,11 @@ def sh_rotation(degree: int, rot: np.ndarray) -> np.ndarray:
     a = sh_basis(degree, dirs)
     b = sh_basis(degree, dirs @ rot)           # rows (rot^T d')^T
     x, *_ = np.linalg.lstsq(a, b, rcond=None)
+    # the fit leaves ~1e-16 where the exact matrix has 0 or +-1 (axis-aligned rotations): snap
+    # those, so a quarter turn or a flip moves coefficients without rounding noise
+    x[np.abs(x) < 1e-12] = 0.0
+    unit = np.abs(np.abs(x) - 1.0) < 1e-12
+    x[unit] = np.sign(x[unit])
     return x
 
 
@@ -251,15 +256,15 @@ def transform(s: KhrSplats, matrix: np.ndarray, name=None) -> KhrSplats:
     if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-5):
         raise GltfFormatError("a node transform with non-uniform scale or shear cannot be baked into "
                               "Gaussian splats exactly; gsz reads rotation, uniform scale and translation", name)
-    q = quat_mul(matrix_quaternion(rot), s.rotations.astype(np.float64)[:, [3, 0, 1, 2]])
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    if np.array_equal(rot, np.eye(3)):          # translation / uniform scale: orientation and SH as they are
+        rotations, rest = s.rotations, s.sh_rest
+    else:
+        q = quat_mul(matrix_quaternion(rot), s.rotations.astype(np.float64)[:, [3, 0, 1, 2]])
+        q /= np.linalg.norm(q, axis=1, keepdims=True)
+        rotations = np.ascontiguousarray(q[:, [1, 2, 3, 0]], dtype=np.float32)
+        rest = _rotate_sh(s.sh_rest, rot, exact_signs=False)
     return KhrSplats(
         positions=(s.positions.astype(np.float64) @ lin.T + t).astype(np.float32),
         scales=(s.scales.astype(np.float64) * scale).astype(np.float32),
-        rotations=np.ascontiguousarray(q[:, [1, 2, 3, 0]], dtype=np.float32),
-        opacities=s.opacities, sh_dc=s.sh_dc,
-        sh_rest=_rotate_sh(s.sh_rest, rot, exact_signs=False))
+        rotations=rotations, opacities=s.opacities, sh_dc=s.sh_dc, sh_rest=rest)
 
-
-def empty_rest(n: int, degree: int) -> np.ndarray:
-    return np.zeros((n, sh_rest_count(degree), 3), np.float32)

@@ -15,7 +15,7 @@ from gsz.decoder.errors import GltfFormatError, GszError
 from gsz.decoder.glb import parse_glb
 
 pygltflib = pytest.importorskip("pygltflib")
-from gsz.decoder.gltf import gltf_bytes, read_gltf, read_gltf_bytes, write_gltf  # noqa: E402
+from gsz.decoder.gltf import gltf_bytes, read_gltf_bytes, write_gltf  # noqa: E402
 
 F32_EPS = 2.0 ** -24
 SAMPLES = {"sh0": SAMPLE_SH0, "sh3": SAMPLE_SH3}

@@ -244,3 +244,23 @@ def test_viewer_scene_from_a_glb_is_a_compressed_scene(tmp_path):
     plain = tmp_path / "p.glb"
     gsz.save(scene.cloud, plain)
     assert not scene_from_file(plain).compressed
+
+
+def test_a_node_transform_on_the_gsz_primitive_is_baked_by_load_not_by_decode(tmp_path):
+    pytest.importorskip("pygltflib")
+    data = (VEC / f"{NAME}.glb").read_bytes()
+    glb = parse_glb(data)
+    doc = json.loads(json.dumps(glb.doc))
+    doc["nodes"][0]["translation"] = [1.0, 2.0, 3.0]
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    rest = data[glb.bin_offset - 8:]
+    moved = tmp_path / "moved.glb"
+    moved.write_bytes(struct.pack("<4sII", b"glTF", 2, 20 + len(text) + len(rest))
+                      + struct.pack("<II", len(text), 0x4E4F534A) + text + rest)
+    plain = decode(data)
+    assert decode(moved).equals(plain)                  # the codec's output: the primitive's values
+    loaded = gsz.load(moved)                            # the scene: translated (glTF +x, +y = RDF -x, -y)
+    np.testing.assert_allclose(loaded.positions, plain.positions + np.float32([-1, -2, 3]), atol=1e-6)
+    np.testing.assert_allclose(loaded.scales, plain.scales, atol=1e-6)
+    np.testing.assert_array_equal(loaded.sh_rest, plain.sh_rest)
