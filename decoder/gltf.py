@@ -391,6 +391,12 @@ def _read(data, path) -> GaussianCloud:
             props = prim.extensions[KHR_GAUSSIAN_SPLATTING]
             if isinstance(props, dict) and props.get("kernel", "ellipse") != "ellipse":
                 raise GltfFormatError(f"{where}: kernel {props.get('kernel')!r} is not the ellipse kernel gsz reads", path)
+            space = props.get("colorSpace") if isinstance(props, dict) else None
+            if space not in (None, KHR_PROPERTIES["colorSpace"]):
+                import warnings
+                warnings.warn(f"{path or 'glTF'}: {where} has colorSpace {space!r}; gsz keeps its SH "
+                              f"coefficients as they are and writes glTF as {KHR_PROPERTIES['colorSpace']}",
+                              stacklevel=3)
             identity = np.array_equal(world, np.eye(4))
             if (mesh, p) in gsz:
                 if not is_glb(data):

@@ -323,6 +323,15 @@ def test_bad_files_are_one_line_errors(sample_sh0, tmp_path):
         gsz.save(sample_sh0, tmp_path / "x.gsz")
 
 
+def test_another_color_space_is_read_with_a_warning(sample_sh0):
+    data = gltf_bytes(sample_sh0.subset(np.arange(10)))
+    lin = _with_json(data, lambda d: d["meshes"][0]["primitives"][0]["extensions"]["KHR_gaussian_splatting"]
+                     .update(colorSpace="lin_rec709_display"))
+    with pytest.warns(UserWarning, match="lin_rec709_display"):
+        a = read_gltf_bytes(lin)
+    assert a.equals(read_gltf_bytes(data))
+
+
 def test_files_are_told_by_content_not_name(sample_sh0, tmp_path):
     c = sample_sh0.subset(np.arange(50))
     (tmp_path / "scene.ply").write_bytes(gltf_bytes(c))          # a .glb under a PLY name
