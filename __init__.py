@@ -5,14 +5,19 @@ The top-level namespace re-exports the numpy-only core (no torch import here):
     import gsz
     cloud = gsz.read_ply("point_cloud.ply")
     gsz.write_ply(cloud, "copy.ply")
+    cloud = gsz.load("scene.glb")          # PLY, .gsz, .glb or .gltf, told by content
+    gsz.save(cloud, "scene.glb")           # .ply, or plain KHR_gaussian_splatting .glb/.gltf
 
 Sub-packages: ``gsz.decoder`` (numpy-only bitstream reader), ``gsz.encoder`` (torch CPU
 encoder, renderer, metrics), ``gsz.kernels`` (CUDA/CPU quantisation kernels), ``gsz.viewer``.
 """
 from gsz.decoder.cloud import GaussianCloud
-from gsz.decoder.errors import GszError, PlyFormatError
+from gsz.decoder.errors import GltfFormatError, GszError, PlyFormatError
+from gsz.decoder.formats import load, save
+from gsz.decoder.gltf import read_gltf, write_gltf
 from gsz.decoder.ply import read_ply, write_ply
 
 #: the one place the version is written (pyproject.toml reads it; META records "gsz <version>")
 __version__ = "0.1.0"
-__all__ = ["GaussianCloud", "GszError", "PlyFormatError", "read_ply", "write_ply", "__version__"]
+__all__ = ["GaussianCloud", "GszError", "PlyFormatError", "GltfFormatError", "read_ply", "write_ply",
+           "load", "save", "read_gltf", "write_gltf", "__version__"]

@@ -5,17 +5,19 @@ accelerator (``decoder/csrc/``, bit-identical output) is built and enabled; ``GS
 in the environment forces the NumPy reference path; ``decoder_path()`` is "native" or "numpy".
 """
 from .cloud import GaussianCloud, sh_rest_count
-from .errors import (CameraFormatError, CloudValidationError, GszError, GszFormatError, GszInputWarning,
-                     GszLimitError, GszOutputError, GszTruncatedError, GszTruncatedWarning, PlyFormatError)
+from .errors import (CameraFormatError, CloudValidationError, GltfFormatError, GszError, GszFormatError,
+                     GszInputWarning, GszLimitError, GszOutputError, GszTruncatedError, GszTruncatedWarning,
+                     PlyFormatError)
 from .ply import read_ply, write_ply
 
 __all__ = ["GaussianCloud", "sh_rest_count", "GszError", "GszFormatError", "PlyFormatError",
-           "CloudValidationError", "CameraFormatError", "GszLimitError", "GszTruncatedError", "GszTruncatedWarning",
-           "GszInputWarning", "GszOutputError",
+           "CloudValidationError", "CameraFormatError", "GltfFormatError", "GszLimitError", "GszTruncatedError",
+           "GszTruncatedWarning", "GszInputWarning", "GszOutputError",
            "read_ply", "write_ply"]
 from .decode import decode, inspect  # noqa: E402
+from .formats import load, save  # noqa: E402
 from .native import active_path as decoder_path, native_available  # noqa: E402
 from .stream import StreamDecoder, StreamResult, StreamUpdate, iter_layers  # noqa: E402
 
-__all__ += ["decode", "inspect", "StreamDecoder", "StreamResult", "StreamUpdate", "iter_layers",
+__all__ += ["decode", "inspect", "load", "save", "StreamDecoder", "StreamResult", "StreamUpdate", "iter_layers",
             "native_available", "decoder_path"]

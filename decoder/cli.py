@@ -23,9 +23,11 @@ def add_max_gaussians(p: argparse.ArgumentParser) -> None:
 
 
 def decode_main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="gsz-decode", description="Decode a .gsz file to a 3DGS PLY.")
-    p.add_argument("input", help="input .gsz file")
-    p.add_argument("-o", "--output", required=True, help="output .ply file (written atomically)")
+    p = argparse.ArgumentParser(prog="gsz-decode", description="Decode a .gsz file to a 3DGS PLY or glTF.")
+    p.add_argument("input", help="input .gsz file, or a .glb carrying one (EXT_gaussian_splatting_compression_gsz)")
+    p.add_argument("-o", "--output", required=True,
+                   help="output: OUT.ply (graphdeco PLY), or OUT.glb / OUT.gltf (plain KHR_gaussian_splatting "
+                        "glTF, float32; needs the gltf extra); written atomically")
     p.add_argument("--layers", type=int, default=None, metavar="K",
                    help="decode only the first K importance layers (default: all)")
     p.add_argument("--partial", action="store_true",
@@ -81,8 +83,12 @@ def _decode_to_file(a):
     if a.layers is not None and a.layers < 1:
         return _fail("gsz-decode", GszError(f"--layers must be >= 1, got {a.layers}"))
     truncated = None
+    gltf_out = a.output.lower().endswith((".glb", ".gltf"))
     try:
         check_output_path(a.output, inputs=[a.input])     # before the decode, not after it
+        if gltf_out:
+            from .gltf import pygltflib
+            pygltflib()                                     # the missing extra, said before the decode
         t0 = time.perf_counter()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", GszTruncatedWarning)
@@ -93,7 +99,12 @@ def _decode_to_file(a):
             if issubclass(w.category, GszTruncatedWarning):
                 truncated = str(w.message)
                 print(f"gsz-decode: warning: {truncated}", file=sys.stderr)
-        write_ply(cloud, a.output)
+        if gltf_out:
+            from .decode import payload_frame
+            from .gltf import write_gltf
+            write_gltf(cloud, a.output, frame=payload_frame(a.input))
+        else:
+            write_ply(cloud, a.output)
     except GszError as e:
         if isinstance(e, GszTruncatedError) and not a.partial:
             print(f"gsz-decode: error: {e} (--partial decodes the complete layers of a truncated file)",
@@ -107,7 +118,7 @@ def _decode_to_file(a):
 
 def info_main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="gsz-info", description="Show the header and chunk table of a .gsz file.")
-    p.add_argument("input", help="input .gsz file")
+    p.add_argument("input", help="input .gsz file, or a .glb carrying one")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     add_max_gaussians(p)
     a = p.parse_args(argv)
@@ -127,6 +138,10 @@ def info_main(argv=None) -> int:
     frames = {0: "unspecified", 1: "RDF (x right, y down, z forward)", 2: "RUB (x right, y up, z back)"}
     print(f"file        {info['file']}")
     print(f"size        {info['bytes']:,} bytes ({info['bytes'] / max(1, info['num_gaussians']):.2f} B/Gaussian)")
+    if info["container"] == "glb":
+        print(f"container   .glb (EXT_gaussian_splatting_compression_gsz): the .gsz is bytes "
+              f"{info['payload']['offset']:,}..{info['payload']['offset'] + info['payload']['bytes']:,}, "
+              f"offsets below are the .glb's")
     print(f"version     {info['version']}")
     print(f"gaussians   {info['num_gaussians']:,}")
     print(f"SH degree   {info['sh_degree']}")

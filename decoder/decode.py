@@ -15,6 +15,7 @@ from . import native
 from .cloud import GaussianCloud
 from .container import Container, read_container
 from .errors import GszError, GszFormatError, GszTruncatedError
+from .glb import gsz_payload, is_glb
 # LAYER_DATA_CHUNKS, open_gsz and the layer names stay importable from here (their old home)
 from .layer import (GAUSSIANS_PER_BYTE, LAYER_DATA_CHUNKS, LayerState, _cores, check_header_counts,  # noqa: F401
                     check_max_gaussians, check_tile_complete, concat_clouds, decode_layer, guard, load_bytes,
@@ -135,7 +136,8 @@ def decode_container(container: Container, *, max_gaussians: int | None = None,
 
 def decode(src, *, layers: int | None = None, partial: bool = False,
            max_gaussians: int | None = None, tiles=None, region=None) -> GaussianCloud:
-    """Decode a .gsz file (path or bytes) into a :class:`GaussianCloud`.
+    """Decode a .gsz file (path or bytes) into a :class:`GaussianCloud`; a .glb carrying a .gsz
+    (``EXT_gaussian_splatting_compression_gsz``, GLTF.md §3) decodes to its payload's cloud.
 
     layers      decode only the first ``layers`` importance layers (None: all); the Gaussians
                 come out layer after layer, within a layer tile after tile, each part in
@@ -165,10 +167,11 @@ def decode(src, *, layers: int | None = None, partial: bool = False,
             check_region(region)
         except ValueError as e:
             raise GszError(str(e), path) from None
-    if path is not None and (tiles is not None or region is not None) and not partial:
+    if path is not None and (tiles is not None or region is not None) and not partial and not _glb_file(path):
         return guard(lambda: _decode_tiles_from_file(path, layers=layers, tiles=tiles, region=region,
                                                      max_gaussians=max_gaussians), path)
     data, path = load_bytes(src)
+    data = guard(lambda: unwrap_glb(data, partial=partial)[0], path)
     if partial:
         if tiles is not None or region is not None:
             raise GszError("partial decoding reads whole layers: it takes no tiles or region", path)
@@ -190,6 +193,32 @@ def decode(src, *, layers: int | None = None, partial: bool = False,
             return decode_container(read_container(data, known_types=KNOWN_CHUNKS),
                                     max_gaussians=max_gaussians, layers=layers, tiles=tiles, region=region)
     return guard(run, path)
+
+
+def unwrap_glb(data, *, partial: bool = False) -> tuple:
+    """(the .gsz bytes, their file offset) of ``data``: itself for a .gsz, the payload of its
+    ``EXT_gaussian_splatting_compression_gsz`` primitive for a .glb (GLTF.md §3)."""
+    if is_glb(data):
+        return gsz_payload(data, partial=partial)
+    return data, 0
+
+
+def payload_frame(src) -> int:
+    """The coordinate-frame code of a .gsz (or a .glb carrying one) from its header alone, so a
+    truncated file has one too."""
+    from .container import parse_header
+    data, path = load_bytes(src)
+    return guard(lambda: parse_header(unwrap_glb(data, partial=True)[0]).frame, path)
+
+
+def _glb_file(path: str) -> bool:
+    """True when the file at ``path`` starts with the GLB magic (its tiles are then read from
+    the whole file in memory, not with seeks)."""
+    with open_gsz(path) as f:
+        try:
+            return is_glb(f.read(4))
+        except OSError as e:
+            raise GszError(f"cannot read: {e.strerror or e}", path) from None
 
 
 def _decode_tiles_from_file(path: str, *, layers, tiles, region, max_gaussians) -> GaussianCloud:
@@ -223,18 +252,24 @@ def _decode_tiles_from_file(path: str, *, layers, tiles, region, max_gaussians) 
 
 
 def inspect(src, *, max_gaussians: int | None = None) -> dict:
-    """Header fields, chunk table, layers, tiles and metadata of a .gsz file (checksums
-    verified), as a dict; ``limit`` says whether :func:`decode` with ``max_gaussians`` would
-    accept its counts (the file is still inspected when it would not)."""
+    """Header fields, chunk table, layers, tiles and metadata of a .gsz file or a .glb carrying
+    one (checksums verified), as a dict.  Offsets (chunks, ``decodable_at``) are the file's;
+    ``container`` is "gsz" or "glb", ``payload`` the .gsz's place in the file; ``limit`` says
+    whether :func:`decode` with ``max_gaussians`` would accept its counts (the file is still
+    inspected when it would not)."""
     data, path = load_bytes(src)
     max_gaussians = check_max_gaussians(max_gaussians, path)
 
     def run():
-        c = read_container(data)
+        payload, base = unwrap_glb(data)
+        c = read_container(payload)
+        for ch in c.chunks:                  # file offsets, also inside a .glb
+            ch.offset += base
         h = c.header
         plan = plan_parts(c.chunks, h.sh_degree)
         return {
-            "file": path, "bytes": len(data), "version": f"{h.version[0]}.{h.version[1]}",
+            "file": path, "bytes": len(data), "container": "glb" if base else "gsz",
+            "payload": {"offset": base, "bytes": len(payload)}, "version": f"{h.version[0]}.{h.version[1]}",
             "num_gaussians": h.num_gaussians, "sh_degree": h.sh_degree, "frame": h.frame,
             "flags": h.flags, "bbox_min": list(h.bbox_min), "bbox_max": list(h.bbox_max),
             "chunks": [{"type": ch.type.decode("ascii"), "name": CHUNK_NAMES.get(ch.type, "unknown"),

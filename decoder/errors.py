@@ -32,6 +32,11 @@ class GszTruncatedError(GszFormatError):
     ``decode(..., partial=True)`` decodes the complete layers of such a file instead."""
 
 
+class GltfFormatError(GszError, ValueError):
+    """A .gltf/.glb file is not a readable ``KHR_gaussian_splatting`` scene (its container,
+    JSON, accessors or splat attributes are malformed or use a feature gsz does not read)."""
+
+
 class GszOutputError(GszError, OSError):
     """An output file cannot be written (unwritable or missing folder, a directory or device in
     its place, the input itself, a full disk); also an OSError, the failure it replaces."""

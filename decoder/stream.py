@@ -16,7 +16,10 @@ from :meth:`StreamDecoder.finish`.  Corrupt bytes (checksum mismatch, bad magic,
 payloads) raise :class:`GszFormatError` as in :func:`gsz.decoder.decode`.
 
 The cumulative cloud after the last layer is identical (array for array) to what
-:func:`gsz.decoder.decode` returns for the whole file.  numpy only.
+:func:`gsz.decoder.decode` returns for the whole file.  A .glb that carries a .gsz
+(``EXT_gaussian_splatting_compression_gsz``, GLTF.md §3) streams the same way: its JSON chunk
+precedes the payload, and byte counts (``bytes_received``, ``layer_ends``) are then the .glb's.
+numpy only.
 """
 from __future__ import annotations
 
@@ -32,6 +35,7 @@ from .container import CHUNK_REQUIRED, HEADER_SIZE, MAGIC, parse_header, parse_t
 from .layer import (GAUSSIANS_PER_BYTE, LayerState, check_header_counts, check_max_gaussians, check_tile_complete,
                     concat_clouds, decode_layer, guard, open_gsz, plan_parts, tile_table)
 from .errors import GszError, GszFormatError, GszTruncatedWarning
+from .glb import GLB_MAGIC, GlbUnwrapper, is_glb
 from .layout import KNOWN_CHUNKS
 
 
@@ -73,7 +77,8 @@ class StreamResult:
     layers_decoded   layers decoded
     layers_total     layers in the file (None when the chunk table never arrived)
     bytes_received   bytes fed
-    bytes_expected   total file length from the chunk table (None when it never arrived)
+    bytes_expected   total file length from the chunk table, or the .glb's declared length for a
+                     wrapped .gsz (None when it never arrived)
     truncated        the stream ended before every (requested) layer was complete, or (when
                      all layers were asked for) before the file's last byte
     next_layer_end   bytes needed to complete the next layer (None when not known / none left)
@@ -120,6 +125,9 @@ class StreamDecoder:
         self._parts = []            # decoded parts' clouds, decoded order
         self._joined = (0, None)    # (parts, cloud): the last cumulative cloud built
         self._layers_done = 0
+        self._fed = 0               # stream bytes fed (the .glb's when the .gsz comes wrapped)
+        self._sniff = bytearray()   # the first bytes, until they say .gsz or .glb
+        self._glb = None            # GlbUnwrapper of a .glb-wrapped stream (GLTF.md §3)
 
     # ------------------------------------------------------------------ public API
     @property
@@ -146,13 +154,19 @@ class StreamDecoder:
 
     @property
     def bytes_received(self) -> int:
-        return self._received
+        """Stream bytes fed so far (of the .glb, for a .glb-wrapped .gsz)."""
+        return self._fed
+
+    def _stream_expected(self) -> int | None:
+        """The stream's total length once known (the GLB's declared length when wrapped)."""
+        return self._glb.length if self._glb is not None else self._expected
 
     def layer_ends(self) -> list[int] | None:
         """Per layer, the stream length after which it is decodable (None before the table)."""
         if self._plan is None:
             return None
-        return [self._entries[i][4] + self._entries[i][2] for i in self._plan.layer_ends()]
+        base = self._glb.payload[0] if self._glb is not None else 0
+        return [base + self._entries[i][4] + self._entries[i][2] for i in self._plan.layer_ends()]
 
     def feed(self, data) -> list[StreamUpdate]:
         """Consume the next bytes of the stream; returns one update per layer completed by them
@@ -160,29 +174,29 @@ class StreamDecoder:
         piece = memoryview(data).cast("B")
         if not len(piece):
             return []
-        self._buf += piece
-        self._received += len(piece)
-        return guard(self._advance, self.source)
+        self._fed += len(piece)
+        return guard(lambda: self._feed(piece), self.source)
 
     def finish(self, *, warn: bool = True, source: str | None = None) -> StreamResult:
         """Declare the end of the stream.  When it ended before every (requested) layer was
         decoded, the result says ``truncated=True`` and (``warn``) one GszTruncatedWarning is
         emitted naming what was decoded."""
         wanted = self._wanted_layers()
+        expected = self._stream_expected()
         truncated = (wanted is None or self._layers_done < wanted
-                     or (self.max_layers is None and self._received < self._expected))
+                     or (self.max_layers is None and (expected is None or self._fed < expected)))
         ends = self.layer_ends()
         nxt = ends[self._layers_done] if ends is not None and self._layers_done < len(ends) else None
         res = StreamResult(cloud=self.cloud, layers_decoded=self._layers_done,
-                           layers_total=self.layers_total, bytes_received=self._received,
-                           bytes_expected=self._expected, truncated=truncated, next_layer_end=nxt)
+                           layers_total=self.layers_total, bytes_received=self._fed,
+                           bytes_expected=expected, truncated=truncated, next_layer_end=nxt)
         if truncated and warn:
             name = source or self.source
-            total = "?" if self._expected is None else f"{self._expected:,}"
+            total = "?" if expected is None else f"{expected:,}"
             layers = "?" if self.layers_total is None else self.layers_total
             got = sum(len(p) for p in self._parts)
             warnings.warn(GszTruncatedWarning(
-                f"{name + ': ' if name else ''}truncated .gsz stream: {self._received:,} of {total} bytes; "
+                f"{name + ': ' if name else ''}truncated .gsz stream: {self._fed:,} of {total} bytes; "
                 f"decoded {self._layers_done} of {layers} layers ({got:,} Gaussians)"), stacklevel=2)
         return res
 
@@ -222,6 +236,24 @@ class StreamDecoder:
         per_byte = GAUSSIANS_PER_BYTE if self.max_gaussians is None else None
         self._states = {t: LayerState(limit=info.num_gaussians, what=f"tile {t}'s" if tiled else "the header's",
                                       per_byte=per_byte) for t, info in enumerate(self._tiles)}
+
+    def _feed(self, piece) -> list[StreamUpdate]:
+        """Route a piece through the GLB unwrapper when the stream is a .glb (told by its first
+        4 bytes), then into the .gsz buffer."""
+        if self._sniff is not None:
+            self._sniff += piece
+            if len(self._sniff) < len(GLB_MAGIC):
+                return []
+            if is_glb(self._sniff):
+                self._glb = GlbUnwrapper()
+            piece, self._sniff = memoryview(bytes(self._sniff)), None
+        if self._glb is not None:
+            piece = self._glb.feed(piece)
+            if not len(piece):
+                return []
+        self._buf += piece
+        self._received += len(piece)
+        return self._advance()
 
     def _advance(self) -> list[StreamUpdate]:
         if self.header is None:
@@ -281,7 +313,7 @@ class StreamDecoder:
         return StreamUpdate(cumulative=lambda n=n: self._cumulative(n), part=cloud, layer=part.layer,
                             tile=part.tile, layers_total=self._plan.num_layers,
                             tiles_total=self._plan.num_tiles, layer_complete=layer_complete,
-                            bytes_received=self._received, complete=n == len(parts))
+                            bytes_received=self._fed, complete=n == len(parts))
 
 
 def _pieces(source, chunk_size: int):

@@ -17,8 +17,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="gsz-encode", description="Compress a trained 3DGS point_cloud.ply into a .gsz file.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("input", help="input PLY (graphdeco 3DGS layout, SH degree 0-3)")
-    p.add_argument("-o", "--output", required=True, help="output .gsz file (written atomically)")
+    p.add_argument("input", help="input scene, told by content: a graphdeco 3DGS PLY (SH degree 0-3) or a "
+                                 "KHR_gaussian_splatting .glb/.gltf")
+    p.add_argument("-o", "--output", required=True,
+                   help="output .gsz file, or OUT.glb: the .gsz inside a glTF binary "
+                        "(EXT_gaussian_splatting_compression_gsz, format_spec/GLTF.md); written atomically")
     budget = p.add_argument_group("size target (the encoder searches the configuration; give one)")
     budget.add_argument("--size", default=None, help="byte budget, e.g. 5MB, 4.5MiB, 800kB, 1200000")
     budget.add_argument("--ratio", default=None, help="compression ratio vs the input PLY, e.g. 30 or 30x")
@@ -68,11 +71,11 @@ def _read_inputs(a, prog):
     import numpy as np
 
     from gsz.decoder.errors import PlyFormatError
-    from gsz.decoder.ply import read_ply
+    from gsz.decoder.formats import load
     with prog.stage("read", a.input):
-        cloud = read_ply(a.input)
+        cloud = load(a.input)                 # PLY, .glb or .gltf by content
     if len(cloud) == 0:
-        raise PlyFormatError("has 0 vertices: nothing to encode", a.input)
+        raise PlyFormatError("has 0 vertices (Gaussians): nothing to encode", a.input)
     zero = ~(np.abs(cloud.rotations).sum(axis=1) > 0)    # the importance renderer needs a rotation
     if zero.any():
         raise PlyFormatError(f"{int(zero.sum())} vertices have an all-zero rotation quaternion "
@@ -115,6 +118,12 @@ def _run_search(a, prog) -> dict:
     style = size_style(a.size) if a.size is not None else "auto"
     prog.log(f"target size {format_size(target, style)} ({target:,} bytes)")
     cloud, cameras = _read_inputs(a, prog)
+    payload_target = target
+    if _glb_output(a):                        # the budget is the .glb's: leave room for its JSON
+        from gsz.decoder.gltf import glb_overhead
+        payload_target = target - glb_overhead(len(cloud), cloud.sh_degree)
+        if payload_target <= 0:
+            raise GszError(f"--size: {target:,} bytes do not even hold the .glb's JSON", a.output)
     sopts = SearchOptions(solver=a.solver,
                           blocks=SearchOptions.blocks if a.blocks is None else a.blocks,
                           train_views=a.train_views, beta=a.beta,
@@ -122,8 +131,11 @@ def _run_search(a, prog) -> dict:
                           layers=a.layers, first_layer=a.first_layer, tile_gaussians=a.tile_gaussians or None,
                           executor=a.executor, workers=a.workers,
                           codebook=a.codebook)
-    result = encode_to_budget(cloud, target, options=sopts, cameras=cameras, progress=prog, source=a.input)
+    result = encode_to_budget(cloud, payload_target, options=sopts, cameras=cameras, progress=prog,
+                              source=a.input)
     r = _finish(a, result, {"target": format_size(target, style)})
+    if payload_target != target:
+        r.update(target_bytes=target, gsz_target_bytes=payload_target)
     if a.report:
         from .report import write_search_report
         r["report_files"] = write_search_report(r, a.report)
@@ -132,11 +144,23 @@ def _run_search(a, prog) -> dict:
     return r
 
 
+def _glb_output(a) -> bool:
+    return a.output.lower().endswith(".glb")
+
+
 def _finish(a, result, extra: dict) -> dict:
-    """Write the file atomically and complete the report."""
+    """Write the file atomically (a .glb around the .gsz for OUT.glb) and complete the report;
+    ``bytes`` is the written file's size, ``gsz_bytes`` the .gsz payload's."""
     from gsz.decoder.io_util import atomic_write
-    atomic_write(a.output, result.data)       # a GszError naming a.output when it fails
+    data = result.data
     r = result.report
+    r["gsz_bytes"] = len(data)
+    if _glb_output(a):
+        from gsz.decoder.gltf import gsz_glb_bytes
+        data = gsz_glb_bytes(data)
+        r["container"] = "glb"
+    r["bytes"] = len(data)
+    atomic_write(a.output, data)              # a GszError naming a.output when it fails
     in_bytes = a.input_bytes
     r.update(input=a.input, output=a.output, input_bytes=in_bytes, ratio=in_bytes / r["bytes"], **extra)
     return r
@@ -149,6 +173,12 @@ def _check_paths(a) -> None:
     from gsz.decoder.io_util import check_input_file, check_output_path
     a.input_bytes = check_input_file(a.input, PlyFormatError)
     check_output_path(a.output, inputs=[a.input, a.cameras])
+    if a.output.lower().endswith(".gltf"):
+        raise GszError("gsz-encode writes .gsz or .glb (the .gsz needs a glTF binary's BIN chunk); "
+                       "plain glTF comes from gsz-decode IN.gsz -o OUT.gltf", a.output)
+    if _glb_output(a):
+        from gsz.decoder.gltf import pygltflib
+        pygltflib()                           # the missing extra is said before the encode
     if a.report:
         if os.path.exists(a.report) and not os.path.isdir(a.report):
             raise GszError("--report: is a file, expected a folder", a.report)

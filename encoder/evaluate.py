@@ -41,28 +41,17 @@ ERROR_MAP_FULL_SCALE = 0.1
 
 
 def load_cloud(path, *, max_gaussians: int | None = None) -> GaussianCloud:
-    """A scene from a 3DGS ``.ply`` (:func:`gsz.read_ply`) or a ``.gsz`` file
-    (:func:`gsz.decoder.decode`, imported lazily, with ``max_gaussians``).  Raises a
+    """A scene from a 3DGS ``.ply``, a ``.gsz``, a ``.glb`` (plain ``KHR_gaussian_splatting`` or
+    carrying a .gsz) or a ``.gltf``, told by content (:func:`gsz.load`; a .gsz within
+    ``max_gaussians``, see :func:`gsz.decoder.decode`).  Raises a
     :class:`GszError` naming the file."""
     path = os.fspath(path)
     if not os.path.exists(path):
         raise GszError("file not found", path)
     if os.path.isdir(path):
-        raise GszError("is a directory, expected a .ply or .gsz file", path)
-    if path.lower().endswith(".gsz"):
-        try:
-            from gsz.decoder import decode
-        except ImportError:
-            raise GszError(".gsz support is unavailable in this installation "
-                           "(gsz.decoder.decode cannot be imported)", path) from None
-        cloud = decode(path, max_gaussians=max_gaussians)
-        if not isinstance(cloud, GaussianCloud):  # decode may return a richer result object
-            cloud = getattr(cloud, "cloud", cloud)
-        if not isinstance(cloud, GaussianCloud):
-            raise GszError(f"decoder returned {type(cloud).__name__}, not a GaussianCloud", path)
-        return cloud
-    from gsz.decoder.ply import read_ply
-    return read_ply(path)
+        raise GszError("is a directory, expected a .ply, .gsz, .glb or .gltf file", path)
+    from gsz.decoder.formats import load
+    return load(path, max_gaussians=max_gaussians)
 
 
 def _default_render_fn():
@@ -200,8 +189,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="gsz-eval",
         description="Render an original and a compressed 3DGS scene from the same test views and "
                     "report PSNR / SSIM (8-bit protocol; identical images = 100 dB cap).")
-    p.add_argument("original", help="original scene (.ply or .gsz)")
-    p.add_argument("compressed", help="compressed / decoded scene (.gsz or .ply)")
+    p.add_argument("original", help="original scene (.ply, .gsz, .glb or .gltf, told by content)")
+    p.add_argument("compressed", help="compressed / decoded scene (.gsz, a .glb carrying one, .ply, .gltf)")
     p.add_argument("--cameras", metavar="FILE_OR_DIR",
                    help="graphdeco cameras.json or COLMAP model (test = every 8th by name); "
                         "default: deterministic views around the original")

@@ -87,20 +87,24 @@ def _components_of(src) -> dict:
     comps = {}
     for ch in info["chunks"]:
         comps[ch["name"]] = comps.get(ch["name"], 0) + int(ch["bytes"])
-    comps["header+table"] = int(info["bytes"]) - sum(int(c["bytes"]) for c in info["chunks"])
+    comps["header+table"] = int(info["payload"]["bytes"]) - sum(int(c["bytes"]) for c in info["chunks"])
+    if info["container"] == "glb":
+        comps["glTF JSON + GLB framing"] = int(info["bytes"]) - int(info["payload"]["bytes"])
     return comps
 
 
 def scene_from_file(path, name: str | None = None, *, max_gaussians: int | None = None) -> Scene:
-    """Load a .ply or .gsz (GszError naming the file on failure; a .gsz within
-    ``max_gaussians``, see :func:`gsz.decoder.decode`) with its size and, for a .gsz, its
-    per-component bytes."""
+    """Load a .ply, .gsz, .glb or .gltf (told by content; GszError naming the file on failure;
+    a .gsz within ``max_gaussians``, see :func:`gsz.decoder.decode`) with its size and, for a
+    .gsz or a .glb carrying one, its per-component bytes."""
+    from gsz.decoder.formats import is_compressed
     from gsz.encoder.evaluate import load_cloud
     path = os.fspath(path)
     cloud = load_cloud(path, max_gaussians=max_gaussians)
-    comps = _components_of(path) if path.lower().endswith(".gsz") else {}
+    compressed = is_compressed(path)
+    comps = _components_of(path) if compressed else {}
     return Scene(name or os.path.basename(path), cloud, path, os.path.getsize(path), comps,
-                 max_gaussians=max_gaussians)
+                 max_gaussians=max_gaussians, compressed=compressed)
 
 
 def scene_from_bytes(name: str, data: bytes, cloud: GaussianCloud | None = None) -> Scene:
@@ -119,7 +123,7 @@ def layer_prefix_scenes(scene: Scene) -> list:
     """For a scene decoded from a layered .gsz: one scene per proper prefix of its layers (what a
     streaming client shows after layer 0, after layers 0-1, ...), each labelled with the bytes
     received by then.  [] for single-layer files and PLYs."""
-    if not scene.path or not scene.path.lower().endswith(".gsz"):
+    if not scene.path or not scene.compressed:
         return []
     from gsz.decoder import inspect
     rows = inspect(scene.path)["layers"]
@@ -128,7 +132,7 @@ def layer_prefix_scenes(scene: Scene) -> list:
         n = r["cumulative_gaussians"]
         name = f"{scene.name} (layer 0)" if r["layer"] == 0 else f"{scene.name} (layers 0-{r['layer']})"
         out.append(Scene(name, scene.cloud.subset(np.arange(n)), scene.path, r["decodable_at"], {},
-                         whole=scene.cloud))
+                         whole=scene.cloud, compressed=True))
     return out
 
 
@@ -230,8 +234,8 @@ class ViewerApp(ViewState):
         fast as it decodes): the scene empties, then grows layer by layer as bytes 'arrive'."""
         from .streaming import StreamPlayback
         scene = scene or self.stream_candidate()
-        if scene is None or not scene.path or not scene.path.lower().endswith(".gsz"):
-            raise GszError("streaming replay needs a .gsz scene")
+        if scene is None or not scene.path or not scene.compressed:
+            raise GszError("streaming replay needs a .gsz scene (or a .glb carrying one)")
         self.stop_stream()
         with open(scene.path, "rb") as f:
             data = f.read()

@@ -1,6 +1,6 @@
-"""``gsz-view``: look at a .gsz / .ply, or compare a decoded scene with its original.
+"""``gsz-view``: look at a .gsz / .ply / .glb / .gltf, or compare a decoded scene with its original.
 
-    gsz-view FILE                                   # one scene (.gsz or .ply)
+    gsz-view FILE                                   # one scene (.gsz, .ply, .glb or .gltf)
     gsz-view DECODED.gsz --compare ORIGINAL.ply     # A/B compare: split, side by side, flip
     gsz-view ORIGINAL.ply --budgets 2MB,5MB,10MB    # encode at each budget in the background,
                                                     # then compare the one picked in the panel
@@ -33,9 +33,9 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Window keys: drag orbit, right-drag look, middle/shift-drag pan, wheel zoom, "
                "WASD/QE fly (shift x4), 1/2/3 single/split/side, F or space flip, H heat map, "
                "[ ] previous/next camera, R reset, P screenshot, Tab panel, Esc quit.")
-    p.add_argument("file", help="scene to show (.gsz or .ply); with --budgets, the original")
+    p.add_argument("file", help="scene to show (.gsz, .ply, .glb or .gltf, told by content); with --budgets, the original")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--compare", metavar="ORIGINAL", help="original scene (.ply/.gsz) to compare FILE with")
+    g.add_argument("--compare", metavar="ORIGINAL", help="original scene (.ply/.gsz/.glb/.gltf) to compare FILE with")
     g.add_argument("--budgets", metavar="LIST",
                    help="comma-separated sizes (e.g. 2MB,5MB,10MB): encode FILE at each in the "
                         "background and compare")
@@ -175,8 +175,8 @@ def _first_layers(scene, k):
         return scene
     from .app import layer_prefix_scenes
     prefixes = layer_prefix_scenes(scene)
-    if not scene.path or not scene.path.lower().endswith(".gsz"):
-        raise _UsageError(f"--layers {k}: {scene.path} is not a .gsz file")
+    if not scene.path or not scene.compressed:
+        raise _UsageError(f"--layers {k}: {scene.path} is not a .gsz file (or a .glb carrying one)")
     if k > len(prefixes) + 1:
         raise _UsageError(f"--layers {k}: {scene.path} has {len(prefixes) + 1} layer(s)")
     return prefixes[k - 1] if k <= len(prefixes) else scene
@@ -260,7 +260,7 @@ def _interactive(args, a, b, jobs) -> None:
     rate = None
     if args.simulate_network is not None:
         target = b if b is not None else a
-        if not (target.path or "").lower().endswith(".gsz") or args.layers is not None:
+        if not (target.path and target.compressed) or args.layers is not None:
             raise _UsageError("--simulate-network replays a .gsz FILE (not with --layers or --budgets)")
         rate = parse_rate(args.simulate_network)
     width = 1280 if args.width is None else args.width

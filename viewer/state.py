@@ -45,6 +45,8 @@ class Scene:
     file_bytes  size of the file it came from (None if unknown)
     components  per-component bytes of a .gsz (chunk name -> bytes, from ``inspect()``)
     max_gaussians  the decoder limit it was loaded with (a stream replay uses it too)
+    compressed  the file is a .gsz or a .glb carrying one (told by content): it has layers and
+                can be replayed through the streaming decoder
     """
 
     name: str
@@ -57,6 +59,7 @@ class Scene:
     whole: GaussianCloud | None = None      # for a layer prefix / a stream: the whole file's cloud
     note: str = ""                          # shown after the label (e.g. streaming progress)
     max_gaussians: int | None = None
+    compressed: bool = False
 
     @property
     def frame_cloud(self) -> GaussianCloud:
@@ -130,8 +133,7 @@ class ViewState:
     def stream_candidate(self) -> Scene | None:
         """The scene a stream replay applies to: the decoded .gsz (B, else a lone .gsz A)."""
         for s in ([self.b] if self.b is not None else []) + [self.a]:
-            is_gsz = bool(s.path) and s.path.lower().endswith(".gsz")
-            if is_gsz and (s.whole is None or s is self.stream_scene):   # not a layer prefix
+            if bool(s.path) and s.compressed and (s.whole is None or s is self.stream_scene):   # not a layer prefix
                 return s
         return None
 

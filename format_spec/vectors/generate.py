@@ -3,6 +3,7 @@
     .venv/bin/python format_spec/vectors/generate.py            # rewrite the .json files (and
                                                                 # encode vectors not yet committed)
     .venv/bin/python format_spec/vectors/generate.py --encode   # re-encode the .gsz files too
+    .venv/bin/python format_spec/vectors/generate.py --rewrap   # rewrite the .glb vectors too
 
 The .gsz files are the fixed bitstream of the format: the default mode reads the committed files
 and only rewrites the JSON beside each (run it after changing what the JSON lists; `git diff
@@ -159,6 +160,34 @@ def write_json(name: str, data: bytes, opts: dict) -> None:
     print(f"{name}: {len(data)} bytes, {len(dec)} Gaussians")
 
 
+#: .gsz vectors also committed wrapped in a .glb (EXT_gaussian_splatting_compression_gsz,
+#: GLTF.md §3): the layered one, so a loader's streaming through the JSON chunk is covered too
+GLB_VECTORS = ["sh2_jug_400_layers3"]
+
+
+def write_glb_vector(name: str, rewrap: bool) -> None:
+    """``<name>.glb`` (written when missing or ``rewrap``: its bytes name the gsz version in
+    ``asset.generator``) and ``<name>.glb.json``: its hash, the payload's place and hash (the
+    committed ``<name>.gsz`` byte for byte), and each layer's ``decodable_at`` in .glb offsets.
+    The decoded values are those listed in ``<name>.json``."""
+    from gsz.decoder import decode, inspect
+    from gsz.decoder.gltf import gsz_glb_bytes
+    payload = (HERE / f"{name}.gsz").read_bytes()
+    path = HERE / f"{name}.glb"
+    if rewrap or not path.exists():
+        path.write_bytes(gsz_glb_bytes(payload))
+    data = path.read_bytes()
+    info = inspect(data)
+    start, size = info["payload"]["offset"], info["payload"]["bytes"]
+    assert data[start:start + size] == payload and decode(data).equals(decode(payload))
+    exp = {"file": f"{name}.glb", "file_sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data),
+           "decodes_as": f"{name}.json",
+           "payload": {"offset": start, "bytes": size, "sha256": hashlib.sha256(payload).hexdigest()},
+           "layers": [{k: r[k] for k in ("layer", "cumulative_gaussians", "decodable_at")} for r in info["layers"]]}
+    (HERE / f"{name}.glb.json").write_text(json.dumps(exp, indent=1) + "\n")
+    print(f"{name}.glb: {len(data)} bytes, payload at {start}")
+
+
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
     reencode = "--encode" in argv
@@ -182,6 +211,8 @@ def main(argv=None):
             (HERE / f"{name}.gsz").write_bytes(res.data)
             assert decode(res.data).equals(res.cloud)
         write_json(name, (HERE / f"{name}.gsz").read_bytes(), opts)
+    for name in GLB_VECTORS:
+        write_glb_vector(name, rewrap=reencode or "--rewrap" in argv)
 
 
 if __name__ == "__main__":
