@@ -11,11 +11,11 @@ The top-level namespace re-exports the numpy-only core (no torch import here):
 Sub-packages: ``gsz.decoder`` (numpy-only bitstream reader), ``gsz.encoder`` (torch CPU
 encoder, renderer, metrics), ``gsz.kernels`` (CUDA/CPU quantisation kernels), ``gsz.viewer``.
 """
-from gsz.decoder.cloud import GaussianCloud
-from gsz.decoder.errors import GltfFormatError, GszError, PlyFormatError
-from gsz.decoder.formats import load, save
-from gsz.decoder.gltf import read_gltf, write_gltf
-from gsz.decoder.ply import read_ply, write_ply
+from .decoder.cloud import GaussianCloud
+from .decoder.errors import GltfFormatError, GszError, PlyFormatError
+from .decoder.formats import load, save
+from .decoder.gltf import read_gltf, write_gltf
+from .decoder.ply import read_ply, write_ply
 
 #: the one place the version is written (pyproject.toml reads it; META records "gsz <version>")
 __version__ = "0.1.0"

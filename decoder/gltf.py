@@ -64,7 +64,7 @@ def _document(lib, extensions_used: list, extensions_required: list):
 
 
 def _version() -> str:
-    from gsz import __version__
+    from .. import __version__
     return __version__
 
 

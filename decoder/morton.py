@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gsz.decoder.errors import GszFormatError
+from .errors import GszFormatError
 
 MAX_DEPTH = 21
 _MASK21 = np.uint64((1 << 21) - 1)

@@ -19,7 +19,6 @@ Nothing here changes the bitstream: both paths read and write identical bytes.
 from __future__ import annotations
 
 import contextlib
-import functools
 import os
 import threading
 
@@ -125,22 +124,3 @@ def module():
     return _module
 
 
-@functools.lru_cache(maxsize=8)
-def octree_tables(precision: int) -> tuple:
-    """The tables the C octree traversal takes, built from the normative Python definitions in
-    ``gsz.decoder.octree``: neighbourhood plans, child plans, P16_TO_MODEL, the frequency of a 0
-    of every bank model at rANS ``precision`` (``octree.bank_precision``), the chunk schedule,
-    COUNT_LIMIT and MIX_WEIGHT.  The C code hard-codes only the context layout, checked here."""
-    from . import octree as o
-    if (o.NUM_COARSE, o.NUM_FINE) != (_module.NUM_COARSE, _module.NUM_FINE):
-        raise AssertionError("octree context layout differs between Python and csrc/octree.h")
-    ms = o._bank_model_set(int(precision))
-    t = ms.build()
-    if not (np.all(t["sym_count"] == 2) and np.all(ms.prec == precision)
-            and np.array_equal(t["value"], np.tile([0, 1], o.NUM_MODELS))):
-        raise AssertionError("bank models are not binary models of one precision")
-    freq0 = np.ascontiguousarray(t["freq"][t["sym_start"]], dtype=np.int64)
-    c64 = (lambda a: np.ascontiguousarray(a, dtype=np.int64))
-    return (c64(o.PLAN_KNOWN), c64(o.PLAN_UNKNOWN), c64(o.CHILD_PAR), c64(o.CHILD_IDX),
-            c64(o.P16_TO_MODEL), freq0, int(precision), o.CHUNK_MIN, o.CHUNK_MAX,
-            o.COUNT_LIMIT, o.MIX_WEIGHT)

@@ -46,10 +46,10 @@ from typing import Callable
 
 import numpy as np
 
-from gsz.decoder import native
-from gsz.decoder.errors import GszFormatError
-from gsz.decoder.morton import MAX_DEPTH, morton_decode
-from gsz.decoder.rans import (COARSE, OCTREE_MAX_ROWS, ModelSet, RansDecoder, lut_budget, parse_payload_header,
+from . import native
+from .errors import GszFormatError
+from .morton import MAX_DEPTH, morton_decode
+from .rans import (COARSE, OCTREE_MAX_ROWS, ModelSet, RansDecoder, lut_budget, parse_payload_header,
                               read_varint)
 
 # ---------------------------------------------------------------- model constants (normative)
@@ -572,7 +572,7 @@ def decode_octree_codes(payload, depth: int, num_points: int, helper=None) -> np
         # the payload header is validated here exactly as RansDecoder does (ENTROPY.md 4.1);
         # the C code re-checks what it relies on
         lanes, _, p = parse_payload_header(body, num_symbols, OCTREE_MAX_ROWS)
-        tables = native.octree_tables(bank_precision(num_symbols))
+        tables = octree_tables(bank_precision(num_symbols))
         raw = native.module().octree_decode(tables, int(depth), int(num_points), int(num_symbols),
                                             int(lanes), body[p:], helper)
         return np.frombuffer(raw, dtype="<u8").astype(np.uint64, copy=False)
@@ -598,3 +598,23 @@ def decode_octree(payload, depth: int, num_points: int) -> np.ndarray:
     Raises GszFormatError on any corrupt, truncated or inconsistent payload.
     """
     return morton_decode(decode_octree_codes(payload, depth, num_points))
+
+
+@functools.lru_cache(maxsize=8)
+def octree_tables(precision: int) -> tuple:
+    """The tables the C octree traversal takes, built from the normative Python definitions in
+    this module: neighbourhood plans, child plans, P16_TO_MODEL, the frequency of a 0
+    of every bank model at rANS ``precision`` (:func:`bank_precision`), the chunk schedule,
+    COUNT_LIMIT and MIX_WEIGHT.  The C code hard-codes only the context layout, checked here."""
+    if (NUM_COARSE, NUM_FINE) != (native.module().NUM_COARSE, native.module().NUM_FINE):
+        raise AssertionError("octree context layout differs between Python and csrc/octree.h")
+    ms = _bank_model_set(int(precision))
+    t = ms.build()
+    if not (np.all(t["sym_count"] == 2) and np.all(ms.prec == precision)
+            and np.array_equal(t["value"], np.tile([0, 1], NUM_MODELS))):
+        raise AssertionError("bank models are not binary models of one precision")
+    freq0 = np.ascontiguousarray(t["freq"][t["sym_start"]], dtype=np.int64)
+    c64 = (lambda a: np.ascontiguousarray(a, dtype=np.int64))
+    return (c64(PLAN_KNOWN), c64(PLAN_UNKNOWN), c64(CHILD_PAR), c64(CHILD_IDX),
+            c64(P16_TO_MODEL), freq0, int(precision), CHUNK_MIN, CHUNK_MAX,
+            COUNT_LIMIT, MIX_WEIGHT)

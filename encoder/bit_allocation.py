@@ -27,7 +27,7 @@ import warnings
 
 import numpy as np
 
-from gsz.decoder.errors import GszError
+from ..decoder.errors import GszError
 
 __all__ = ["AllocationError", "InfeasibleBudgetError", "allocate", "allocate_fast", "allocate_cbc",
            "objective", "total_rate", "minimum_rate"]

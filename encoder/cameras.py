@@ -68,8 +68,8 @@ import os  # noqa: E402
 import struct  # noqa: E402
 import warnings  # noqa: E402
 
-from gsz.decoder.errors import CameraFormatError  # noqa: E402
-from gsz.decoder.io_util import atomic_write  # noqa: E402
+from ..decoder.errors import CameraFormatError  # noqa: E402
+from ..decoder.io_util import atomic_write  # noqa: E402
 
 #: 3DGS / MesonGS++ protocol: after sorting by image name, every 8th view (idx % 8 == 0) is a
 #: test view, all others train (reference notes §1.1, §11).

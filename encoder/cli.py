@@ -7,7 +7,7 @@ import json
 import os
 import sys
 
-from gsz.decoder.errors import GszError
+from ..decoder.errors import GszError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -70,8 +70,8 @@ def _read_inputs(a, prog):
     """The input cloud and, when --cameras is given, its train cameras."""
     import numpy as np
 
-    from gsz.decoder.errors import PlyFormatError
-    from gsz.decoder.formats import load
+    from ..decoder.errors import PlyFormatError
+    from ..decoder.formats import load
     with prog.stage("read", a.input):
         cloud = load(a.input)                 # PLY, .glb or .gltf by content
     if len(cloud) == 0:
@@ -120,7 +120,7 @@ def _run_search(a, prog) -> dict:
     cloud, cameras = _read_inputs(a, prog)
     payload_target = target
     if _glb_output(a):                        # the budget is the .glb's: leave room for its JSON
-        from gsz.decoder.gltf import glb_overhead
+        from ..decoder.gltf import glb_overhead
         payload_target = target - glb_overhead(len(cloud), cloud.sh_degree)
         if payload_target <= 0:
             raise GszError(f"--size: {target:,} bytes do not even hold the .glb's JSON", a.output)
@@ -151,12 +151,12 @@ def _glb_output(a) -> bool:
 def _finish(a, result, extra: dict) -> dict:
     """Write the file atomically (a .glb around the .gsz for OUT.glb) and complete the report;
     ``bytes`` is the written file's size, ``gsz_bytes`` the .gsz payload's."""
-    from gsz.decoder.io_util import atomic_write
+    from ..decoder.io_util import atomic_write
     data = result.data
     r = result.report
     r["gsz_bytes"] = len(data)
     if _glb_output(a):
-        from gsz.decoder.gltf import gsz_glb_bytes
+        from ..decoder.gltf import gsz_glb_bytes
         data = gsz_glb_bytes(data)
         r["container"] = "glb"
     r["bytes"] = len(data)
@@ -169,15 +169,15 @@ def _finish(a, result, extra: dict) -> dict:
 def _check_paths(a) -> None:
     """Input and output checks after the options' and before the long encode: a readable regular input file, an output
     that is not an input and whose folder is writable, a report folder that can be one."""
-    from gsz.decoder.errors import PlyFormatError
-    from gsz.decoder.io_util import check_input_file, check_output_path
+    from ..decoder.errors import PlyFormatError
+    from ..decoder.io_util import check_input_file, check_output_path
     a.input_bytes = check_input_file(a.input, PlyFormatError)
     check_output_path(a.output, inputs=[a.input, a.cameras])
     if a.output.lower().endswith(".gltf"):
         raise GszError("gsz-encode writes .gsz or .glb (the .gsz needs a glTF binary's BIN chunk); "
                        "plain glTF comes from gsz-decode IN.gsz -o OUT.gltf", a.output)
     if _glb_output(a):
-        from gsz.decoder.gltf import pygltflib
+        from ..decoder.gltf import pygltflib
         pygltflib()                           # the missing extra is said before the encode
     if a.report:
         if os.path.exists(a.report) and not os.path.isdir(a.report):
@@ -199,7 +199,7 @@ def _input_warnings_as_lines():
     'gsz-encode: warning: FILE: ...' line each; other warnings as Python prints them."""
     import warnings
 
-    from gsz.decoder.errors import GszInputWarning
+    from ..decoder.errors import GszInputWarning
     with warnings.catch_warnings():
         shown = warnings.showwarning
 
@@ -216,7 +216,7 @@ def _input_warnings_as_lines():
 def main(argv=None) -> int:
     try:
         a = build_parser().parse_args(argv)   # imports torch: Ctrl-C may land here too
-        from gsz.decoder.io_util import sigterm_as_interrupt
+        from ..decoder.io_util import sigterm_as_interrupt
         with sigterm_as_interrupt(), _input_warnings_as_lines():
             r, prog = _run(a)
     except GszError as e:

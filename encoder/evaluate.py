@@ -25,9 +25,9 @@ import warnings
 
 import numpy as np
 
-from gsz.decoder.cloud import GaussianCloud
-from gsz.decoder.errors import GszError
-from gsz.decoder.io_util import atomic_write
+from ..decoder.cloud import GaussianCloud
+from ..decoder.errors import GszError
+from ..decoder.io_util import atomic_write
 
 from .cameras import load_cameras
 from .metrics import PSNR_CAP_DB, psnr, quantize_8bit, ssim, to_uint8
@@ -50,7 +50,7 @@ def load_cloud(path, *, max_gaussians: int | None = None) -> GaussianCloud:
         raise GszError("file not found", path)
     if os.path.isdir(path):
         raise GszError("is a directory, expected a .ply, .gsz, .glb or .gltf file", path)
-    from gsz.decoder.formats import load
+    from ..decoder.formats import load
     return load(path, max_gaussians=max_gaussians)
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 
-from gsz.decoder.errors import GszError
+from ..decoder.errors import GszError
 
 #: what ``--executor`` accepts besides ``ray://HOST:PORT``
 EXECUTORS = ("local", "inline", "ray")

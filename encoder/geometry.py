@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gsz.decoder.bytesio import Writer
-from gsz.encoder.octree import encode_octree
+from ..decoder.bytesio import Writer
+from .octree import encode_octree
 
 
 def write_geometry(ijk: np.ndarray, origin, side: float, depth: int) -> bytes:

@@ -3,12 +3,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from gsz.decoder.bytesio import Writer
-from gsz.decoder.groups import (MODEL_MODES, MODEL_PER_CHANNEL_BITS, MODEL_PER_GROUP,
+from ..decoder.bytesio import Writer
+from ..decoder.groups import (MODEL_MODES, MODEL_PER_CHANNEL_BITS, MODEL_PER_GROUP,
                                 blocks_for, group_model_ids)
-from gsz.decoder.quant import dequantize_groups, split_lengths
-from gsz.encoder.rans import encode_stream_pair
-from gsz.kernels.quantize import quantize_groups
+from ..decoder.quant import dequantize_groups, split_lengths
+from .rans import encode_stream_pair
+from ..kernels.quantize import quantize_groups
 
 
 def write_channel_set(x: np.ndarray, bits, num_blocks: int) -> tuple[bytes, np.ndarray]:

@@ -25,8 +25,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from gsz.decoder.cloud import GaussianCloud
-from gsz.decoder.errors import GszError
+from ..decoder.cloud import GaussianCloud
+from ..decoder.errors import GszError
 
 #: Default exponent of the volume term (the reference's default and most scenes' value).
 DEFAULT_BETA = 0.1
@@ -92,7 +92,7 @@ def compute_importance(cloud: GaussianCloud, cameras: Sequence, *, beta: float =
     if not cameras:
         raise ImportanceError("compute_importance needs at least one training camera")
     # Imported here: the renderer pulls in torch, which this module otherwise does not need.
-    from gsz.encoder.render import accumulate_importance
+    from .render import accumulate_importance
 
     i_d = np.asarray(accumulate_importance(cloud, cameras, progress=progress), np.float64)
     if i_d.shape != (len(cloud),):

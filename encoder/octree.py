@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from gsz.decoder import native
-from gsz.decoder.errors import CloudValidationError
-from gsz.decoder.morton import MAX_DEPTH, morton_decode, morton_encode
-from gsz.decoder.octree import (SCHEME_ADAPTIVE_BITWISE, bank_model_set, bank_precision,
+from ..decoder import native
+from ..decoder.errors import CloudValidationError
+from ..decoder.morton import MAX_DEPTH, morton_decode, morton_encode
+from ..decoder.octree import (SCHEME_ADAPTIVE_BITWISE, bank_model_set, bank_precision, octree_tables,
                                 walk_octree)
-from gsz.encoder.rans import encode_symbols, varint_bytes
+from .rans import encode_symbols, varint_bytes
 
 
 def occupancy_levels(codes: np.ndarray, depth: int) -> list[np.ndarray]:
@@ -94,7 +94,7 @@ def _native_symbols(codes: np.ndarray, occ: list, depth: int) -> tuple[np.ndarra
     """The traversal with known occupancy in C (``_native.octree_encode``): the same decisions
     and bank model ids as walk_octree with the true_bits source, as uint8 arrays."""
     # the model ids do not depend on the bank precision; any precision's tables will do
-    tables = native.octree_tables(bank_precision(0))
+    tables = octree_tables(bank_precision(0))
     known = np.concatenate(occ).astype(np.uint8) if occ else np.zeros(0, np.uint8)
     sizes = np.array([o.size for o in occ], dtype=np.int64)
     bits, mods, leaves = native.module().octree_encode(tables, depth, int(codes.size), known, sizes)
@@ -116,7 +116,7 @@ def encode_octree(ijk: np.ndarray, depth: int) -> bytes:
     n = int(syms.size)
     if native.enabled():
         # binary rANS in C: the bytes encode_symbols writes for the bank (ENTROPY.md 6)
-        tables = native.octree_tables(bank_precision(n))
+        tables = octree_tables(bank_precision(n))
         body = native.module().bank_encode(syms.astype(np.uint8), mods.astype(np.uint8),
                                            tables[5], tables[6], choose_lanes(n))
     else:

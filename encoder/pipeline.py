@@ -20,17 +20,17 @@ from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
 
-from gsz.decoder.attributes import attributes_from_channels
-from gsz.decoder.bytesio import Writer
-from gsz.decoder.cloud import GaussianCloud
-from gsz.decoder.container import CHUNK_REQUIRED, FRAME_RDF, LAYER_SHIFT, Chunk, FileHeader, write_container
-from gsz.decoder.errors import GszError
-from gsz.decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHVQ, RAHT_CHANNELS,
+from ..decoder.attributes import attributes_from_channels
+from ..decoder.bytesio import Writer
+from ..decoder.cloud import GaussianCloud
+from ..decoder.container import CHUNK_REQUIRED, FRAME_RDF, LAYER_SHIFT, Chunk, FileHeader, write_container
+from ..decoder.errors import GszError
+from ..decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHVQ, RAHT_CHANNELS,
                                 ROTATION_EULER_ZYX)
-from gsz.decoder.morton import morton_encode
-from gsz.decoder.raht import build_raht_tree
-from gsz.decoder.rotation import quaternion_to_euler
-from gsz.decoder.sh import MAX_CODEBOOK
+from ..decoder.morton import morton_encode
+from ..decoder.raht import build_raht_tree
+from ..decoder.rotation import quaternion_to_euler
+from ..decoder.sh import MAX_CODEBOOK
 
 from .cameras import DEFAULT_VIEW_WIDTH
 from .geometry import write_geometry
@@ -84,7 +84,7 @@ MIN_TILE_GAUSSIANS = 4096
 
 def encoder_name() -> str:
     """What META's "encoder" field records: "gsz <version>"."""
-    from gsz import __version__
+    from .. import __version__
     return f"gsz {__version__}"
 
 
@@ -321,7 +321,7 @@ class Stage:
 
     def positions(self) -> np.ndarray:
         """float32 [M, 3] decoded positions in output order (each part on its own grid)."""
-        from gsz.decoder.geometry import voxel_centres
+        from ..decoder.geometry import voxel_centres
         return np.concatenate([voxel_centres(part_ijk(self.vox, l.index, l.grid), *l.grid).astype(np.float32)
                                for l in self.layers])
 
@@ -578,9 +578,9 @@ def code_attributes(job: AttributeJob):
 def attribute_chunk(layer: Layer, raht_bits, scale_bits, blocks: int):
     """One layer's ATTR chunk payload for the given bit-widths (int, or [7, B] / [3, B] arrays),
     the attributes the decoder will reconstruct, and per-part byte counts."""
-    from gsz.decoder import native
-    from gsz.decoder.attributes import attributes_from_coefficients
-    from gsz.decoder.raht import raht_inverse
+    from ..decoder import native
+    from ..decoder.attributes import attributes_from_coefficients
+    from ..decoder.raht import raht_inverse
 
     w = Writer()
     w.u8(ROTATION_EULER_ZYX).u8(len(RAHT_CHANNELS)).array(layer.raht_dc, np.float64)
@@ -600,7 +600,7 @@ def attribute_chunks(stage: Stage, bits, blocks: int):
     """Every layer's ATTR payload.  ``bits``: an int (uniform) or, per layer, a pair
     (raht_bits [7, B_l], scale_bits [3, B_l]).  Returns ([payload per layer], decoded
     Attributes in output order, summed byte counts)."""
-    from gsz.decoder.attributes import Attributes
+    from ..decoder.attributes import Attributes
 
     payloads, parts, stats = [], [], {"raht_bytes": 0, "scale_bytes": 0}
     jobs = []
@@ -815,9 +815,9 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
     attr / sh   per-part ATTR / SHVQ payloads; decoded, sh_rest in output order.  A stage of
                 several tiles gets a TILE chunk first and format version 1.2."""
     import zstandard
-    from gsz.decoder.container import MINOR_LAYERS, MINOR_TILES, TILE_SHIFT, VERSION_MAJOR
-    from gsz.decoder.layout import CHUNK_TILE
-    from gsz.decoder.tiles import TileInfo, pack_tile_table
+    from ..decoder.container import MINOR_LAYERS, MINOR_TILES, TILE_SHIFT, VERSION_MAJOR
+    from ..decoder.layout import CHUNK_TILE
+    from ..decoder.tiles import TileInfo, pack_tile_table
 
     m = stage.num_points
     out_cloud = GaussianCloud(
@@ -954,8 +954,8 @@ def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, t_
 
 def layer_report(data: bytes) -> list[dict]:
     """Per layer of an encoded file: Gaussians and the prefix length that makes it decodable."""
-    from gsz.decoder.container import read_container
-    from gsz.decoder.decode import layer_table
+    from ..decoder.container import read_container
+    from ..decoder.decode import layer_table
     rows = layer_table(read_container(data))
     for r in rows:
         r["decodable_fraction"] = r["decodable_at"] / len(data)

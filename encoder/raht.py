@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gsz.decoder.raht import RahtTree, build_raht_tree, raht_inverse  # noqa: F401  (re-export)
+from ..decoder.raht import RahtTree, build_raht_tree, raht_inverse  # noqa: F401  (re-export)
 
 
 def raht_forward(attrs: np.ndarray, tree: RahtTree) -> tuple[np.ndarray, np.ndarray]:

@@ -11,9 +11,9 @@ import math
 import numpy as np
 import zstandard
 
-from gsz.decoder import native
-from gsz.decoder.errors import GszFormatError
-from gsz.decoder.rans import (COARSE, EMPTY, LAPLACE, LAPLACE_SCALE_BITS, MAX_LEVEL_EXP,
+from ..decoder import native
+from ..decoder.errors import GszFormatError
+from ..decoder.rans import (COARSE, EMPTY, LAPLACE, LAPLACE_SCALE_BITS, MAX_LEVEL_EXP,
                               MAX_PRECISION, MAX_ROWS, MAX_SPAN, RATIO_ONE, SINGLE, STATE_LOW, VALUE_LIMIT,
                               WORD_BITS, ModelSet,
                               laplace_weights, level_weights, lut_budget, max_level_code,

@@ -41,10 +41,10 @@ import math
 
 import numpy as np
 
-from gsz.decoder import native
-from gsz.decoder.errors import GszError
-from gsz.decoder.quant import MAX_BITS, MIN_BITS
-from gsz.decoder.rans import MAX_PRECISION
+from ..decoder import native
+from ..decoder.errors import GszError
+from ..decoder.quant import MAX_BITS, MIN_BITS
+from ..decoder.rans import MAX_PRECISION
 
 __all__ = ["rate_matrix", "rate_from_stats", "group_stats", "channel_set_overhead_bits",
            "RateModelError", "TABLE_COEFFS"]

@@ -66,9 +66,9 @@ from typing import Callable
 import numpy as np
 import torch
 
-from gsz.decoder.cloud import GaussianCloud
-from gsz.decoder.errors import GszError
-from gsz.encoder.cameras import Camera, look_at, robust_bounds
+from ..decoder.cloud import GaussianCloud
+from ..decoder.errors import GszError
+from .cameras import Camera, look_at, robust_bounds
 
 __all__ = ["RenderOutput", "render", "accumulate_importance", "framing_camera",
            "kernel_available", "SH_C0", "SH_C1", "SH_C2", "SH_C3"]

@@ -43,7 +43,7 @@ def bits_heatmap(rows: list[tuple[str, np.ndarray]], cell: int = 10):
 
 def write_search_report(report: dict, folder) -> list[str]:
     """Write ``bits.png`` (heatmap of the chosen bit-widths) and ``report.json`` into ``folder``."""
-    from gsz.decoder.io_util import atomic_write
+    from ..decoder.io_util import atomic_write
     import io
     os.makedirs(folder, exist_ok=True)
     bits = report["bits"]

@@ -32,8 +32,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from gsz.decoder.cloud import GaussianCloud
-from gsz.decoder.errors import GszInputWarning
+from ..decoder.cloud import GaussianCloud
+from ..decoder.errors import GszInputWarning
 
 OPACITY_LOGIT_LIMIT = 20.0
 COLOUR_LIMIT = 20.0

@@ -24,7 +24,7 @@ import math
 import re
 from fractions import Fraction
 
-from gsz.decoder.errors import GszError
+from ..decoder.errors import GszError
 
 
 class SizeSpecError(GszError, ValueError):

@@ -53,12 +53,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gsz.decoder.cloud import GaussianCloud
-from gsz.decoder.errors import GszError
+from ..decoder.cloud import GaussianCloud
+from ..decoder.errors import GszError
 # The decoder's reconstruction rule is the normative one; re-exported for encoder callers.
-from gsz.decoder.geometry import voxel_centres  # noqa: F401  (origin + (ijk + 0.5) * pitch)
-from gsz.decoder.morton import MAX_DEPTH, morton_encode
-from gsz.decoder.rotation import quaternion_to_matrix
+from ..decoder.geometry import voxel_centres  # noqa: F401  (origin + (ijk + 0.5) * pitch)
+from ..decoder.morton import MAX_DEPTH, morton_encode
+from ..decoder.rotation import quaternion_to_matrix
 
 #: Default relative position-error budget of :func:`choose_depth` (see module docstring).
 DEFAULT_REL_ERROR = 5e-4

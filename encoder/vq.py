@@ -34,7 +34,7 @@ from typing import Callable, Iterator
 import numpy as np
 import torch
 
-from gsz.decoder.errors import GszError
+from ..decoder.errors import GszError
 
 #: Defaults chosen by measurement: docs/design/vq.md.
 DEFAULT_ITERS = 50

@@ -16,8 +16,8 @@ from typing import Callable
 import numpy as np
 import torch
 
-from gsz.decoder.errors import GszError
-from gsz.decoder.quant import MAX_BITS, MIN_BITS
+from ..decoder.errors import GszError
+from ..decoder.quant import MAX_BITS, MIN_BITS
 
 from . import quantize_cpu
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import torch
 
-from gsz.decoder.quant import MAX_BITS
+from ..decoder.quant import MAX_BITS
 
 # Elements per chunk: 1M float64 = 8 MB per scratch buffer (three buffers live at once).
 CHUNK_ELEMENTS = 1 << 20

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gsz.decoder.cloud import GaussianCloud
-from gsz.decoder.errors import GszError
+from ..decoder.cloud import GaussianCloud
+from ..decoder.errors import GszError
 
 from .camera_control import CameraController
 from .gl_renderer import FloatTarget, SplatRenderer, load_shader
@@ -82,7 +82,7 @@ class KeyUp:
 # ------------------------------------------------------------------------------------------------
 
 def _components_of(src) -> dict:
-    from gsz.decoder import inspect
+    from ..decoder import inspect
     info = inspect(src)
     comps = {}
     for ch in info["chunks"]:
@@ -97,8 +97,8 @@ def scene_from_file(path, name: str | None = None, *, max_gaussians: int | None 
     """Load a .ply, .gsz, .glb or .gltf (told by content; GszError naming the file on failure;
     a .gsz within ``max_gaussians``, see :func:`gsz.decoder.decode`) with its size and, for a
     .gsz or a .glb carrying one, its per-component bytes."""
-    from gsz.decoder.formats import is_compressed
-    from gsz.encoder.evaluate import load_cloud
+    from ..decoder.formats import is_compressed
+    from ..encoder.evaluate import load_cloud
     path = os.fspath(path)
     cloud = load_cloud(path, max_gaussians=max_gaussians)
     compressed = is_compressed(path)
@@ -110,7 +110,7 @@ def scene_from_file(path, name: str | None = None, *, max_gaussians: int | None 
 def scene_from_bytes(name: str, data: bytes, cloud: GaussianCloud | None = None) -> Scene:
     """A scene for an in-memory .gsz (a budget encode); decodes ``data`` when no cloud given."""
     if cloud is None:
-        from gsz.decoder import decode
+        from ..decoder import decode
         cloud = decode(data)
     try:
         comps = _components_of(data)
@@ -125,7 +125,7 @@ def layer_prefix_scenes(scene: Scene) -> list:
     received by then.  [] for single-layer files and PLYs."""
     if not scene.path or not scene.compressed:
         return []
-    from gsz.decoder import inspect
+    from ..decoder import inspect
     rows = inspect(scene.path)["layers"]
     out = []
     for r in rows[:-1]:
@@ -214,7 +214,7 @@ class ViewerApp(ViewState):
     # -- helpers -------------------------------------------------------------------------------
     @staticmethod
     def _scene_radius(cloud) -> float:
-        from gsz.encoder.cameras import robust_bounds
+        from ..encoder.cameras import robust_bounds
         if len(cloud) == 0:
             return 1.0
         lo, hi, _ = robust_bounds(cloud.positions)
@@ -573,7 +573,7 @@ def write_png(path: str, rgb: np.ndarray) -> None:
     """Write an [H, W, 3] uint8 image atomically (temp file + rename)."""
     import io
     from PIL import Image
-    from gsz.decoder.io_util import atomic_write
+    from ..decoder.io_util import atomic_write
     buf = io.BytesIO()
     Image.fromarray(np.ascontiguousarray(rgb, np.uint8), "RGB").save(buf, format="PNG", optimize=True)
     atomic_write(path, buf.getvalue())

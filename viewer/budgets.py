@@ -14,7 +14,7 @@ import time
 import traceback
 from dataclasses import dataclass, field
 
-from gsz.decoder.errors import GszError
+from ..decoder.errors import GszError
 
 __all__ = ["BudgetResult", "BudgetJobs", "parse_budgets"]
 
@@ -26,7 +26,7 @@ def parse_budgets(text: str, parse_size=None) -> list:
     Raises GszError (from the parser) for a bad size, or for an empty list.
     """
     if parse_size is None:
-        from gsz.encoder.sizes import parse_size
+        from ..encoder.sizes import parse_size
     items = [s.strip() for s in str(text).split(",") if s.strip()]
     if not items:
         raise GszError(f"--budgets: expected sizes like 2MB,5MB, got {text!r}")
@@ -68,7 +68,7 @@ class _ProgressSink:
 
     def memory_report(self) -> dict:
         """The process peak only (this sink does not track stages)."""
-        from gsz.encoder.progress import memory_mb
+        from ..encoder.progress import memory_mb
         return {"peak_rss_mb": round(memory_mb()[1], 1), "stages": {}}
 
     def stage(self, name: str, detail: str = ""):
@@ -148,7 +148,7 @@ class BudgetJobs:
         fn = self._encode_fn
         if fn is None:
             try:
-                from gsz.encoder.search import encode_to_budget as fn
+                from ..encoder.search import encode_to_budget as fn
             except ImportError as e:
                 raise GszError(f"the size-targeted encoder is unavailable ({e})") from None
         return fn
@@ -158,8 +158,8 @@ class BudgetJobs:
         if f is None:
             return None
         if f == "default":
-            from gsz.encoder.pipeline import EncodeOptions, compute_train_importance
-            from gsz.encoder.progress import Progress
+            from ..encoder.pipeline import EncodeOptions, compute_train_importance
+            from ..encoder.progress import Progress
             return compute_train_importance(self.cloud, EncodeOptions(), progress=Progress(quiet=True))
         return f(self.cloud)
 

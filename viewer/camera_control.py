@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from gsz.encoder.cameras import Camera
+from ..encoder.cameras import Camera
 
 __all__ = ["CameraController", "rotation_about"]
 

@@ -20,7 +20,7 @@ import sys
 
 import numpy as np
 
-from gsz.decoder.errors import GszError
+from ..decoder.errors import GszError
 
 __all__ = ["main", "build_parser"]
 
@@ -73,7 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     lab.add_argument("--labels", dest="labels", action="store_true", default=None,
                      help="screenshot: draw the size / PSNR labels (default when comparing)")
     lab.add_argument("--no-labels", dest="labels", action="store_false")
-    from gsz.decoder.cli import add_max_gaussians
+    from ..decoder.cli import add_max_gaussians
     add_max_gaussians(p)
     return p
 
@@ -93,7 +93,7 @@ def _parse_background(text: str):
 
 
 def _up_vector(up_arg, cloud, cameras_path, cams):
-    from gsz.encoder.cameras import _up_vector, detect_up
+    from ..encoder.cameras import _up_vector, detect_up
     if up_arg != "auto":
         return _up_vector(up_arg)
     if cameras_path is not None:
@@ -106,7 +106,7 @@ def _up_vector(up_arg, cloud, cameras_path, cams):
 
 
 def _load_cameras(args, ref_cloud, width):
-    from gsz.encoder.cameras import load_cameras
+    from ..encoder.cameras import load_cameras
     try:
         cams = load_cameras(args.cameras, ref_cloud, width=width, up=args.up)
     except ValueError as e:
@@ -117,7 +117,7 @@ def _load_cameras(args, ref_cloud, width):
 
 
 def _with_height(cam, height):
-    from gsz.encoder.cameras import Camera
+    from ..encoder.cameras import Camera
     if height is None or height == cam.height:
         return cam
     # Keep the focal length and the optical centre's place: the frame grows or shrinks evenly.
@@ -186,7 +186,7 @@ def _screenshot(args, a, b, jobs) -> str:
     from .app import ViewerApp
     if args.simulate_network is not None:
         raise _UsageError("--simulate-network is for the window; --layers K renders a layer prefix headless")
-    from gsz.encoder.cameras import DEFAULT_VIEW_WIDTH
+    from ..encoder.cameras import DEFAULT_VIEW_WIDTH
     from .gl_renderer import create_headless_context
     width = DEFAULT_VIEW_WIDTH if args.width is None else args.width
     if width < 1 or (args.height is not None and args.height < 1) or width > 16384 \

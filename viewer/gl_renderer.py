@@ -40,8 +40,8 @@ from importlib import resources
 
 import numpy as np
 
-from gsz.decoder.cloud import GaussianCloud
-from gsz.decoder.errors import GszError
+from ..decoder.cloud import GaussianCloud
+from ..decoder.errors import GszError
 
 __all__ = ["GLUnavailable", "create_headless_context", "load_shader", "depth_order",
            "SplatRenderer", "FloatTarget", "render_image"]

@@ -14,8 +14,8 @@ import numpy as np
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from gsz.decoder.cloud import GaussianCloud
-from gsz.decoder.errors import GszError
+from ..decoder.cloud import GaussianCloud
+from ..decoder.errors import GszError
 
 if TYPE_CHECKING:      # annotations only: importing them would load the GL stack
     from .gl_renderer import SplatRenderer
@@ -30,7 +30,7 @@ def format_bytes(n) -> str:
     if n is None:
         return "?"
     try:
-        from gsz.encoder.sizes import format_size
+        from ..encoder.sizes import format_size
         return format_size(int(n))
     except Exception:
         return f"{n / 1e6:.2f} MB" if n >= 1e5 else f"{n / 1e3:.1f} kB"
@@ -111,7 +111,7 @@ class ViewState:
     @staticmethod
     def pivot_distance(cloud, cam) -> float:
         """Distance from ``cam`` to the scene centre (the orbit pivot)."""
-        from gsz.encoder.cameras import robust_bounds
+        from ..encoder.cameras import robust_bounds
         if len(cloud) == 0:
             return 1.0
         lo, hi, _ = robust_bounds(cloud.positions)
@@ -190,7 +190,7 @@ class ViewState:
         def work():
             result = None
             try:
-                from gsz.encoder.metrics import psnr, quantize_8bit, ssim
+                from ..encoder.metrics import psnr, quantize_8bit, ssim
                 qa, qb = quantize_8bit(img_a), quantize_8bit(img_b)
                 result = {"psnr": float(psnr(qa, qb)), "ssim": float(ssim(qa, qb))}
             except Exception as e:   # e.g. torch missing: say so in the panel, never hang

@@ -11,14 +11,14 @@ from __future__ import annotations
 import threading
 import time
 
-from gsz.decoder.errors import GszError
+from ..decoder.errors import GszError
 
 PIECE = 16384          # bytes per simulated network read
 
 
 def parse_rate(text: str) -> float:
     """'2MB/s', '500kB', '1.5MiB/s' -> bytes per second (> 0)."""
-    from gsz.encoder.sizes import parse_size
+    from ..encoder.sizes import parse_size
     t = str(text).strip()
     if t.lower().endswith("/s"):
         t = t[:-2]
@@ -76,7 +76,7 @@ class StreamPlayback:
         return False
 
     def _run(self):
-        from gsz.decoder.stream import StreamDecoder
+        from ..decoder.stream import StreamDecoder
         dec = StreamDecoder(max_gaussians=self.max_gaussians)
         t0 = time.monotonic()
         try:

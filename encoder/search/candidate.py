@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gsz.decoder.cloud import GaussianCloud
+from ...decoder.cloud import GaussianCloud
 
 from .tables import concat_bits
 

@@ -364,7 +364,7 @@ class BudgetSearch:
             raise BudgetError(self.target, self._smallest_file())
         chosen = finalists(self.candidates, self.sopts)
         chosen.sort(key=lambda c: (-c.train_psnr, -c.reserve))
-        from gsz.decoder import decode
+        from ...decoder import decode
         report = search_report(self, chosen[0])
         if "note" in report:
             self.progress.log(report["note"])

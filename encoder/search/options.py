@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from gsz.decoder.errors import GszError
+from ...decoder.errors import GszError
 
 from ..cameras import DEFAULT_VIEW_WIDTH
 from ..pipeline import MANY_BLOCKS, SceneOptions

@@ -5,7 +5,7 @@ import time
 
 import numpy as np
 
-from gsz.decoder.layout import DIRECT_CHANNELS, RAHT_CHANNELS
+from ...decoder.layout import DIRECT_CHANNELS, RAHT_CHANNELS
 
 from ..pipeline import layer_report
 from .candidate import Candidate

@@ -18,8 +18,8 @@ def channel_weights(cloud, cameras, *, seed: int = 0, base_images=None) -> dict:
     the allocation minimises (approximately) rendered error instead of raw parameter SSE.
     ``base_images``: the unperturbed renders (``render(cloud, camera).image``) when the caller
     has them."""
-    from gsz.decoder.cloud import GaussianCloud
-    from gsz.decoder.rotation import euler_to_quaternion, quaternion_to_euler
+    from ...decoder.cloud import GaussianCloud
+    from ...decoder.rotation import euler_to_quaternion, quaternion_to_euler
 
     from ..render import render
     rng = np.random.default_rng(seed)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gsz.decoder.groups import blocks_for
+from ...decoder.groups import blocks_for
 
 from ..pipeline import ShPayloads, Stage, sh_set_blocks, tile_assignment
 from .options import SH_BITS
@@ -68,8 +68,8 @@ class ShStageStats:
             self._compute(max(1, m), rate=False)
 
     def _compute(self, p_max: int, rate: bool = True) -> None:
-        from gsz.decoder.quant import dequantize_groups, split_lengths
-        from gsz.kernels.quantize import quantize_groups
+        from ...decoder.quant import dequantize_groups, split_lengths
+        from ...kernels.quantize import quantize_groups
 
         from ..rate import rate_matrix
         x = self.stage.sh
@@ -167,8 +167,8 @@ class ShModel:
 
     def __init__(self, stage: Stage, codebook: np.ndarray, blocks: int, base: ShStageStats,
                  index: np.ndarray):
-        from gsz.decoder.quant import dequantize_groups, split_lengths
-        from gsz.kernels.quantize import quantize_groups
+        from ...decoder.quant import dequantize_groups, split_lengths
+        from ...kernels.quantize import quantize_groups
 
         from ..rate import rate_matrix
         from ..vq import compact
@@ -254,7 +254,7 @@ KEPT_TABLE_ROWS = 6
 def kept_tables(plan: ShPlan, weight: float, min_bits: int = SH_BITS) -> list:
     """Per layer with kept exact SH vectors: (layer, loss [D, B, 16] = SSE times the SH
     channel weight, rate [D, B, 16] with +inf below ``min_bits``) of their groups."""
-    from gsz.kernels.quantize import quantize_all_bits
+    from ...kernels.quantize import quantize_all_bits
 
     from ..rate import rate_matrix
     out = []

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gsz.decoder.groups import blocks_for
+from ...decoder.groups import blocks_for
 
 from ..pipeline import Stage, encoder_name
 
@@ -19,7 +19,7 @@ def attribute_sets(stage: Stage, blocks: int):
 def raw_tables(stage: Stage, blocks: int):
     """Unweighted loss [C, B, 16] and rate [C, B, 16] of every channel set, computed once per
     stage (the size bounds, every calibration round and every re-run of a tau share them)."""
-    from gsz.kernels.quantize import quantize_all_bits
+    from ...kernels.quantize import quantize_all_bits
 
     from ..rate import rate_matrix
     key = ("tables", blocks)
