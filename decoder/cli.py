@@ -130,6 +130,17 @@ def info_main(argv=None) -> int:
     except KeyboardInterrupt:
         print("gsz-info: interrupted", file=sys.stderr)
         return 130
+    try:
+        return _print_info(a, info)
+    except BrokenPipeError:
+        # the reader (head, less) stopped reading: nothing is wrong with the file; stdout goes
+        # to /dev/null so that the interpreter's final flush does not fail again
+        import os
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+
+
+def _print_info(a, info: dict) -> int:
     from .native import active_path, unavailable_reason
     decoder = {"path": active_path(), "native_unavailable": unavailable_reason() or None}
     if a.json:

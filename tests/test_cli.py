@@ -274,3 +274,25 @@ def test_ctrl_c_during_encode_start_up_is_one_line(tmp_path, capsys, monkeypatch
     assert cli.main([str(SAMPLE_SH0), "-o", str(tmp_path / "x.gsz")]) == 130
     assert "interrupted; no output written" in _one_line_error(capsys)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_gsz_info_into_a_closed_pipe_exits_quietly(monkeypatch, tmp_path):
+    """`gsz-info f.gsz | head -1`: the reader closing the pipe is not an error (no traceback)."""
+    import io
+    from pathlib import Path
+    from gsz.decoder.cli import info_main
+    vec = Path(__file__).resolve().parent.parent / "format_spec" / "vectors" / "sh1_jug_12k_tiles.gsz"
+    fd = os.open(tmp_path / "sink", os.O_WRONLY | os.O_CREAT)
+
+    class ClosedPipe(io.TextIOBase):
+        def write(self, s):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def fileno(self):
+            return fd
+
+    monkeypatch.setattr(sys, "stdout", ClosedPipe())
+    try:
+        assert info_main([str(vec)]) == 0
+    finally:
+        os.close(fd)
