@@ -24,6 +24,7 @@ def add_max_gaussians(p: argparse.ArgumentParser) -> None:
 
 def decode_main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="gsz-decode", description="Decode a .gsz file to a 3DGS PLY or glTF.")
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     p.add_argument("input", help="input .gsz file, or a .glb carrying one (EXT_gaussian_splatting_compression_gsz)")
     p.add_argument("-o", "--output", required=True,
                    help="output: OUT.ply (graphdeco PLY), or OUT.glb / OUT.gltf (plain KHR_gaussian_splatting "
@@ -118,6 +119,7 @@ def _decode_to_file(a):
 
 def info_main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="gsz-info", description="Show the header and chunk table of a .gsz file.")
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     p.add_argument("input", help="input .gsz file, or a .glb carrying one")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     add_max_gaussians(p)
@@ -188,6 +190,11 @@ def _print_info(a, info: dict) -> int:
         print(f"gsz-info: warning: {info['file']}: gsz-decode would reject this file: {lim['exceeded']}",
               file=sys.stderr)
     return 0
+
+
+def _version() -> str:
+    from .. import __version__
+    return __version__
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -8,7 +8,6 @@ from ..decoder.groups import (MODEL_MODES, MODEL_PER_CHANNEL_BITS, MODEL_PER_GRO
                                 blocks_for, group_model_ids)
 from ..decoder.quant import dequantize_groups, split_lengths
 from .rans import encode_stream_pair
-from ..kernels.quantize import quantize_groups
 
 
 def write_channel_set(x: np.ndarray, bits, num_blocks: int) -> tuple[bytes, np.ndarray]:
@@ -17,6 +16,7 @@ def write_channel_set(x: np.ndarray, bits, num_blocks: int) -> tuple[bytes, np.n
     bits: int (uniform) or int array [C, B] with B = blocks_for(L, num_blocks).
     Returns (bytes, dequantised float64 [C, L] exactly as the decoder will reconstruct it).
     """
+    from ..kernels.quantize import quantize_groups   # torch: not needed to build the CLI's parser
     x = np.ascontiguousarray(x, dtype=np.float32)
     c, length = x.shape
     b = blocks_for(length, num_blocks)

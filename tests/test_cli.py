@@ -296,3 +296,19 @@ def test_gsz_info_into_a_closed_pipe_exits_quietly(monkeypatch, tmp_path):
         assert info_main([str(vec)]) == 0
     finally:
         os.close(fd)
+
+
+@pytest.mark.parametrize("tool,module,fn", [("gsz-encode", "gsz.encoder.cli", "main"),
+                                            ("gsz-decode", "gsz.decoder.cli", "decode_main"),
+                                            ("gsz-info", "gsz.decoder.cli", "info_main"),
+                                            ("gsz-eval", "gsz.encoder.evaluate", "main"),
+                                            ("gsz-view", "gsz.viewer.cli", "main")])
+def test_every_tool_has_version_and_help_without_torch(tool, module, fn):
+    """`--version` prints the package version; `--help` answers without importing torch (seconds)."""
+    code = (f"import sys, importlib; m = importlib.import_module('{module}')\n"
+            f"try:\n    getattr(m, '{fn}')([sys.argv[1]])\nexcept SystemExit as e:\n    assert e.code == 0, e.code\n"
+            "print('TORCH' if 'torch' in sys.modules else 'NO-TORCH')")
+    v = subprocess.run([sys.executable, "-c", code, "--version"], capture_output=True, text=True)
+    assert v.returncode == 0 and v.stdout.startswith(f"{tool} {gsz.__version__}\n"), v.stdout + v.stderr
+    h = subprocess.run([sys.executable, "-c", code, "--help"], capture_output=True, text=True)
+    assert h.returncode == 0 and "usage:" in h.stdout and h.stdout.rstrip().endswith("NO-TORCH"), h.stdout[-300:] + h.stderr
