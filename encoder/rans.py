@@ -822,11 +822,15 @@ def _coarse_entries(models: ModelSet, tabs: dict, mc: np.ndarray, oc: np.ndarray
     return tabs["bin_first"][i] + (oc - (b << sh)), bk[i] == key
 
 
-def _payload(freq: np.ndarray, cum: np.ndarray, shift: np.ndarray, lanes: int | None) -> bytes:
-    """Interleaved rANS payload of symbols with (freq, cum, precision) each, in order."""
-    n = freq.size
+def _payload(freq: np.ndarray, cum: np.ndarray, shift: np.ndarray, lanes: int | None,
+             entry: np.ndarray | None = None) -> bytes:
+    """Interleaved rANS payload of symbols with (freq, cum, precision) each, in order; with
+    ``entry`` the three are tables and symbol j takes row entry[j] (the C encoder reads them
+    through the index: no per-symbol copies, 2 GB for a 45 x 862 k channel set)."""
+    n = freq.size if entry is None else entry.size
     if lanes is None:
-        bits = float((shift - np.log2(freq)).sum()) if n else 0.0
+        bits_each = shift - np.log2(freq)
+        bits = float((bits_each if entry is None else bits_each[entry]).sum()) if n else 0.0
         big_l = choose_lanes(n, bits)
     else:
         big_l = int(lanes)
@@ -836,8 +840,11 @@ def _payload(freq: np.ndarray, cum: np.ndarray, shift: np.ndarray, lanes: int | 
         # the same steps symbol by symbol in C (the row loop below costs ~70 ms per million
         # symbols in NumPy, a third of a size-search round on the flowers scene)
         c64 = (lambda a: np.ascontiguousarray(a, dtype=np.int64))
+        index = () if entry is None else (c64(entry),)
         return native.module().rans_encode(c64(freq), c64(cum), np.ascontiguousarray(shift, np.uint8),
-                                           big_l)
+                                           big_l, *index)
+    if entry is not None:
+        freq, cum, shift = freq[entry], cum[entry], shift[entry]
     return _payload_numpy(freq, cum, shift, big_l)
 
 
@@ -978,15 +985,7 @@ def _encode_hist(h: _Hist, n: int) -> bytes:
         g = _value_index(models, tabs, h.em, h.eo + h.lo[h.em] - models.lo[h.em])
         e_freq, e_cum, e_shift = tabs["freq"][g], tabs["cum"][g], models.prec[h.em]
         lanes = _lanes_for(n, h, e_freq, e_shift)
-        se = h.sym_entry
-        if lanes is not None and native.enabled():
-            # the C encoder reads each symbol's entry itself: no three per-symbol int64 copies
-            # (2 GB transient for a 45 x 862 k channel set)
-            c64 = (lambda a: np.ascontiguousarray(a, dtype=np.int64))
-            payload = native.module().rans_encode(c64(e_freq), c64(e_cum), np.ascontiguousarray(e_shift, np.uint8),
-                                                  lanes, c64(se))
-        else:
-            payload = _payload(e_freq[se], e_cum[se], e_shift[se], lanes)
+        payload = _payload(e_freq, e_cum, e_shift, lanes, entry=h.sym_entry)
     else:
         payload = _payload(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
                            None)
