@@ -24,7 +24,7 @@ def add_max_gaussians(p: argparse.ArgumentParser) -> None:
 
 def decode_main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="gsz-decode", description="Decode a .gsz file to a 3DGS PLY or glTF.")
-    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    add_version_flag(p)
     p.add_argument("input", help="input .gsz file, or a .glb carrying one (EXT_gaussian_splatting_compression_gsz)")
     p.add_argument("-o", "--output", required=True,
                    help="output: OUT.ply (graphdeco PLY), or OUT.glb / OUT.gltf (plain KHR_gaussian_splatting "
@@ -119,7 +119,7 @@ def _decode_to_file(a):
 
 def info_main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="gsz-info", description="Show the header and chunk table of a .gsz file.")
-    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    add_version_flag(p)
     p.add_argument("input", help="input .gsz file, or a .glb carrying one")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     add_max_gaussians(p)
@@ -192,9 +192,10 @@ def _print_info(a, info: dict) -> int:
     return 0
 
 
-def _version() -> str:
+def add_version_flag(parser: argparse.ArgumentParser) -> None:
+    """``--version``: "PROG VERSION" (every gsz tool)."""
     from .. import __version__
-    return __version__
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -17,7 +17,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="gsz-encode", description="Compress a trained 3DGS point_cloud.ply into a .gsz file.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    from ..decoder.cli import add_version_flag
+    add_version_flag(p)
     p.add_argument("input", help="input scene, told by content: a graphdeco 3DGS PLY (SH degree 0-3) or a "
                                  "KHR_gaussian_splatting .glb/.gltf")
     p.add_argument("-o", "--output", required=True,
@@ -237,11 +238,6 @@ def main(argv=None) -> int:
                 f"{x['layer']}: {x['cumulative_gaussians']:,} Gaussians after {100 * x['decodable_fraction']:.1f} %"
                 for x in r["layers"]))
     return 0
-
-
-def _version() -> str:
-    from .. import __version__
-    return __version__
 
 
 if __name__ == "__main__":  # pragma: no cover

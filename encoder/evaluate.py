@@ -189,7 +189,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="gsz-eval",
         description="Render an original and a compressed 3DGS scene from the same test views and "
                     "report PSNR / SSIM (8-bit protocol; identical images = 100 dB cap).")
-    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    from ..decoder.cli import add_version_flag
+    add_version_flag(p)
     p.add_argument("original", help="original scene (.ply, .gsz, .glb or .gltf, told by content)")
     p.add_argument("compressed", help="compressed / decoded scene (.gsz, a .glb carrying one, .ply, .gltf)")
     p.add_argument("--cameras", metavar="FILE_OR_DIR",
@@ -288,11 +289,6 @@ def main(argv=None) -> int:
     else:
         _print_table(res)
     return 0
-
-
-def _version() -> str:
-    from .. import __version__
-    return __version__
 
 
 if __name__ == "__main__":

@@ -33,7 +33,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Window keys: drag orbit, right-drag look, middle/shift-drag pan, wheel zoom, "
                "WASD/QE fly (shift x4), 1/2/3 single/split/side, F or space flip, H heat map, "
                "[ ] previous/next camera, R reset, P screenshot, Tab panel, Esc quit.")
-    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    from ..decoder.cli import add_version_flag
+    add_version_flag(p)
     p.add_argument("file", help="scene to show (.gsz, .ply, .glb or .gltf, told by content); with --budgets, the original")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--compare", metavar="ORIGINAL", help="original scene (.ply/.gsz/.glb/.gltf) to compare FILE with")
@@ -312,11 +313,6 @@ def main(argv=None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
-
-
-def _version() -> str:
-    from .. import __version__
-    return __version__
 
 
 if __name__ == "__main__":

@@ -83,6 +83,14 @@ class _BudgetSteps:
         return min(budget, predicted_attr) + (aim - actual)
 
 
+def with_kept(loss, rate, shapes: tuple, kept: list) -> tuple:
+    """(loss, rate, group shapes) of the attribute groups followed by the kept SH vectors'
+    groups (:func:`sh_model.kept_tables`): one allocation over both."""
+    return (np.concatenate([loss] + [l.reshape(-1, 16) for _, l, _ in kept]),
+            np.concatenate([rate] + [r.reshape(-1, 16) for _, _, r in kept]),
+            tuple(shapes) + tuple(l.shape[:2] for _, l, _ in kept))
+
+
 class _Rounds:
     """The fixed inputs of one tau's calibration and the real encode of one allocation."""
 
@@ -93,9 +101,7 @@ class _Rounds:
         self.kept_layers = []
         if kept:
             self.kept_layers = [li for li, _, _ in kept]
-            loss = np.concatenate([loss] + [l.reshape(-1, 16) for _, l, _ in kept])
-            rate = np.concatenate([rate] + [r.reshape(-1, 16) for _, _, r in kept])
-            shapes = shapes + tuple(l.shape[:2] for _, l, _ in kept)
+            loss, rate, shapes = with_kept(loss, rate, shapes, kept)
             sh_fixed = sh_plan.payloads.fixed_bytes
         else:
             sh_fixed = sum(map(len, sh_plan.chunk)) if sh_plan else 0

@@ -9,7 +9,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from ..pipeline import Stage
-from .calibration import Calibrated, calibrate, solve, solve_max
+from .calibration import Calibrated, calibrate, solve, solve_max, with_kept
 from .candidate import Encoded
 from .options import SH_BITS, SearchOptions
 from .sh_model import KEEP_FRACTIONS_HIGH, ShModel, ShPlan, kept_tables
@@ -93,9 +93,8 @@ def scalar_sh(model: ShModel, loss, rate, room: float, weights, vq_total: float 
     kept = kept_tables(plan, 1.0 if weights is None else weights["sh"], min_bits=1)
     if not kept:
         return None
-    all_loss = np.concatenate([loss] + [l.reshape(-1, 16) for _, l, _ in kept])
-    all_rate = np.concatenate([rate] + [r.reshape(-1, 16) for _, _, r in kept])
-    fixed = plan.payloads.fixed_bytes + group_meta_bytes(tuple(l.shape[:2] for _, l, _ in kept))
+    all_loss, all_rate, kept_shapes = with_kept(loss, rate, (), kept)
+    fixed = plan.payloads.fixed_bytes + group_meta_bytes(kept_shapes)
     try:
         pick = solve(all_loss, all_rate, 8.0 * (room - fixed), "fast")
     except InfeasibleBudgetError:
