@@ -20,11 +20,12 @@ from .errors import GszFormatError, GszTruncatedError
 
 MAGIC = b"\x89GSZ\r\n\x1a\n"
 VERSION_MAJOR = 1
-#: the newest minor version this decoder knows (1.2 added spatial tiles); an encoder writes the
-#: lowest minor whose features the file uses, so a one-tile file stays a 1.1 file
-VERSION_MINOR = 2
+#: the newest minor version this decoder knows (1.2 added spatial tiles, 1.3 SH classes); an
+#: encoder writes the lowest minor whose features the file uses, so a one-tile file stays 1.1
+VERSION_MINOR = 3
 MINOR_LAYERS = 1
 MINOR_TILES = 2
+MINOR_SH_CLASSES = 3
 HEADER_SIZE = 64
 CHUNK_ENTRY_SIZE = 24
 

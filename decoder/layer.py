@@ -24,7 +24,7 @@ from .container import DEFAULT_MAX_GAUSSIANS, LAYER_SHIFT, TILE_SHIFT, Chunk
 from .errors import GszError, GszFormatError, GszLimitError
 from .geometry import read_geometry_header
 from .io_util import check_input_file
-from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHVQ, CHUNK_TILE
+from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_TILE
 from .sh import read_sh
 
 
@@ -74,8 +74,8 @@ def guard(fn, path):
         raise GszFormatError(f"malformed data ({type(e).__name__}: {e})", path) from None
 
 
-#: Chunk types that carry one part's data (GSZ.md §4.1).
-LAYER_DATA_CHUNKS = (CHUNK_GEOM, CHUNK_ATTR, CHUNK_SHVQ)
+#: Chunk types that carry one part's data (GSZ.md §4.1); SHCL is optional (1.3).
+LAYER_DATA_CHUNKS = (CHUNK_GEOM, CHUNK_ATTR, CHUNK_SHVQ, CHUNK_SHCL)
 
 
 @dataclass
@@ -141,8 +141,8 @@ def plan_parts(entries, sh_degree: int) -> Plan:
         name = ctype.decode("ascii")
         layer, tile = (flags >> LAYER_SHIFT) & 0xFF, (flags >> TILE_SHIFT) & 0xFFFF
         tiled = tile_chunk is not None
-        if ctype == CHUNK_SHVQ and sh_degree == 0:
-            raise GszFormatError(f"SHVQ chunk in a file of SH degree 0 (chunk {i})")
+        if ctype in (CHUNK_SHVQ, CHUNK_SHCL) and sh_degree == 0:
+            raise GszFormatError(f"{name} chunk in a file of SH degree 0 (chunk {i})")
         if tile and not tiled:
             raise GszFormatError(f"chunk {i} ({name}) belongs to tile {tile}, but the file has no TILE chunk")
         prev = parts[-1] if parts else Part(0, 0, {})
@@ -163,7 +163,7 @@ def plan_parts(entries, sh_degree: int) -> Plan:
     if not parts:
         raise GszFormatError(f"missing required chunk {CHUNK_GEOM.decode()}")
     tiled = tile_chunk is not None
-    need = LAYER_DATA_CHUNKS if sh_degree > 0 else (CHUNK_GEOM, CHUNK_ATTR)
+    need = (CHUNK_GEOM, CHUNK_ATTR, CHUNK_SHVQ) if sh_degree > 0 else (CHUNK_GEOM, CHUNK_ATTR)
     for p in parts:
         for ctype in need:
             if ctype not in p.chunks:
@@ -277,7 +277,8 @@ def _check_finite(ok: dict) -> None:
 def _read_attributes_and_sh(chunks: dict, header, state: LayerState, m: int):
     dc, ac, direct = parse_attributes(chunks[CHUNK_ATTR], m)
     if header.sh_degree > 0:
-        sh_rest, codebook = read_sh(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook)
+        sh_rest, codebook = read_sh(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook,
+                                    chunks.get(CHUNK_SHCL))
     else:
         sh_rest, codebook = np.zeros((m, 0, 3), np.float32), state.codebook
     return dc, ac, direct, sh_rest, codebook

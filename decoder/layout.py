@@ -5,7 +5,8 @@ CHUNK_ATTR = b"ATTR"   # RAHT + direct quantised attributes (required)
 CHUNK_SHVQ = b"SHVQ"   # higher-degree SH: codebook, kept vectors, indices (required when degree > 0)
 CHUNK_META = b"META"   # zstd-compressed UTF-8 JSON, informative only (optional)
 CHUNK_TILE = b"TILE"   # tile table: per spatial tile its bounding box and Gaussian count (1.2)
-KNOWN_CHUNKS = (CHUNK_GEOM, CHUNK_ATTR, CHUNK_SHVQ, CHUNK_META, CHUNK_TILE)
+CHUNK_SHCL = b"SHCL"   # importance classes of a part's kept SH vectors: their coding order (1.3)
+KNOWN_CHUNKS = (CHUNK_GEOM, CHUNK_ATTR, CHUNK_SHVQ, CHUNK_META, CHUNK_TILE, CHUNK_SHCL)
 
 #: Channels that go through RAHT, in stream order.
 RAHT_CHANNELS = ("opacity", "roll", "pitch", "yaw", "f_dc_0", "f_dc_1", "f_dc_2")

@@ -16,6 +16,17 @@ Syntax (D = 3K, K = (d+1)^2 - 1 coefficients per colour)::
                             the Gaussians whose flag is 0
 
 A vector's components are the Gaussian's sh_rest[K, 3] flattened coefficient-major (RGB last).
+
+SHCL chunk (format 1.3, optional per part): the kept vectors' importance classes, so that the
+kept ChannelSet's blocks can be classes and the encoder's bit allocation can give important
+Gaussians finer SH than unimportant ones::
+
+    u8   Q                  number of classes, 2..16
+    u64 n, byte[n]          rANS stream of P class ids (0..Q-1, one model), one per kept vector
+                            in Morton order of their Gaussians
+
+With SHCL, the kept ChannelSet stores the kept vectors ordered by (class, Morton order):
+:func:`class_order` is that order, the one truth the encoder codes in.
 """
 from __future__ import annotations
 
@@ -28,12 +39,43 @@ from . import native
 from .rans import decode_stream_single
 
 MAX_CODEBOOK = 1 << 16
+#: most importance classes an SHCL chunk may declare
+MAX_SH_CLASSES = 16
 
 
-def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None):
+def class_order(classes: np.ndarray) -> np.ndarray:
+    """Coding order of the kept vectors [P] from their classes [P] (Morton order): class 0
+    first, Morton order within a class (a stable sort)."""
+    return np.argsort(np.asarray(classes), kind="stable")
+
+
+def read_sh_classes(data, num_kept: int) -> np.ndarray:
+    """Decode an SHCL chunk: the class [P] of each kept vector, in Morton order."""
+    r = Reader(data, "SHCL chunk")
+    q = r.u8()
+    r.check(2 <= q <= MAX_SH_CLASSES, f"SH class count {q} outside 2..{MAX_SH_CLASSES}")
+    r.check(num_kept > 0, "SH classes for a part without kept SH vectors")
+    classes = decode_stream_single(r.blob(), num_kept)
+    r.check(bool(np.all((classes >= 0) & (classes < q))), f"SH class outside 0..{q - 1}")
+    r.expect_end()
+    return classes
+
+
+def _in_morton_order(kept: np.ndarray, classes: np.ndarray | None) -> np.ndarray:
+    """Kept vectors [D, P] as stored (class order when ``classes``) -> Morton order."""
+    if classes is None:
+        return kept
+    out = np.empty_like(kept)
+    out[:, class_order(classes)] = kept
+    return out
+
+
+def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None,
+            classes_chunk=None):
     """Decode one layer's SHVQ chunk.
 
     codebook    the [D, K_cb] float64 codebook an earlier layer carried, or None
+    classes_chunk  the part's SHCL chunk, or None (kept vectors stored in Morton order)
     returns     (sh_rest float32 [M, K, 3], codebook [D, K_cb] float64 or None): the codebook
                 of this layer when it carries one, else the one passed in
 
@@ -56,13 +98,14 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
         r.check(codebook is not None or p == m,
                 "codeword indices but no SH codebook in this or an earlier layer")
         kcb = 0 if codebook is None else codebook.shape[1]
+    classes = None if classes_chunk is None else read_sh_classes(classes_chunk, p)
     if native.enabled():
-        return _assemble_native(r, m, k, d, p, kcb, codebook), codebook
+        return _assemble_native(r, m, k, d, p, kcb, codebook, classes), codebook
     # every Gaussian's vector is one row of [kept vectors; codebook] as float32 (the rounding
     # the float32 output applies anyway): one contiguous gather, not two masked scatters
     rows = np.zeros((0, d), np.float32)
     if p:
-        kept = read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set")
+        kept = _in_morton_order(read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set"), classes)
         flags = decode_stream_single(r.blob(), m)
         r.check(bool(np.all((flags == 0) | (flags == 1))), "kept flag outside 0/1")
         kept_mask = flags.astype(bool)
@@ -85,12 +128,12 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
     return out.reshape(m, k, 3), codebook
 
 
-def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebook):
+def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebook, classes):
     """read_sh's kept vectors, flags and indices, assembled in one C pass (same checks)."""
     flags = None
     kept = np.zeros((d, 0), np.float64)
     if p:
-        kept = read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set")
+        kept = _in_morton_order(read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set"), classes)
         flags = decode_stream_single(r.blob(), m)
     idx = decode_stream_single(r.blob(), m - p)
     r.expect_end()

@@ -44,6 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rel-error", type=float, default=None, help="auto-depth position-error budget, relative to the robust scene diagonal")
     p.add_argument("--beta", type=float, default=d.beta, help="volume-term exponent of the importance")
     p.add_argument("--sh-bits", type=int, default=None, help="bit-width of SH codebook and kept vectors (default: --bits)")
+    p.add_argument("--sh-classes", type=int, default=None, help="importance classes of the kept SH vectors, 2-16 (format 1.3; default: none)")
     p.add_argument("--cameras", default=None, help="cameras.json or COLMAP model for the importance pass (default: generated views)")
     p.add_argument("--train-views", type=int, default=d.train_views, help="number of generated train views (without --cameras)")
     p.add_argument("--importance-width", type=int, default=d.importance_width, help="render width of the importance pass")
@@ -94,7 +95,7 @@ def _run_fixed(a, prog) -> dict:
     opts = EncodeOptions(reserve=EncodeOptions.reserve if a.reserve is None else a.reserve,
                          bits=EncodeOptions.bits if a.bits is None else a.bits,
                          codebook=EncodeOptions.codebook if a.codebook is None else a.codebook, keep=a.keep, blocks=a.blocks, depth=a.depth,
-                         rel_error=a.rel_error, beta=a.beta, sh_bits=a.sh_bits,
+                         rel_error=a.rel_error, beta=a.beta, sh_bits=a.sh_bits, sh_classes=a.sh_classes or 1,
                          train_views=a.train_views, importance_width=a.importance_width,
                          layers=a.layers, first_layer=a.first_layer, seed=a.seed,
                          tile_gaussians=a.tile_gaussians or None, executor=a.executor,
@@ -111,7 +112,8 @@ def _run_search(a, prog) -> dict:
 
     fixed_only = [flag for flag, v in (("--reserve", a.reserve), ("--bits", a.bits), ("--keep", a.keep),
                                        ("--depth", a.depth), ("--rel-error", a.rel_error),
-                                       ("--sh-bits", a.sh_bits)) if v is not None]
+                                       ("--sh-bits", a.sh_bits), ("--sh-classes", a.sh_classes))
+                  if v is not None]
     if fixed_only:
         raise GszError("--size/--ratio/--profile choose the reserve, depth, bit-widths and kept SH "
                        f"themselves; drop {'/'.join(fixed_only)}")

@@ -23,14 +23,15 @@ import numpy as np
 from ..decoder.attributes import attributes_from_channels
 from ..decoder.bytesio import Writer
 from ..decoder.cloud import GaussianCloud
-from ..decoder.container import CHUNK_REQUIRED, FRAME_RDF, LAYER_SHIFT, Chunk, FileHeader, write_container
+from ..decoder.container import (CHUNK_ENTRY_SIZE, CHUNK_REQUIRED, FRAME_RDF, LAYER_SHIFT, Chunk, FileHeader,
+                                 write_container)
 from ..decoder.errors import GszError
-from ..decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHVQ, RAHT_CHANNELS,
+from ..decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHCL, CHUNK_SHVQ, RAHT_CHANNELS,
                                 ROTATION_EULER_ZYX)
 from ..decoder.morton import morton_encode
 from ..decoder.raht import build_raht_tree
 from ..decoder.rotation import quaternion_to_euler
-from ..decoder.sh import MAX_CODEBOOK
+from ..decoder.sh import MAX_CODEBOOK, MAX_SH_CLASSES, class_order
 
 from .cameras import DEFAULT_VIEW_WIDTH
 from .geometry import write_geometry
@@ -183,6 +184,9 @@ class EncodeOptions(SceneOptions):
     depth            octree depth 1..21 (None: chosen from the position-error budget)
     rel_error        position-error budget relative to the robust scene diagonal (auto depth)
     sh_bits          bit-width of SH codebook / kept vectors (None: same as ``bits``)
+    sh_classes       importance classes of the kept SH vectors (2..16: an SHCL chunk, format
+                     1.3, and one block per class; 1: none).  At one fixed width they only
+                     order the vectors; the size search gives each class its own widths
     """
 
     reserve: float = 0.8
@@ -193,6 +197,7 @@ class EncodeOptions(SceneOptions):
     depth: int | None = None
     rel_error: float | None = None
     sh_bits: int | None = None
+    sh_classes: int = 1
 
     def validate(self) -> "EncodeOptions":
         def bad(msg):
@@ -213,6 +218,8 @@ class EncodeOptions(SceneOptions):
             bad(f"--depth must be 1..21, got {self.depth}")
         if self.rel_error is not None and not (float(self.rel_error) > 0):
             bad(f"--rel-error must be > 0, got {self.rel_error}")
+        if not (1 <= int(self.sh_classes) <= MAX_SH_CLASSES):
+            bad(f"--sh-classes must be 1..{MAX_SH_CLASSES}, got {self.sh_classes}")
         self.check_scene_options(bad)
         return self
 
@@ -706,7 +713,7 @@ class ShPayloads:
     to it."""
 
     def __init__(self, stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks: int,
-                 cb_blocks: int | None = None, index: np.ndarray | None = None):
+                 cb_blocks: int | None = None, index: np.ndarray | None = None, classes: int = 1):
         from .rans import encode_stream
         from .vq import assign, compact
 
@@ -727,6 +734,11 @@ class ShPayloads:
         #: per part: (kept voxel indices in coding order, blocks of their channel set)
         self.kept_sets = [None] * len(stage.layers)
         self._heads, self._tails = [None] * len(stage.layers), [None] * len(stage.layers)
+        #: per part: SHCL payload (None: kept vectors in Morton order) and, with classes, the
+        #: importance weight of each block (= class) of the kept set, mean 1 over the stage
+        self.class_chunks = [None] * len(stage.layers)
+        self.block_weights = [None] * len(stage.layers)
+        self.classes = int(classes)
         for t in range(stage.num_tiles):
             # every tile carries the codewords its Gaussians use (a tile decodes on its own)
             parts = [(pi, l) for pi, l in enumerate(stage.layers) if l.tile == t]
@@ -753,7 +765,17 @@ class ShPayloads:
         """Head (codebook when ``cb_bytes``) and tail (kept flags, codeword indices) of part pi."""
         d = self.d
         k_l = kept[layer.index]
-        self.kept_sets[pi] = (layer.index[k_l], sh_set_blocks(p, blocks))
+        sel = layer.index[k_l]
+        q = self.classes if p >= SH_CLASS_MIN_SIZE * self.classes else 1
+        if q > 1:
+            cls = importance_classes(self.stage.importance[sel], q)
+            sel = sel[class_order(cls)]
+            self.class_chunks[pi] = (Writer().u8(q).blob(encode_stream(cls, np.zeros(p, np.int64), 1))
+                                     .getvalue())
+            mean = float(self.stage.importance.mean()) or 1.0
+            self.block_weights[pi] = np.array([self.stage.importance[sel[s:e]].mean() / mean
+                                               for s, e in _block_bounds(p, q)])
+        self.kept_sets[pi] = (sel, q if q > 1 else sh_set_blocks(p, blocks))
         w = Writer()
         w.u32(cb_size if cb_bytes is not None else 0).u32(p).u16(d)
         if cb_bytes is not None:
@@ -772,8 +794,11 @@ class ShPayloads:
 
     @property
     def fixed_bytes(self) -> int:
-        """Bytes of the payloads apart from the kept vectors' channel sets."""
-        return sum(map(len, self._heads)) + sum(map(len, self._tails))
+        """Bytes of the payloads apart from the kept vectors' channel sets (SHCL chunks and
+        their table entries included)."""
+        cls = [c for c in self.class_chunks if c is not None]
+        return (sum(map(len, self._heads)) + sum(map(len, self._tails))
+                + sum(map(len, cls)) + CHUNK_ENTRY_SIZE * len(cls))
 
     def kept_vectors(self, layer: int) -> np.ndarray:
         """float32 [D, P_l]: the kept vectors of a layer as their channel set codes them."""
@@ -804,18 +829,44 @@ class ShPayloads:
         return payloads, out.reshape(self.m, k, 3), stats
 
 
+#: importance classes of the kept SH vectors in the size search's scalar path
+#: (docs/design/sh-classes.md); a part with fewer than SH_CLASS_MIN_SIZE kept vectors per
+#: class keeps them in Morton order
+SH_CLASSES = 8
+SH_CLASS_MIN_SIZE = 256
+
+
+def importance_classes(importance: np.ndarray, q: int) -> np.ndarray:
+    """Class [P] of each kept vector (Morton order): class c holds the c-th of ``q`` equal
+    runs by descending importance (ties: Morton order), sized like the kept ChannelSet's
+    ``q`` blocks, so that each block of the class-ordered set is one class."""
+    from ..decoder.quant import split_lengths
+    rank = np.lexsort((np.arange(importance.shape[0]), -importance))
+    out = np.empty(importance.shape[0], np.int64)
+    out[rank] = np.repeat(np.arange(q), split_lengths(importance.shape[0], q))
+    return out
+
+
+def _block_bounds(length: int, blocks: int):
+    from ..decoder.quant import split_lengths
+    ends = np.cumsum(split_lengths(length, blocks))
+    return zip(ends - split_lengths(length, blocks), ends)
+
+
 def _code_channel_set(job):
     """write_channel_set(values, bits, blocks) of one job (an executor's unit of work)."""
     return write_channel_set(*job)
 
 
-def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: dict):
+def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: dict,
+             sh_classes: list | None = None):
     """The .gsz bytes and the cloud the decoder will reconstruct.
 
     attr / sh   per-part ATTR / SHVQ payloads; decoded, sh_rest in output order.  A stage of
-                several tiles gets a TILE chunk first and format version 1.2."""
+                several tiles gets a TILE chunk first and format version 1.2.
+    sh_classes  per part the SHCL payload or None; any SHCL makes the file version 1.3."""
     import zstandard
-    from ..decoder.container import MINOR_LAYERS, MINOR_TILES, TILE_SHIFT, VERSION_MAJOR
+    from ..decoder.container import MINOR_LAYERS, MINOR_SH_CLASSES, MINOR_TILES, TILE_SHIFT, VERSION_MAJOR
     from ..decoder.layout import CHUNK_TILE
     from ..decoder.tiles import TileInfo, pack_tile_table
 
@@ -840,6 +891,8 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
         flags = CHUNK_REQUIRED | (part.layer << LAYER_SHIFT) | (part.tile << TILE_SHIFT)
         chunks += [Chunk(CHUNK_GEOM, part.geometry, flags), Chunk(CHUNK_ATTR, attr[pi], flags)]
         if sh is not None:
+            if sh_classes is not None and sh_classes[pi] is not None:
+                chunks.append(Chunk(CHUNK_SHCL, sh_classes[pi], flags))
             chunks.append(Chunk(CHUNK_SHVQ, sh[pi], flags))
     meta_bytes = zstandard.ZstdCompressor(level=19).compress(
         json.dumps(meta, sort_keys=True, separators=(",", ":"), default=float).encode())
@@ -847,7 +900,8 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
     header = FileHeader(num_gaussians=m, sh_degree=stage.sh_degree, frame=FRAME_RDF,
                         bbox_min=tuple(out_cloud.positions.min(0)),
                         bbox_max=tuple(out_cloud.positions.max(0)),
-                        version=(VERSION_MAJOR, MINOR_TILES if tiles > 1 else MINOR_LAYERS))
+                        version=(VERSION_MAJOR, MINOR_SH_CLASSES if any(c.type == CHUNK_SHCL for c in chunks)
+                                 else MINOR_TILES if tiles > 1 else MINOR_LAYERS))
     return write_container(header, chunks), out_cloud, len(meta_bytes)
 
 
@@ -914,15 +968,20 @@ def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, t_
     sh_blocks = default_blocks(opts.sh_bits or opts.bits) if opts.blocks is None else int(opts.blocks)
     with progress.stage("attributes", f"{opts.bits} bits, {blocks} blocks"):
         attr, decoded, attr_stats = attribute_chunks(stage, opts.bits, blocks)
-    sh = sh_rest = None
+    sh = sh_rest = sh_classes = None
     sh_stats = {}
     if cloud.sh_degree > 0:
         k = default_codebook_size(m, opts.codebook)
         with progress.stage("sh", f"codebook {k}"):
             cb = train_sh_codebook(stage, k, seed=opts.seed, iters=opts.vq_iters, progress=progress)
             keep = int(round(0.01 * m)) if opts.keep is None else int(opts.keep)
-            sh, sh_rest, sh_stats = sh_chunk(stage, cb, keep, int(opts.sh_bits or opts.bits), sh_blocks)
+            payloads = ShPayloads(stage, cb, keep, int(opts.sh_bits or opts.bits), sh_blocks,
+                                  classes=int(opts.sh_classes))
+            sh, sh_rest, sh_stats = payloads.payloads()
+            sh_classes = payloads.class_chunks
     options_json = dict(asdict(opts), depth=stage.depth, blocks=blocks)
+    if int(opts.sh_classes) == 1:   # the files of the default stay as they were
+        del options_json["sh_classes"]
     for k in ("executor", "workers"):      # where the work ran does not shape the file
         del options_json[k]
     if stage.num_tiles == 1:       # the option shaped nothing (one-tile files stay 1.1 files)
@@ -932,11 +991,11 @@ def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, t_
     with progress.stage("container"):
         meta = {"encoder": encoder_name(), "codec": "mesongs++", "options": options_json,
                 "input_gaussians": n_in, "voxels": m}
-        data, out_cloud, meta_len = assemble(stage, attr, decoded, sh, sh_rest, meta)
+        data, out_cloud, meta_len = assemble(stage, attr, decoded, sh, sh_rest, meta, sh_classes)
     sizes = {"geometry": stage.geometry_bytes, "attributes": sum(map(len, attr)), **attr_stats,
              "metadata": meta_len}
     if sh is not None:
-        sizes["sh"] = sum(map(len, sh))
+        sizes["sh"] = sum(map(len, sh)) + sum(len(c) for c in sh_classes if c)
         sizes.update({f"sh_{k}": v for k, v in sh_stats.items() if k.endswith("bytes")})
     sizes["container_overhead"] = len(data) - sum(sizes[k] for k in ("geometry", "attributes", "metadata")) \
         - sizes.get("sh", 0)

@@ -59,3 +59,17 @@ def test_halving_vector_needs_the_count_halving(monkeypatch):
         except GszFormatError:
             return                      # the occupancy went wrong far enough to be rejected
     assert not np.array_equal(wrong.positions, right.positions)
+
+
+def test_sh_classes_vector_needs_the_class_order(monkeypatch):
+    # the SHCL vector is only worth its bytes if a decoder that ignores the class order fails
+    import gsz.decoder.sh as sh
+    from gsz.decoder import native
+    data = (VEC / "sh1_jug_2k_shclasses.gsz").read_bytes()
+    right = decode(data)
+    with native.numpy_only():
+        assert decode(data).equals(right)
+        monkeypatch.setattr(sh, "_in_morton_order", lambda kept, classes: kept)
+        wrong = decode(data)
+    assert not np.array_equal(wrong.sh_rest, right.sh_rest)
+    np.testing.assert_array_equal(wrong.positions, right.positions)

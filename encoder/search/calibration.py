@@ -123,11 +123,13 @@ class _Rounds:
             else:
                 sh_chunk_, sh_rest = sh_plan.chunk, sh_plan.sh_rest
             extra = {"sh_keep": sh_plan.keep if sh_plan else 0}
+            classes = sh_plan.payloads.class_chunks if sh_plan else None
             data, cloud, meta_len = assemble(stage, attr, decoded, sh_chunk_, sh_rest,
-                                             search_meta(stage, self.target, extra))
+                                             search_meta(stage, self.target, extra), classes)
         g = np.arange(len(pick))
+        sh_bytes = sum(map(len, sh_chunk_)) + sum(len(c) for c in classes if c) if sh_plan else 0
         return Encoded(data=data, cloud=cloud, pick=pick, layer_bits=layer_bits, kept_bits=kept_bits,
-                       sh_bytes=sum(map(len, sh_chunk_)) if sh_plan else 0, attr_stats=attr_stats,
+                       sh_bytes=sh_bytes, attr_stats=attr_stats,
                        attr_bytes=sum(map(len, attr)), meta_bytes=meta_len,
                        predicted_bytes=self.fixed + self.group_meta + float(self.rate[g, pick].sum()) / 8,
                        loss=float(self.loss[g, pick].sum()))

@@ -226,14 +226,14 @@ class ShModel:
         loss = (self.cum_vq[-1] - self.cum_vq[keep]) + base.cum_keep[min(keep, len(base.cum_keep) - 1)]
         return nbytes, loss
 
-    def encode(self, keep: int, code: bool = True) -> ShPlan:
+    def encode(self, keep: int, code: bool = True, classes: int = 1) -> ShPlan:
         """The plan of ``keep``; ``code=False`` leaves chunk and sh_rest None (the kept vectors'
         widths are allocated later: coding them all at SH_BITS first would be wasted, and at
         1.2 M vectors it is the largest transient of the search)."""
         # the compacted codebook's row order is the raw one's, so the raw codebook with the
         # stage's assignment gives exactly what sh_chunk would compute itself
         payloads = ShPayloads(self.stage, self.raw_codebook, keep, SH_BITS, self.blocks,
-                              cb_blocks=self.cb_blocks, index=self.index)
+                              cb_blocks=self.cb_blocks, index=self.index, classes=classes)
         chunk, sh_rest, stats = payloads.payloads() if code else (None, None, dict(payloads.stats))
         nb, loss = self.estimate(keep)
         return ShPlan(keep, chunk, sh_rest, stats, nb, loss, payloads)
@@ -266,6 +266,9 @@ def kept_tables(plan: ShPlan, weight: float, min_bits: int = SH_BITS) -> list:
             # are the same, without [D, P] float64 temporaries per width (1.7 GB at 720 k vectors)
             rows = range(0, x.shape[0], KEPT_TABLE_ROWS)
             loss = np.concatenate([quantize_all_bits(x[r:r + KEPT_TABLE_ROWS], b)[3] for r in rows]) * weight
+            bw = plan.payloads.block_weights[li]
+            if bw is not None:          # blocks are importance classes: weigh their SSE by it
+                loss = loss * bw[None, :, None]
             rate = np.concatenate([rate_matrix(x[r:r + KEPT_TABLE_ROWS], b, (int(min_bits), 16)) for r in rows])
             out.append((li, loss, rate))
     return out

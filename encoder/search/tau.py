@@ -8,7 +8,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from ..pipeline import Stage
+from ..pipeline import SH_CLASSES, Stage
 from .calibration import Calibrated, calibrate, solve, solve_max, with_kept
 from .candidate import Encoded
 from .options import SH_BITS, SearchOptions
@@ -89,7 +89,7 @@ def scalar_sh(model: ShModel, loss, rate, room: float, weights, vq_total: float 
     plus attributes in ``room`` bytes) is below the codebook path's ``vq_total``; else None."""
     from ..bit_allocation import InfeasibleBudgetError
     from .tables import group_meta_bytes
-    plan = model.encode(model.m, code=False)
+    plan = model.encode(model.m, code=False, classes=SH_CLASSES)
     kept = kept_tables(plan, 1.0 if weights is None else weights["sh"], min_bits=1)
     if not kept:
         return None

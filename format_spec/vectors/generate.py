@@ -54,6 +54,10 @@ VECTORS = [
     # two layers each, every tile with its own codebook
     ("sh1_jug_12k_tiles", "measuring_jug_sh3_12k.ply", 12_000, 1,
      dict(blocks=80, reserve=1.0, bits=6, codebook=64, keep=200, layers=2, tile_gaussians=4096)),
+    # SH classes (GSZ.md §8.1, format 1.3): the 1100 most important of 2000 Gaussians keep their
+    # vectors, stored in 4 importance classes (an SHCL chunk), one block per class
+    ("sh1_jug_2k_shclasses", "measuring_jug_sh3_12k.ply", 2000, 1,
+     dict(reserve=1.0, bits=8, codebook=32, keep=1100, sh_classes=4)),
 ]
 #: vectors whose scales and opacities get seeded Gaussian noise of this sigma before encoding
 NOISED = {"sh0_plant_3000_laplace": 0.05}
@@ -82,7 +86,8 @@ def intermediates(data: bytes) -> list[dict]:
     from gsz.decoder.decode import plan_parts
     from gsz.decoder.geometry import read_geometry
     from gsz.decoder.groups import read_channel_set
-    from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHVQ, KNOWN_CHUNKS
+    from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHCL, CHUNK_SHVQ, KNOWN_CHUNKS
+    from gsz.decoder.sh import read_sh_classes
     from gsz.decoder.morton import morton_encode
     from gsz.decoder.raht import build_raht_tree, raht_inverse
     from gsz.decoder.rans import decode_stream, read_varint
@@ -127,6 +132,11 @@ def intermediates(data: bytes) -> list[dict]:
                 flags = decode_stream(r.blob(), np.zeros(m, np.int64))
                 sh["kept_sha256"] = sha(kept, "<f8")
                 sh["flags_sha256"] = sha(flags, "u1")
+            if CHUNK_SHCL in got:
+                cdata = c.chunks[got[CHUNK_SHCL]].data
+                classes = read_sh_classes(cdata, p)
+                row["shcl"] = {"Q": int(cdata[0]), "classes_sha256": sha(classes, "u1"),
+                               "classes_first": classes[:8].tolist()}
             idx = decode_stream(r.blob(), np.zeros(m - p, np.int64))
             sh["codebook_size_used"] = codebook_size.get(part.tile, 0)
             sh["indices_sha256"] = sha(idx, "<u4")

@@ -364,6 +364,46 @@ def _part_vectors(sh1: bytes, lay2: bytes, add) -> None:
         "GSZ.md §8 exactly P flags set", "kept flags set")
     add("shvq_flags_two_models", with_shvq(sh1, 1, 1, kept=kept, flags=single_stream(2)),
         "GSZ.md §8 flag stream: one model (model id 0)", "2 models, more than the 1 its use can name")
+    _shcl_vectors(sh1, m, add)
+
+
+def with_shcl(base: bytes, m: int, payload: bytes, *, kept_all: bool = True, flags: int = 1) -> bytes:
+    """``base`` with every one of its ``m`` SH vectors kept (flags all 1, no indices; when
+    ``kept_all``) and an SHCL chunk (GSZ.md §8.1) of ``payload`` before its SHVQ."""
+    if kept_all:
+        base = with_shvq(base, 0, m, kept=simple_set(9, m), flags=single_stream(body=model_body([1], lo=[1])),
+                         indices=single_stream(0))
+    h, chunks = split(base)
+    i = next(k for k, c in enumerate(chunks) if c[0] == b"SHVQ")
+    return join(h, chunks[:i] + [[b"SHCL", flags, payload]] + chunks[i:])
+
+
+def shcl(q: int, stream: bytes) -> bytes:
+    return struct.pack("<B", q) + struct.pack("<Q", len(stream)) + stream
+
+
+def _shcl_vectors(sh1: bytes, m: int, add) -> None:
+    """SHCL (GSZ.md §8.1): the valid form is every vector kept, classes from one SINGLE model."""
+    ok = shcl(2, single_stream(body=model_body([1], lo=[1])))
+    add("shcl_q_1", with_shcl(sh1, m, shcl(1, single_stream(1))), "GSZ.md §8.1 Q in 2..16",
+        "SH class count 1 outside 2..16")
+    add("shcl_q_17", with_shcl(sh1, m, shcl(17, single_stream(1))), "GSZ.md §8.1 Q in 2..16",
+        "SH class count 17 outside 2..16")
+    add("shcl_class_not_below_q", with_shcl(sh1, m, shcl(2, single_stream(body=model_body([1], lo=[2])))),
+        "GSZ.md §8.1 classes 0..Q-1", "SH class outside 0..1")
+    add("shcl_two_models", with_shcl(sh1, m, shcl(2, single_stream(2))), "GSZ.md §8.1 one model (model id 0)",
+        "2 models, more than the 1 its use can name")
+    add("shcl_trailing_byte", with_shcl(sh1, m, ok + b"\x00"), "GSZ.md §8.1 nothing after",
+        "SHCL chunk: 1 unexpected trailing bytes")
+    add("shcl_without_kept_vectors", with_shcl(sh1, m, ok, kept_all=False), "GSZ.md §8.1 P > 0",
+        "SH classes for a part without kept SH vectors")
+    two = with_shcl(sh1, m, ok)
+    h, chunks = split(two)
+    i = next(k for k, c in enumerate(chunks) if c[0] == b"SHCL")
+    add("shcl_twice_in_a_layer", join(h, chunks[:i + 1] + chunks[i:]), "GSZ.md §4 one SHCL per part",
+        "layer 0 has two SHCL chunks")
+    add("shcl_in_sh0_file", with_header(two, "<B", 24, 0), "GSZ.md §4 SHCL when sh_degree = 0",
+        "SHCL chunk in a file of SH degree 0")
 
 
 def _varint_len(buf: bytes, pos: int) -> int:
