@@ -13,7 +13,8 @@ from .rans import encode_stream_pair
 def write_channel_set(x: np.ndarray, bits, num_blocks: int) -> tuple[bytes, np.ndarray]:
     """Quantise x [C, L] (float) group-wise and serialise it.
 
-    bits: int (uniform) or int array [C, B] with B = blocks_for(L, num_blocks).
+    bits: int (uniform) or int array [C, B] with B = blocks_for(L, num_blocks); width 0 makes
+    a group constant (:func:`constant_groups`).
     Returns (bytes, dequantised float64 [C, L] exactly as the decoder will reconstruct it).
     """
     from ..kernels.quantize import quantize_groups   # torch: not needed to build the CLI's parser
@@ -21,8 +22,12 @@ def write_channel_set(x: np.ndarray, bits, num_blocks: int) -> tuple[bytes, np.n
     c, length = x.shape
     b = blocks_for(length, num_blocks)
     bits_arr = np.broadcast_to(np.asarray(bits, dtype=np.int64), (c, b)).copy()
+    const = bits_arr == 0
+    bits_arr[const] = 1
     if length:
         symbols, mins, maxs = quantize_groups(x, b, bits_arr)
+        if const.any():
+            constant_groups(x, b, const, symbols, mins, maxs)
     else:
         symbols = np.zeros((c, 0), np.int32)
         mins = np.zeros((c, b), np.float32)
@@ -43,3 +48,25 @@ def write_channel_set(x: np.ndarray, bits, num_blocks: int) -> tuple[bytes, np.n
     w.blob(best[1])
     recon = dequantize_groups(symbols, mins, maxs, bits_arr, split_lengths(length, b))
     return w.getvalue(), recon
+
+
+def group_means(x: np.ndarray, num_blocks: int) -> np.ndarray:
+    """float32 [C, B]: each group's mean (0 for an empty block), the value of a constant group."""
+    lens = split_lengths(x.shape[1], num_blocks)
+    starts = np.concatenate([[0], np.cumsum(lens)[:-1]])
+    sums = np.add.reduceat(np.asarray(x, np.float64), starts, axis=1) if x.shape[1] else np.zeros((x.shape[0], num_blocks))
+    sums[:, lens == 0] = 0.0        # reduceat repeats the next element for an empty block
+    return (sums / np.maximum(lens, 1)).astype(np.float32)
+
+
+def constant_groups(x, num_blocks: int, const: np.ndarray, symbols, mins, maxs) -> None:
+    """Make the groups where ``const`` [C, B] a constant, in place: min = max = the group mean
+    and every symbol 0, which any conforming decoder reconstructs as the mean (GSZ.md §5: the
+    step is 0) and which costs the entropy coder almost nothing.  Low-importance SH groups would
+    otherwise pay a 1-bit code whose two levels, min and max, sit far from their values."""
+    means = group_means(x, num_blocks)
+    lens = split_lengths(x.shape[1], num_blocks)
+    ends = np.cumsum(lens)
+    for ci, bi in zip(*np.nonzero(const)):
+        symbols[ci, ends[bi] - lens[bi]:ends[bi]] = 0
+        mins[ci, bi] = maxs[ci, bi] = means[ci, bi]

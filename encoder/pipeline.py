@@ -772,9 +772,9 @@ class ShPayloads:
             sel = sel[class_order(cls)]
             self.class_chunks[pi] = (Writer().u8(q).blob(encode_stream(cls, np.zeros(p, np.int64), 1))
                                      .getvalue())
-            mean = float(self.stage.importance.mean()) or 1.0
-            self.block_weights[pi] = np.array([self.stage.importance[sel[s:e]].mean() / mean
-                                               for s, e in _block_bounds(p, q)])
+            w = self.stage.importance ** SH_CLASS_WEIGHT_EXP
+            mean = float(w.mean()) or 1.0
+            self.block_weights[pi] = np.array([w[sel[s:e]].mean() / mean for s, e in _block_bounds(p, q)])
         self.kept_sets[pi] = (sel, q if q > 1 else sh_set_blocks(p, blocks))
         w = Writer()
         w.u32(cb_size if cb_bytes is not None else 0).u32(p).u16(d)
@@ -832,8 +832,9 @@ class ShPayloads:
 #: importance classes of the kept SH vectors in the size search's scalar path
 #: (docs/design/sh-classes.md); a part with fewer than SH_CLASS_MIN_SIZE kept vectors per
 #: class keeps them in Morton order
-SH_CLASSES = 8
+SH_CLASSES = 4
 SH_CLASS_MIN_SIZE = 256
+SH_CLASS_WEIGHT_EXP = 1.0
 
 
 def importance_classes(importance: np.ndarray, q: int) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""The size search's SH coding paths: the codebook at low rates, the scalar path at high rates."""
+"""The size search's SH coding paths: the codebook at low rates, the scalar path at high rates,
+kept vectors in importance classes (SHCL) in between."""
 import pytest
 
 from gsz.decoder import decode
@@ -23,11 +24,26 @@ def _test_psnr(cloud):
 def test_high_rate_uses_the_scalar_path_and_beats_the_codebook():
     target = 240_000
     scalar = _search(target)
-    codebook = _search(target, sh_scalar=False)
+    codebook = _search(target, sh_scalar=False, sh_classes=False)
     assert scalar.report["sh_path"] == "scalar" and codebook.report["sh_path"] == "vq"
     assert scalar.report["sh_keep"] == scalar.report["voxels"]          # every vector coded
     assert len(scalar.data) <= target and decode(scalar.data).equals(scalar.cloud)
     assert _test_psnr(scalar.cloud) > _test_psnr(codebook.cloud) + 1.0
+
+
+def test_kept_vectors_in_importance_classes_beat_fixed_width_kept_vectors():
+    """The codebook path with its kept vectors in importance classes (SHCL, format 1.3), their
+    widths allocated, renders better than the same path with every kept vector at 8 bits."""
+    from gsz.decoder.container import read_container
+    target = 240_000
+    classes = _search(target, sh_scalar=False)
+    fixed = _search(target, sh_scalar=False, sh_classes=False)
+    assert classes.report["sh_path"] == "classes" and fixed.report["sh_path"] == "vq"
+    assert 0 < classes.report["sh_keep"] < classes.report["voxels"]
+    c = read_container(classes.data)
+    assert c.header.version == (1, 3) and any(ch.type == b"SHCL" for ch in c.chunks)
+    assert len(classes.data) <= target and decode(classes.data).equals(classes.cloud)
+    assert _test_psnr(classes.cloud) > _test_psnr(fixed.cloud) + 0.5
 
 
 @pytest.mark.parametrize("target", [120_000])

@@ -295,7 +295,7 @@ class BudgetSearch:
         scored, paths = [], []
         for enc in encs:
             paths.append(enc.sh_path)
-            what = f"tau {tau}, depth {d}" + (f", {enc.sh_path} SH" if enc.sh_path == "scalar" else "")
+            what = f"tau {tau}, depth {d}" + (f", {enc.sh_path} SH" if enc.sh_path in ("scalar", "classes") else "")
             with progress.stage("eval", what):
                 p, views, partial = self.judge.score(enc.cloud, rival)
             enc.release()

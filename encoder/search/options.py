@@ -51,6 +51,9 @@ class SearchOptions(SceneOptions):
                     in the allocation) against the codebook at high rates
     sh_drop         where the best file keeps no SH vector exact, also try the file without
                     the SH rest (degree 0) at its tau and depth; the train views decide
+    sh_classes      also encode the codebook path with its kept vectors in importance
+                    classes (SHCL, format 1.3), their widths in the allocation; the train
+                    views decide (docs/design/sh-classes.md)
     layer0_share    wanted fraction of the file bytes before layer 0 is decodable: when the
                     chosen file's layer 0 ends after more than 1.5x this, the layers are
                     re-split with a proportionally smaller layer 0 and that candidate re-encoded
@@ -75,6 +78,7 @@ class SearchOptions(SceneOptions):
     eval_width: int = DEFAULT_VIEW_WIDTH
     sh_scalar: bool = True
     sh_drop: bool = True
+    sh_classes: bool = True
     layer0_share: float = 0.1
     screen: bool = True
     overlap: bool = True

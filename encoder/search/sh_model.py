@@ -247,13 +247,28 @@ class ShSource:
     num_points: int
 
 
+def _constant_sse(x: np.ndarray, blocks: int, group_means) -> np.ndarray:
+    """[C, B] SSE of each group against its (float32) mean, the constant group's error."""
+    from ...decoder.quant import split_lengths
+    lens = split_lengths(x.shape[1], blocks)
+    mean = np.repeat(group_means(x, blocks).astype(np.float64), lens, axis=1)
+    d = x.astype(np.float64) - mean
+    starts = np.concatenate([[0], np.cumsum(lens)[:-1]])
+    out = np.add.reduceat(d * d, starts, axis=1) if x.shape[1] else np.zeros((x.shape[0], blocks))
+    out[:, lens == 0] = 0.0
+    return out
+
+
 #: SH components per step of kept_tables
 KEPT_TABLE_ROWS = 6
 
 
 def kept_tables(plan: ShPlan, weight: float, min_bits: int = SH_BITS) -> list:
     """Per layer with kept exact SH vectors: (layer, loss [D, B, 16] = SSE times the SH
-    channel weight, rate [D, B, 16] with +inf below ``min_bits``) of their groups."""
+    channel weight, rate [D, B, 16] with +inf below ``min_bits``) of their groups.  With
+    ``min_bits`` = 1, column 0 is the constant group (width 0, :func:`constant_groups`), not
+    1 bit: a 1-bit code of values around zero reconstructs them at its extremes."""
+    from ..groups import group_means
     from ...kernels.quantize import quantize_all_bits
 
     from ..rate import rate_matrix
@@ -270,5 +285,9 @@ def kept_tables(plan: ShPlan, weight: float, min_bits: int = SH_BITS) -> list:
             if bw is not None:          # blocks are importance classes: weigh their SSE by it
                 loss = loss * bw[None, :, None]
             rate = np.concatenate([rate_matrix(x[r:r + KEPT_TABLE_ROWS], b, (int(min_bits), 16)) for r in rows])
+            if min_bits <= 1:
+                loss[:, :, 0] = np.concatenate([_constant_sse(x[r:r + KEPT_TABLE_ROWS], b, group_means)
+                                                for r in rows]) * weight * (1.0 if bw is None else bw[None, :])
+                rate[:, :, 0] = 0.0
             out.append((li, loss, rate))
     return out

@@ -75,7 +75,9 @@ def split_kept_bits(pick: np.ndarray, shapes, kept_layers: list, num_layers: int
     in the allocation (none kept, or all at SH_BITS)."""
     out, pos = [None] * num_layers, 0
     for li, (c, b) in zip(kept_layers, shapes):
-        out[li] = pick[pos:pos + c * b].astype(np.int64).reshape(c, b) + 1
+        w = pick[pos:pos + c * b].astype(np.int64).reshape(c, b) + 1
+        w[w == 1] = 0           # kept_tables' column 0 is the constant group (width 0)
+        out[li] = w
         pos += c * b
     return out
 

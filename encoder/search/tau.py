@@ -8,7 +8,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from ..pipeline import SH_CLASSES, Stage
+from ..pipeline import SH_CLASS_MIN_SIZE, SH_CLASSES, Stage
 from .calibration import Calibrated, calibrate, solve, solve_max, with_kept
 from .candidate import Encoded
 from .options import SH_BITS, SearchOptions
@@ -52,6 +52,16 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
                               sh_model, sh_plan, res, weights)
     if res is not None:
         yield _finish(stage, res, saturated, "vq", log)
+    hybrid = (sh_plan is not None and sopts.sh_classes and SH_CLASS_MIN_SIZE * SH_CLASSES <= sh_plan.keep < sh_model.m
+              and not saturated)
+    if hybrid:
+        with progress.stage("sh-plan", "kept SH vectors in importance classes, widths allocated"):
+            plan = sh_model.encode(sh_plan.keep, code=False, classes=SH_CLASSES)
+            kept = kept_tables(plan, 1.0 if weights is None else weights["sh"], min_bits=1)
+        res = calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, plan, kept=kept)
+        if res is not None:
+            saturated = bool(np.array_equal(res.best.pick[:loss.shape[0]], solve_max(loss, rate)))
+            yield _finish(stage, res, saturated, "classes", log)
     if scalar is not None:
         res = calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, scalar[0],
                         kept=scalar[1])
