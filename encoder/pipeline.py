@@ -832,7 +832,7 @@ class ShPayloads:
 #: importance classes of the kept SH vectors in the size search's scalar path
 #: (docs/design/sh-classes.md); a part with fewer than SH_CLASS_MIN_SIZE kept vectors per
 #: class keeps them in Morton order
-SH_CLASSES = 4
+SH_CLASSES = 8
 SH_CLASS_MIN_SIZE = 256
 SH_CLASS_WEIGHT_EXP = 1.0
 
