@@ -106,7 +106,7 @@ def bits_figure(bits: dict, title: str):
     im = ax.imshow(np.ma.masked_invalid(mat), aspect="auto", cmap=CMAP, vmin=1, vmax=16,
                    interpolation="nearest")
     ax.set_yticks(range(n_rows), labels, fontsize=7 if n_rows > 20 else 8)
-    ax.set_xlabel("block (Morton order; every part's blocks side by side)")
+    ax.set_xlabel("block (consecutive coefficients of a channel; parts side by side)")
     ax.set_ylabel("channel")
     n_attr = len(bits["raht"]) + len(bits["scales"])
     if n_rows > n_attr:                 # the kept SH rows below a line
