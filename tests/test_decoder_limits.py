@@ -128,7 +128,7 @@ def test_gsz_view_takes_max_gaussians(dense, tmp_path, capsys):
     from gsz.viewer.cli import _load_scenes, build_parser, main
     src = tmp_path / "dense.gsz"
     src.write_bytes(dense)
-    assert main([str(src), "--screenshot", str(tmp_path / "x.png")]) == 2
+    assert main([str(src), "--screenshot", str(tmp_path / "x.png")]) == 1
     err = capsys.readouterr().err
     assert err.startswith("gsz-view: error: ") and "per byte" in err and err.count("\n") == 1
     a, b, jobs = _load_scenes(build_parser().parse_args([str(src), "--max-gaussians", str(8 ** 5)]))
