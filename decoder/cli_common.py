@@ -70,11 +70,11 @@ def missing_extra(e: ImportError, what: str) -> GszError | None:
 
 class HelpFormatter(argparse.HelpFormatter):
     """argparse's help with " (default: X)" added only where the help text does not say its
-    default itself and there is one worth saying (not None, not a flag's False)."""
+    default itself and there is one worth saying (not None, not a flag's: -q, --json)."""
 
     def _get_help_string(self, action):
         text = action.help or ""
-        if ("default" in text or action.default in (None, False, argparse.SUPPRESS)
+        if ("default" in text or action.default in (None, False, argparse.SUPPRESS) or action.nargs == 0
                 or action.option_strings == [] or "%(default)" in text):
             return text
         return text + " (default: %(default)s)"

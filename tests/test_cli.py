@@ -410,7 +410,7 @@ def test_usage_and_data_errors_have_one_format_and_their_exit_codes(small_pair, 
 def test_help_shows_real_defaults_in_the_right_groups():
     from gsz.encoder.cli import build_parser
     text = build_parser().format_help()
-    assert "(default: None)" not in text and "default: False" not in text
+    assert "(default: None)" not in text and "default: False" not in text and "(default: 1)" not in text
     assert "(default: 1) (default" not in text
     groups = {g.title: [a.dest for a in g._group_actions] for g in build_parser()._action_groups}
     assert "report" in groups["output"] and "overwrite" in groups["output"]

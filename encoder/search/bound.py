@@ -45,11 +45,12 @@ class BudgetBelowBoundError(BudgetError):
     """The budget is below :func:`smallest_file_bound`: unreachable, found before the importance
     pass (``minimum`` is the bound; the exact smallest file is at least that)."""
 
-    def __init__(self, target: int, bound: int, path=None):
+    def __init__(self, target: int, bound: int, path=None, *, sh: bool = False):
         super().__init__(target, bound, path)
+        what = "container, group parameters" + (" and SH codebook" if sh else "")
         msg = (f"size budget {self.target:,} bytes is below the smallest reachable file for this scene: "
-               f"at least {self.minimum:,} bytes (container, group parameters and SH codebook of "
-               "the smallest candidate, bounded before the importance pass)")
+               f"at least {self.minimum:,} bytes ({what} of the smallest candidate, bounded before "
+               "the importance pass)")
         self.args = (f"{self.path}: {msg}" if self.path else msg,)
 
 
@@ -124,6 +125,6 @@ def smallest_file_bound(cloud, options: SearchOptions | None = None) -> tuple[in
 
 def check_reachable(cloud, target: int, options: SearchOptions | None = None) -> None:
     """BudgetBelowBoundError when ``target`` is below :func:`smallest_file_bound`."""
-    bound, _ = smallest_file_bound(cloud, options)
+    bound, parts = smallest_file_bound(cloud, options)
     if int(target) < bound:
-        raise BudgetBelowBoundError(int(target), bound)
+        raise BudgetBelowBoundError(int(target), bound, sh="sh" in parts)
