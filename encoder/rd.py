@@ -94,4 +94,3 @@ def png_bytes(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", metadata={"Software": None})     # no version stamp: same bytes
     return buf.getvalue()
-
