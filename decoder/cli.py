@@ -6,12 +6,13 @@ import json
 import sys
 import time
 
-from .errors import GszError
+from .cli_common import (EXIT_INTERRUPTED, STDOUT, QUIET, VERBOSE, HelpFormatter, add_overwrite,
+                         add_verbosity, add_version_flag, check_output, fail, warn, write_output)
+from .errors import GszError, GszUsageError
 
+__all__ = ["decode_main", "info_main", "add_max_gaussians", "add_version_flag"]
 
-def _fail(prog: str, e: Exception) -> int:
-    print(f"{prog}: error: {e}", file=sys.stderr)
-    return 2
+_fail = fail
 
 
 def add_max_gaussians(p: argparse.ArgumentParser) -> None:
@@ -23,12 +24,16 @@ def add_max_gaussians(p: argparse.ArgumentParser) -> None:
 
 
 def decode_main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="gsz-decode", description="Decode a .gsz file to a 3DGS PLY or glTF.")
+    p = argparse.ArgumentParser(prog="gsz-decode", description="Decode a .gsz file to a 3DGS PLY or glTF.",
+                                formatter_class=HelpFormatter,
+                                epilog="Exit status: 0 ok, 1 error (bad input, cannot write), 2 bad options, "
+                                       "130 interrupted.")
     add_version_flag(p)
     p.add_argument("input", help="input .gsz file, or a .glb carrying one (EXT_gaussian_splatting_compression_gsz)")
     p.add_argument("-o", "--output", required=True,
                    help="output: OUT.ply (graphdeco PLY), or OUT.glb / OUT.gltf (plain KHR_gaussian_splatting "
-                        "glTF, float32; needs the gltf extra); written atomically")
+                        "glTF, float32; needs the gltf extra); written atomically; - writes the PLY to stdout")
+    add_overwrite(p)
     p.add_argument("--layers", type=int, default=None, metavar="K",
                    help="decode only the first K importance layers (default: all)")
     p.add_argument("--partial", action="store_true",
@@ -40,6 +45,8 @@ def decode_main(argv=None) -> int:
                    help="decode only the Gaussians inside this box (and only the tiles that meet it)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     add_max_gaussians(p)
+    add_verbosity(p, quiet_help="errors only (no summary line, no warnings)",
+                  verbose_help="also the input's size and the decoder's speed")
     a = p.parse_args(argv)
     from .io_util import sigterm_as_interrupt
     try:
@@ -47,7 +54,7 @@ def decode_main(argv=None) -> int:
             out = _decode_to_file(a)
     except KeyboardInterrupt:          # Ctrl-C or SIGTERM: atomic_write left no partial file
         print("gsz-decode: interrupted; no output written", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     if isinstance(out, int):
         return out
     cloud, dt, truncated = out
@@ -58,35 +65,44 @@ def decode_main(argv=None) -> int:
                "decoder": active_path()}
     if a.json:
         print(json.dumps(summary))
-    else:
-        print(f"decoded {len(cloud)} Gaussians (SH degree {cloud.sh_degree}) in {dt:.3f} s "
-              f"({active_path()} decoder) -> {a.output}", file=sys.stderr)
+    elif a.verbosity > QUIET:
+        print(f"gsz-decode: decoded {len(cloud):,} Gaussians (SH degree {cloud.sh_degree}) in {dt:.3f} s "
+              f"({active_path()} decoder) -> {'stdout' if a.output == STDOUT else a.output}", file=sys.stderr)
+        if a.verbosity >= VERBOSE:
+            import os
+            rate = summary["gaussians_per_second"]
+            print(f"gsz-decode: input {a.input}: {os.path.getsize(a.input):,} bytes"
+                  + (f"; {rate:,} Gaussians/s" if rate else ""), file=sys.stderr)
     return 0
 
 
 def _decode_to_file(a):
     """Decode ``a.input`` and write ``a.output``: (cloud, seconds, truncation message or None),
     or the exit code of a one-line error already printed."""
-    from .io_util import check_output_path
     tiles = region = None
     if a.tiles is not None:
         try:
             tiles = [int(v) for v in a.tiles.split(",") if v.strip()]
         except ValueError:
-            return _fail("gsz-decode", GszError(f"--tiles must be comma-separated tile indices, got {a.tiles!r}"))
+            return _fail("gsz-decode", GszUsageError(f"--tiles must be comma-separated tile indices, got {a.tiles!r}"))
     if a.region is not None:
         region = (a.region[:3], a.region[3:])
     import warnings
 
     from .decode import decode
     from .errors import GszTruncatedError, GszTruncatedWarning
-    from .ply import write_ply
+    from .ply import cloud_to_ply_bytes
     if a.layers is not None and a.layers < 1:
-        return _fail("gsz-decode", GszError(f"--layers must be >= 1, got {a.layers}"))
+        return _fail("gsz-decode", GszUsageError(f"--layers must be >= 1, got {a.layers}"))
+    if a.max_gaussians is not None and a.max_gaussians < 1:
+        return _fail("gsz-decode", GszUsageError(f"--max-gaussians must be a positive integer, got {a.max_gaussians}"))
+    if a.output == STDOUT and a.json:
+        return _fail("gsz-decode", GszUsageError("-o - writes the PLY to stdout: --json cannot share it"))
     truncated = None
     gltf_out = a.output.lower().endswith((".glb", ".gltf"))
     try:
-        check_output_path(a.output, inputs=[a.input])     # before the decode, not after it
+        # before the decode, not after it
+        check_output(a.output, inputs=[a.input], overwrite=a.overwrite, stdout=True)
         if gltf_out:
             from .gltf import pygltflib
             pygltflib()                                     # the missing extra, said before the decode
@@ -99,18 +115,16 @@ def _decode_to_file(a):
         for w in caught:
             if issubclass(w.category, GszTruncatedWarning):
                 truncated = str(w.message)
-                print(f"gsz-decode: warning: {truncated}", file=sys.stderr)
+                warn("gsz-decode", truncated, a.verbosity)
         if gltf_out:
             from .decode import payload_frame
             from .gltf import write_gltf
             write_gltf(cloud, a.output, frame=payload_frame(a.input))
         else:
-            write_ply(cloud, a.output)
+            write_output(a.output, cloud_to_ply_bytes(cloud))
     except GszError as e:
         if isinstance(e, GszTruncatedError) and not a.partial:
-            print(f"gsz-decode: error: {e} (--partial decodes the complete layers of a truncated file)",
-                  file=sys.stderr)
-            return 2
+            return _fail("gsz-decode", f"{e} (--partial decodes the complete layers of a truncated file)", 1)
         return _fail("gsz-decode", e)
     except OSError as e:
         return _fail("gsz-decode", GszError(f"cannot write: {e.strerror or e}", a.output))
@@ -118,20 +132,25 @@ def _decode_to_file(a):
 
 
 def info_main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="gsz-info", description="Show the header and chunk table of a .gsz file.")
+    p = argparse.ArgumentParser(prog="gsz-info", description="Show the header and chunk table of a .gsz file.",
+                                formatter_class=HelpFormatter,
+                                epilog="Exit status: 0 ok, 1 error (bad input), 2 bad options, 130 interrupted.")
     add_version_flag(p)
     p.add_argument("input", help="input .gsz file, or a .glb carrying one")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     add_max_gaussians(p)
+    add_verbosity(p, quiet_help="no warnings on stderr", verbose_help="(the table is always complete)")
     a = p.parse_args(argv)
     try:
+        if a.max_gaussians is not None and a.max_gaussians < 1:
+            raise GszUsageError(f"--max-gaussians must be a positive integer, got {a.max_gaussians}")
         from .decode import inspect
         info = inspect(a.input, max_gaussians=a.max_gaussians)
     except GszError as e:
         return _fail("gsz-info", e)
     except KeyboardInterrupt:
         print("gsz-info: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     try:
         return _print_info(a, info)
     except BrokenPipeError:
@@ -187,15 +206,8 @@ def _print_info(a, info: dict) -> int:
     print(f"limit       {lim['max_gaussians']:,} Gaussians"
           + (f" (default: {lim['per_byte']} per byte, at most 2^28)" if lim["per_byte"] else " (--max-gaussians)"))
     if lim["exceeded"]:
-        print(f"gsz-info: warning: {info['file']}: gsz-decode would reject this file: {lim['exceeded']}",
-              file=sys.stderr)
+        warn("gsz-info", f"{info['file']}: gsz-decode would reject this file: {lim['exceeded']}", a.verbosity)
     return 0
-
-
-def add_version_flag(parser: argparse.ArgumentParser) -> None:
-    """``--version``: "PROG VERSION" (every gsz tool)."""
-    from .. import __version__
-    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -14,6 +14,11 @@ class GszError(Exception):
         super().__init__(f"{self.path}: {message}" if self.path else message)
 
 
+class GszUsageError(GszError, ValueError):
+    """A bad option value or combination on a command line (or the equivalent argument of the
+    API): the tools exit with status 2 for it, as argparse does, and 1 for every other error."""
+
+
 class PlyFormatError(GszError, ValueError):
     """A PLY file is not a readable 3DGS (graphdeco layout) point cloud."""
 

@@ -94,9 +94,15 @@ def _nearest_existing(folder: str) -> str:
     return folder
 
 
-def check_output_path(path, inputs=()) -> str:
+#: What the tools say when an output exists and -w/--overwrite was not given.
+EXISTS_MESSAGE = "exists; refusing to overwrite it (-w/--overwrite replaces it)"
+
+
+def check_output_path(path, inputs=(), *, overwrite: bool = True) -> str:
     """Check, before any long work, that ``path`` can be written as an output file and is none
-    of ``inputs``; returns the path.  Raises :class:`GszOutputError` naming ``path``."""
+    of ``inputs`` (never, whatever ``overwrite`` says); with ``overwrite=False`` an existing
+    file is refused too (the command-line tools without ``-w``; a device or pipe is not a file
+    to keep).  Returns the path.  Raises :class:`GszOutputError` naming ``path``."""
     if path is None or os.fspath(path) == "":
         raise GszOutputError("output path is empty")
     path = os.fspath(path)
@@ -110,6 +116,8 @@ def check_output_path(path, inputs=()) -> str:
         raise GszOutputError("ends with a path separator; give an output file name", path)
     if _is_stream(path):                    # -o /dev/null, a FIFO: written straight through
         return path
+    if not overwrite and os.path.lexists(path):
+        raise GszOutputError(EXISTS_MESSAGE, path)
     _refuse_special(path)
     folder = os.path.dirname(os.path.abspath(path))
     base = _nearest_existing(folder)

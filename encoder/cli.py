@@ -7,65 +7,80 @@ import json
 import os
 import sys
 
-from ..decoder.errors import GszError
+from ..decoder.errors import GszError, GszUsageError
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ..decoder.cli_common import (HelpFormatter, add_overwrite, add_verbosity, add_version_flag)
     from .pipeline import MANY_BLOCKS, ONE_BLOCK_MIN_BITS, STREAMING_LAYERS, EncodeOptions
     from .search import SearchOptions
     d = EncodeOptions()
     p = argparse.ArgumentParser(
         prog="gsz-encode", description="Compress a trained 3DGS point_cloud.ply into a .gsz file.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    from ..decoder.cli import add_version_flag
+        formatter_class=HelpFormatter,
+        epilog="Give a size target (--size, --ratio or --profile) and the encoder searches the "
+               "configuration; without one it encodes the fixed configuration below.  Exit status: "
+               "0 ok, 1 error (bad input, unreachable size, output exists or cannot be written), "
+               "2 bad options, 130 interrupted.")
     add_version_flag(p)
     p.add_argument("input", help="input scene, told by content: a graphdeco 3DGS PLY (SH degree 0-3) or a "
                                  "KHR_gaussian_splatting .glb/.gltf")
-    p.add_argument("-o", "--output", required=True,
-                   help="output .gsz file, or OUT.glb: the .gsz inside a glTF binary "
-                        "(EXT_gaussian_splatting_compression_gsz, format_spec/GLTF.md); written atomically")
+    out = p.add_argument_group("output")
+    out.add_argument("-o", "--output", required=True,
+                     help="output .gsz file, or OUT.glb: the .gsz inside a glTF binary "
+                          "(EXT_gaussian_splatting_compression_gsz, format_spec/GLTF.md); written "
+                          "atomically; - writes the .gsz to stdout (nothing else goes there)")
+    add_overwrite(out)
+    out.add_argument("--report", default=None, metavar="DIR",
+                     help="also write DIR/bits.png (the bit-width of every channel and block; needs "
+                          "matplotlib, gsz[plots]) and DIR/report.json; with a size target or a fixed "
+                          "configuration")
+    out.add_argument("--json", action="store_true", help="print a JSON report on stdout")
+    add_verbosity(out, quiet_help="errors only",
+                  verbose_help="every stage with its time and memory, and the search's detail")
     budget = p.add_argument_group("size target (the encoder searches the configuration; give one)")
     budget.add_argument("--size", default=None, help="byte budget, e.g. 5MB, 4.5MiB, 800kB, 1200000")
     budget.add_argument("--ratio", default=None, help="compression ratio vs the input PLY, e.g. 30 or 30x")
     budget.add_argument("--profile", default=None, help="large (8x), medium (12x), small (18x), very-small (27x), tiny (40x)")
-    budget.add_argument("--report", default=None, metavar="DIR", help="write a bit-width heatmap PNG and report.json here")
-    budget.add_argument("--solver", default="fast", choices=["fast", "cbc"], help="bit-allocation solver")
-    p.add_argument("--reserve", type=float, default=None, help=f"fixed configuration: fraction of Gaussians kept by importance pruning (tau; default {d.reserve})")
-    p.add_argument("--bits", type=int, default=None, help=f"fixed configuration: uniform bit-width of every quantisation group (1-16; default {d.bits})")
-    p.add_argument("--codebook", type=int, default=None,
-                   help=f"SH vector-quantisation codebook size K (fixed configuration default {d.codebook}; "
-                        "the size search picks K itself unless given)")
-    p.add_argument("--keep", type=int, default=None, help="number of most important Gaussians whose exact SH is kept (default: 1%% of voxels)")
-    p.add_argument("--blocks", type=int, default=None,
-                   help=f"blocks per quantised channel (default for a fixed configuration: 1 at >= "
-                        f"{ONE_BLOCK_MIN_BITS} bits, one quantisation step per channel, {MANY_BLOCKS} below; "
-                        f"{SearchOptions.blocks} for the size search, which picks a bit-width per block)")
-    p.add_argument("--depth", type=int, default=None, help="octree depth 1-21 (default: chosen from the position-error budget)")
-    p.add_argument("--rel-error", type=float, default=None, help="auto-depth position-error budget, relative to the robust scene diagonal")
-    p.add_argument("--beta", type=float, default=d.beta, help="volume-term exponent of the importance")
-    p.add_argument("--sh-bits", type=int, default=None, help="bit-width of SH codebook and kept vectors (default: --bits)")
-    p.add_argument("--sh-classes", type=int, default=None, help="importance classes of the kept SH vectors, 2-16 (format 1.3; default: none)")
-    p.add_argument("--cameras", default=None, help="cameras.json or COLMAP model for the importance pass (default: generated views)")
-    p.add_argument("--train-views", type=int, default=d.train_views, help="number of generated train views (without --cameras)")
-    p.add_argument("--importance-width", type=int, default=d.importance_width, help="render width of the importance pass")
-    p.add_argument("--layers", type=int, nargs="?", default=d.layers, const=STREAMING_LAYERS, metavar="L",
-                   help="importance-ordered layers for progressive streaming; layer 0 = the most "
-                        "important Gaussians, decodable on its own. --layers alone = "
-                        f"{STREAMING_LAYERS} (docs/design/layers.md); default 1 (single layer, "
-                        "best fidelity per byte)")
-    p.add_argument("--first-layer", type=float, default=d.first_layer,
-                   help="fraction of the Gaussians in layer 0 (with --layers > 1)")
-    p.add_argument("--tile-gaussians", type=int, default=d.tile_gaussians, metavar="N",
-                   help="split a scene of more than N Gaussians (after pruning) into spatial tiles "
-                        "of at most N, each decodable alone; 0: never split")
-    p.add_argument("--executor", default=d.executor, metavar="WHERE",
-                   help="where per-tile work runs: local (worker processes), inline, ray (a local "
-                        "Ray, needs gsz[cluster]) or ray://HOST:PORT (an existing cluster); the "
-                        "file is the same whichever")
-    p.add_argument("--workers", type=int, default=None, help="worker processes (default: the machine's cores less one; 1 runs the work in the encoder's own process)")
-    p.add_argument("--seed", type=int, default=d.seed, help="RNG seed (VQ)")
-    p.add_argument("--json", action="store_true", help="print a JSON report on stdout")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    budget.add_argument("--solver", default="fast", choices=["fast", "cbc"],
+                        help="bit-allocation solver of the size search")
+    fixed = p.add_argument_group("fixed configuration (without a size target)")
+    fixed.add_argument("--reserve", type=float, default=None, help=f"fraction of Gaussians kept by importance pruning (tau; default {d.reserve})")
+    fixed.add_argument("--bits", type=int, default=None, help=f"uniform bit-width of every quantisation group (1-16; default {d.bits})")
+    fixed.add_argument("--keep", type=int, default=None, help="number of most important Gaussians whose exact SH is kept (default: 1%% of voxels)")
+    fixed.add_argument("--depth", type=int, default=None, help="octree depth 1-21 (default: chosen from the position-error budget)")
+    fixed.add_argument("--rel-error", type=float, default=None, help="auto-depth position-error budget, relative to the robust scene diagonal")
+    fixed.add_argument("--sh-bits", type=int, default=None, help="bit-width of SH codebook and kept vectors (default: --bits)")
+    fixed.add_argument("--sh-classes", type=int, default=None, help="importance classes of the kept SH vectors, 2-16 (format 1.3; default: none)")
+    both = p.add_argument_group("both modes")
+    both.add_argument("--codebook", type=int, default=None,
+                      help=f"SH vector-quantisation codebook size K (fixed configuration default {d.codebook}; "
+                           "the size search picks K itself unless given)")
+    both.add_argument("--blocks", type=int, default=None,
+                      help=f"blocks per quantised channel (default for a fixed configuration: 1 at >= "
+                           f"{ONE_BLOCK_MIN_BITS} bits, one quantisation step per channel, {MANY_BLOCKS} below; "
+                           f"{SearchOptions.blocks} for the size search, which picks a bit-width per block)")
+    both.add_argument("--beta", type=float, default=d.beta, help="volume-term exponent of the importance")
+    both.add_argument("--cameras", default=None, help="cameras.json or COLMAP model for the importance pass (default: generated views)")
+    both.add_argument("--train-views", type=int, default=d.train_views, help="number of generated train views (without --cameras)")
+    both.add_argument("--importance-width", type=int, default=d.importance_width, help="render width of the importance pass")
+    both.add_argument("--seed", type=int, default=d.seed, help="RNG seed (VQ)")
+    lay = p.add_argument_group("layers, tiles and workers")
+    lay.add_argument("--layers", type=int, nargs="?", default=d.layers, const=STREAMING_LAYERS, metavar="L",
+                     help="importance-ordered layers for progressive streaming; layer 0 = the most "
+                          "important Gaussians, decodable on its own. --layers alone = "
+                          f"{STREAMING_LAYERS} (docs/design/layers.md); default 1 (single layer, "
+                          "best fidelity per byte)")
+    lay.add_argument("--first-layer", type=float, default=d.first_layer,
+                     help="fraction of the Gaussians in layer 0 (with --layers > 1)")
+    lay.add_argument("--tile-gaussians", type=int, default=d.tile_gaussians, metavar="N",
+                     help="split a scene of more than N Gaussians (after pruning) into spatial tiles "
+                          "of at most N, each decodable alone; 0: never split")
+    lay.add_argument("--executor", default=d.executor, metavar="WHERE",
+                     help="where per-tile work runs: local (worker processes), inline, ray (a local "
+                          "Ray, needs gsz[cluster]) or ray://HOST:PORT (an existing cluster); the "
+                          "file is the same whichever")
+    lay.add_argument("--workers", type=int, default=None, help="worker processes (default: the machine's cores less one; 1 runs the work in the encoder's own process)")
     return p
 
 
@@ -103,7 +118,9 @@ def _run_fixed(a, prog) -> dict:
     _check_paths(a)                           # after the options: their errors come first
     cloud, cameras = _read_inputs(a, prog)
     result = encode(cloud, opts, cameras=cameras, progress=prog, source=a.input)
-    return _finish(a, result, {})
+    r = _finish(a, result, {})
+    _write_report(a, r, result.data)
+    return r
 
 
 def _run_search(a, prog) -> dict:
@@ -115,8 +132,8 @@ def _run_search(a, prog) -> dict:
                                        ("--sh-bits", a.sh_bits), ("--sh-classes", a.sh_classes))
                   if v is not None]
     if fixed_only:
-        raise GszError("--size/--ratio/--profile choose the reserve, depth, bit-widths and kept SH "
-                       f"themselves; drop {'/'.join(fixed_only)}")
+        raise GszUsageError("--size/--ratio/--profile choose the reserve, depth, bit-widths and kept SH "
+                            f"themselves; drop {'/'.join(fixed_only)}")
     _check_paths(a)
     target = budget_from_args(size=a.size, ratio=a.ratio, profile=a.profile, ply_bytes=a.input_bytes)
     style = size_style(a.size) if a.size is not None else "auto"
@@ -140,12 +157,17 @@ def _run_search(a, prog) -> dict:
     r = _finish(a, result, {"target": format_size(target, style)})
     if payload_target != target:
         r.update(target_bytes=target, gsz_target_bytes=payload_target)
-    if a.report:
-        from .report import write_search_report
-        r["report_files"] = write_search_report(r, a.report)
+    _write_report(a, r, result.data)
     prog.log(f"{100 * r['bytes'] / target:.2f} % of the {r['target']} target; reserve {r['reserve']}, "
              f"codebook {r['codebook_size']}, keep {r['sh_keep']}, train PSNR {r['train_psnr']:.2f} dB")
     return r
+
+
+def _write_report(a, r: dict, data: bytes) -> None:
+    if a.report:
+        from .report import write_report
+        files = write_report(r, a.report, data)
+        r["report_files"] = files            # in the printed JSON; report.json holds the rest
 
 
 def _glb_output(a) -> bool:
@@ -153,9 +175,10 @@ def _glb_output(a) -> bool:
 
 
 def _finish(a, result, extra: dict) -> dict:
-    """Write the file atomically (a .glb around the .gsz for OUT.glb) and complete the report;
-    ``bytes`` is the written file's size, ``gsz_bytes`` the .gsz payload's."""
-    from ..decoder.io_util import atomic_write
+    """Write the file atomically, or to stdout for ``-o -`` (a .glb around the .gsz for OUT.glb),
+    and complete the report; ``bytes`` is the written file's size, ``gsz_bytes`` the .gsz
+    payload's."""
+    from ..decoder.cli_common import write_output
     data = result.data
     r = result.report
     r["gsz_bytes"] = len(data)
@@ -164,53 +187,64 @@ def _finish(a, result, extra: dict) -> dict:
         data = gsz_glb_bytes(data)
         r["container"] = "glb"
     r["bytes"] = len(data)
-    atomic_write(a.output, data)              # a GszError naming a.output when it fails
+    write_output(a.output, data)              # a GszError naming a.output when it fails
     in_bytes = a.input_bytes
     r.update(input=a.input, output=a.output, input_bytes=in_bytes, ratio=in_bytes / r["bytes"], **extra)
     return r
 
 
 def _check_paths(a) -> None:
-    """Input and output checks after the options' and before the long encode: a readable regular input file, an output
-    that is not an input and whose folder is writable, a report folder that can be one."""
+    """Input and output checks after the options' and before the long encode: a readable regular
+    input file, an output that is not an input, is new (or -w) and whose folder is writable, a
+    report folder whose files may be written, and the optional packages the outputs need."""
+    from ..decoder.cli_common import STDOUT, check_output
     from ..decoder.errors import PlyFormatError
-    from ..decoder.io_util import check_input_file, check_output_path
+    from ..decoder.io_util import check_input_file
+    if a.output == STDOUT and a.json:
+        raise GszUsageError("-o - writes the .gsz to stdout: --json cannot share it (use --report DIR)")
     a.input_bytes = check_input_file(a.input, PlyFormatError)
-    check_output_path(a.output, inputs=[a.input, a.cameras])
+    check_output(a.output, inputs=[a.input, a.cameras], overwrite=a.overwrite, stdout=True)
     if a.output.lower().endswith(".gltf"):
-        raise GszError("gsz-encode writes .gsz or .glb (the .gsz needs a glTF binary's BIN chunk); "
-                       "plain glTF comes from gsz-decode IN.gsz -o OUT.gltf", a.output)
+        raise GszUsageError("gsz-encode writes .gsz or .glb (the .gsz needs a glTF binary's BIN chunk); "
+                            "plain glTF comes from gsz-decode IN.gsz -o OUT.gltf", a.output)
     if _glb_output(a):
         from ..decoder.gltf import pygltflib
         pygltflib()                           # the missing extra is said before the encode
     if a.report:
         if os.path.exists(a.report) and not os.path.isdir(a.report):
             raise GszError("--report: is a file, expected a folder", a.report)
-        check_output_path(os.path.join(a.report, "report.json"), inputs=[a.input, a.cameras])
+        from .report import require_matplotlib
+        require_matplotlib()
+        for name in ("report.json", "bits.png"):
+            check_output(os.path.join(a.report, name), inputs=[a.input, a.cameras], overwrite=a.overwrite)
 
 
 def _run(a):
     """(report, progress) of the encode ``a`` asks for, its output written."""
+    import torch  # noqa: F401  (the encoder's first need: a core-only install is told here, before any work)
+
     from .progress import Progress
-    prog = Progress(quiet=a.quiet)
+    prog = Progress(verbosity=a.verbosity)
     searching = any(v is not None for v in (a.size, a.ratio, a.profile))
     return (_run_search(a, prog) if searching else _run_fixed(a, prog)), prog
 
 
 @contextlib.contextmanager
-def _input_warnings_as_lines():
+def _input_warnings_as_lines(verbosity: int):
     """GszInputWarnings (a fixed input value, ignored PLY vertices) printed as they come, one
-    'gsz-encode: warning: FILE: ...' line each; other warnings as Python prints them."""
+    'gsz-encode: warning: FILE: ...' line each (none with -q); other warnings as Python prints
+    them."""
     import warnings
 
+    from ..decoder.cli_common import warn
     from ..decoder.errors import GszInputWarning
     with warnings.catch_warnings():
         shown = warnings.showwarning
 
         def show(message, category, filename, lineno, file=None, line=None):
             if issubclass(category, GszInputWarning):
-                print(f"gsz-encode: warning: {message}", file=sys.stderr, flush=True)
-            else:
+                warn("gsz-encode", message, verbosity)
+            elif verbosity > 0:
                 shown(message, category, filename, lineno, file, line)
         warnings.showwarning = show
         warnings.simplefilter("always", GszInputWarning)
@@ -218,27 +252,35 @@ def _input_warnings_as_lines():
 
 
 def main(argv=None) -> int:
+    from ..decoder.cli_common import EXIT_INTERRUPTED, fail, missing_extra
     try:
-        a = build_parser().parse_args(argv)   # imports torch: Ctrl-C may land here too
+        a = build_parser().parse_args(argv)
         from ..decoder.io_util import sigterm_as_interrupt
-        with sigterm_as_interrupt(), _input_warnings_as_lines():
-            r, prog = _run(a)
+        with sigterm_as_interrupt(), _input_warnings_as_lines(a.verbosity):
+            r, prog = _run(a)                 # imports torch: Ctrl-C may land there too
     except GszError as e:
-        print(f"gsz-encode: error: {e}", file=sys.stderr)
-        return 2
+        return fail("gsz-encode", e)
+    except ImportError as e:                  # a core-only install: name the extra, no traceback
+        err = missing_extra(e, "gsz-encode")
+        if err is None:
+            raise
+        return fail("gsz-encode", err)
     except KeyboardInterrupt:
         print("gsz-encode: interrupted; no output written", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     if a.json:
         print(json.dumps(r, indent=1, default=float))
     else:
-        prog.log(f"wrote {a.output}: {r['bytes']:,} bytes ({r['ratio']:.1f}x smaller than the PLY, "
+        where = "stdout" if a.output == "-" else a.output
+        prog.log(f"wrote {where}: {r['bytes']:,} bytes ({r['ratio']:.1f}x smaller than the PLY, "
                  f"{r['bytes_per_gaussian']:.2f} B/Gaussian, {r['voxels']:,} Gaussians)")
         prog.log("  " + ", ".join(f"{k} {v:,}" for k, v in r["components"].items()))
         if len(r.get("layers", [])) > 1:
             prog.log("  layers: " + ", ".join(
                 f"{x['layer']}: {x['cumulative_gaussians']:,} Gaussians after {100 * x['decodable_fraction']:.1f} %"
                 for x in r["layers"]))
+        if r.get("report_files"):
+            prog.log(f"  report: {', '.join(r['report_files'])}")
     return 0
 
 

@@ -6,7 +6,8 @@ background, and compared with :mod:`gsz.encoder.metrics` (renders clamped and ro
 PSNR capped at 100 dB for identical images, reference SSIM).
 
     gsz-eval ORIGINAL COMPRESSED [--cameras FILE_OR_DIR] [--views N] [--width W] [--json]
-             [--out DIR] [--background R,G,B] [--up AXIS]
+             [-o DIR] [--background R,G,B] [--up AXIS] [-w] [-q | -v]
+    gsz-eval --rd SCENE --sizes 1MB,2MB,4MB -o DIR    # encode at each budget, score, plot
 
 Python API: :func:`load_cloud`, :func:`render_views`, :func:`evaluate` (reused by the encoder's
 size/quality search, which renders the original once and passes its images as ``original``).
@@ -26,7 +27,7 @@ import warnings
 import numpy as np
 
 from ..decoder.cloud import GaussianCloud
-from ..decoder.errors import GszError
+from ..decoder.errors import GszError, GszUsageError
 from ..decoder.io_util import atomic_write
 
 from .cameras import load_cameras
@@ -58,7 +59,9 @@ def _default_render_fn():
     try:
         from .render import render
     except ImportError as e:
-        raise GszError(f"the renderer (gsz.encoder.render) is unavailable: {e}") from None
+        from ..decoder.cli_common import missing_extra
+        raise (missing_extra(e, "rendering") or GszError(f"the renderer (gsz.encoder.render) is "
+                                                         f"unavailable: {e}")) from None
     return render
 
 
@@ -132,11 +135,21 @@ def evaluate(original, compressed, cameras, *, background=(0.0, 0.0, 0.0), rende
 
 # --- images --------------------------------------------------------------------------------------
 
+#: height of the caption bar above a side-by-side PNG and of the colour bar below an error map
+CAPTION_PX = 30
+COLOUR_BAR_PX = 34
+
+
 def error_map(a, b, full_scale: float = ERROR_MAP_FULL_SCALE) -> np.ndarray:
     """[H, W, 3] uint8 heat map of max-over-RGB |a - b|: black (0) -> red -> yellow -> white
     (>= ``full_scale``)."""
     e = np.abs(np.asarray(a, np.float64) - np.asarray(b, np.float64)).max(axis=2)
-    t = np.clip(e / full_scale, 0.0, 1.0) * 3.0
+    return _heat(e / full_scale)
+
+
+def _heat(t) -> np.ndarray:
+    """The error map's colour ramp of ``t`` in [0, 1] (clipped): black, red, yellow, white."""
+    t = np.clip(np.asarray(t, np.float64), 0.0, 1.0) * 3.0
     rgb = np.stack([np.clip(t, 0, 1), np.clip(t - 1, 0, 1), np.clip(t - 2, 0, 1)], axis=-1)
     return np.round(rgb * 255.0).astype(np.uint8)
 
@@ -148,21 +161,71 @@ def _png_bytes(arr: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def write_view_pngs(out_dir, index: int, name: str, ref, comp) -> list:
-    """Write ``NNN_<name>_side_by_side.png`` (original | compressed) and ``NNN_<name>_error.png``
-    atomically into ``out_dir``; returns the two paths."""
+def _caption(width: int, lines: list, height: int = CAPTION_PX) -> np.ndarray:
+    """[height, width, 3] uint8: ``lines`` in white on dark grey (PIL's default font), clipped
+    to the width so a half's caption never runs into the other half."""
+    from PIL import Image, ImageDraw
+    img = Image.new("RGB", (int(width), int(height)), (32, 32, 32))
+    d = ImageDraw.Draw(img)
+    for i, text in enumerate(lines):
+        d.text((4, 2 + 13 * i), text, fill=(255, 255, 255))
+    return np.asarray(img)
+
+
+def _colour_bar(width: int, full_scale: float, height: int = COLOUR_BAR_PX) -> np.ndarray:
+    """[height, width, 3] uint8: the error map's ramp from 0 to ``full_scale`` with ticks."""
+    from PIL import Image, ImageDraw
+    img = Image.new("RGB", (int(width), int(height)), (32, 32, 32))
+    left, right = 6, max(7, int(width) - 6)
+    ramp = _heat(np.linspace(0.0, 1.0, right - left))
+    img.paste(Image.fromarray(np.repeat(ramp[None], 10, axis=0), "RGB"), (left, 4))
+    d = ImageDraw.Draw(img)
+    for frac, text in ((0.0, "0"), (0.5, f"{full_scale / 2:g}"), (1.0, f">= {full_scale:g}")):
+        x = left + frac * (right - left - 1)
+        d.line([(x, 14), (x, 17)], fill=(255, 255, 255))
+        w = d.textlength(text)
+        d.text((min(max(0, x - w / 2), width - w - 1), 19), text, fill=(255, 255, 255))
+    return np.asarray(img)
+
+
+def view_png_names(index: int, name: str) -> tuple[str, str]:
+    """File names of view ``index``'s side-by-side and error-map PNGs."""
     safe = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "view"
-    sbs = np.concatenate([to_uint8(ref), to_uint8(comp)], axis=1)
-    p1 = os.path.join(out_dir, f"{index:03d}_{safe}_side_by_side.png")
-    p2 = os.path.join(out_dir, f"{index:03d}_{safe}_error.png")
+    return f"{index:03d}_{safe}_side_by_side.png", f"{index:03d}_{safe}_error.png"
+
+
+def write_view_pngs(out_dir, index: int, name: str, ref, comp, *, labels=None,
+                    full_scale: float = ERROR_MAP_FULL_SCALE) -> list:
+    """Write ``NNN_<name>_side_by_side.png`` (original | compressed, under a caption bar with
+    ``labels`` = (left lines, right lines)) and ``NNN_<name>_error.png`` (the error map above a
+    colour bar) atomically into ``out_dir``; returns the two paths."""
+    a, b = to_uint8(ref), to_uint8(comp)
+    h, w = a.shape[:2]
+    left, right = labels or (["original"], ["compressed"])
+    top = np.concatenate([_caption(w, left), _caption(w, right)], axis=1)
+    sbs = np.concatenate([top, np.concatenate([a, b], axis=1)], axis=0)
+    err = np.concatenate([error_map(ref, comp, full_scale), _colour_bar(w, full_scale)], axis=0)
+    n1, n2 = view_png_names(index, name)
+    p1, p2 = os.path.join(out_dir, n1), os.path.join(out_dir, n2)
     atomic_write(p1, _png_bytes(sbs))
-    atomic_write(p2, _png_bytes(error_map(ref, comp)))
+    atomic_write(p2, _png_bytes(err))
     return [p1, p2]
+
+
+def _view_labels(res: dict, view: dict, names=("original", "decoded")) -> tuple:
+    """Caption lines of a side-by-side PNG: what each half is, its bytes, the view's scores."""
+    b = res["bytes"]
+    n = res["num_gaussians"]
+    left = [f"{names[0]}: {os.path.basename(res['original'])}",
+            f"{b['original']:,} B, {n['original']:,} Gaussians"]
+    right = [f"{names[1]}: {b['compressed']:,} B" + (f" ({b['ratio']:.1f}x)" if b["ratio"] else ""),
+             f"PSNR {view['psnr']:.2f} dB  SSIM {view['ssim']:.4f}"]
+    return left, right
 
 
 # --- CLI -----------------------------------------------------------------------------------------
 
-class _UsageError(Exception):
+class _UsageError(GszUsageError):
     pass
 
 
@@ -185,14 +248,20 @@ def pick_evenly(items, n):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ..decoder.cli_common import HelpFormatter, add_overwrite, add_verbosity, add_version_flag
     p = argparse.ArgumentParser(
         prog="gsz-eval",
+        usage="%(prog)s ORIGINAL COMPRESSED [options]\n       %(prog)s --rd SCENE --sizes LIST -o DIR [options]",
+        formatter_class=HelpFormatter,
         description="Render an original and a compressed 3DGS scene from the same test views and "
-                    "report PSNR / SSIM (8-bit protocol; identical images = 100 dB cap).")
-    from ..decoder.cli import add_version_flag
+                    "report PSNR / SSIM (8-bit protocol; identical images = 100 dB cap); or, with "
+                    "--rd, encode one scene at several budgets and plot PSNR/SSIM against size.",
+        epilog="Exit status: 0 ok, 1 error (bad input, unreachable sizes, outputs exist), 2 bad "
+               "options, 130 interrupted.")
     add_version_flag(p)
-    p.add_argument("original", help="original scene (.ply, .gsz, .glb or .gltf, told by content)")
-    p.add_argument("compressed", help="compressed / decoded scene (.gsz, a .glb carrying one, .ply, .gltf)")
+    p.add_argument("original", nargs="?", help="original scene (.ply, .gsz, .glb or .gltf, told by content)")
+    p.add_argument("compressed", nargs="?",
+                   help="compressed / decoded scene (.gsz, a .glb carrying one, .ply, .gltf)")
     p.add_argument("--cameras", metavar="FILE_OR_DIR",
                    help="graphdeco cameras.json or COLMAP model (test = every 8th by name); "
                         "default: deterministic views around the original")
@@ -206,55 +275,154 @@ def build_parser() -> argparse.ArgumentParser:
                    help="up axis of default views: auto (default: y, sign from the ground plane), "
                         "-y, +y, +z, ...")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    p.add_argument("--out", metavar="DIR", help="write side-by-side and error-map PNGs per view")
+    p.add_argument("-o", "--out", metavar="DIR",
+                   help="write per view a side-by-side PNG (captioned with bytes and PSNR/SSIM) and "
+                        "an error map with its colour bar; with --rd: the encoded files, rd.json and rd.png")
+    add_overwrite(p)
+    add_verbosity(p, quiet_help="errors only", verbose_help="also the size search's story (--rd)")
+    rd = p.add_argument_group("rate-distortion curve (--rd)")
+    rd.add_argument("--rd", metavar="SCENE", help="encode SCENE at each of --sizes, score every file "
+                                                  "against SCENE and plot the curve into -o DIR")
+    rd.add_argument("--sizes", metavar="LIST", help="budgets for --rd, e.g. 1MB,2MB,4MB")
+    rd.add_argument("--train-views", type=int, default=None, metavar="N",
+                    help="--rd: generated train views of the encoder's importance pass (default 24)")
+    rd.add_argument("--importance-width", type=int, default=None, metavar="W",
+                    help="--rd: render width of the importance pass (default 800)")
     return p
 
 
-def _run(args) -> dict:
-    bg = _parse_background(args.background)
-    if args.views is not None and args.views < 1:
-        raise _UsageError(f"--views must be at least 1, got {args.views}")
-    if args.width is not None and not 8 <= args.width <= 8192:
-        raise _UsageError(f"--width must be in 8..8192, got {args.width}")
-    t0 = time.perf_counter()
-    original = load_cloud(args.original)
-    compressed = load_cloud(args.compressed)
+def _test_cameras(args, original):
     try:
         if args.cameras is None:
-            cams = load_cameras(None, original, n_test=args.views or 8,
-                                width=args.width, up=args.up).test
-        else:
-            cams = pick_evenly(load_cameras(args.cameras, original, width=args.width).test, args.views)
+            return load_cameras(None, original, n_test=args.views or 8, width=args.width, up=args.up).test
+        return pick_evenly(load_cameras(args.cameras, original, width=args.width).test, args.views)
     except ValueError as e:
         if isinstance(e, GszError):
             raise
         raise _UsageError(str(e)) from None
 
+
+def _check_common(args):
+    bg = _parse_background(args.background)
+    if args.views is not None and args.views < 1:
+        raise _UsageError(f"--views must be at least 1, got {args.views}")
+    if args.width is not None and not 8 <= args.width <= 8192:
+        raise _UsageError(f"--width must be in 8..8192, got {args.width}")
+    return bg
+
+
+def _check_outputs(args, names, inputs) -> None:
+    """Every file this run will write into --out, checked before any rendering."""
+    from ..decoder.cli_common import check_output
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise GszError("is a file, expected a folder for the images", args.out)
+    for n in names:
+        check_output(os.path.join(args.out, n), inputs=inputs, overwrite=args.overwrite)
+
+
+def _run(args) -> dict:
+    if args.rd is not None:
+        return _run_rd(args)
+    if args.sizes or args.train_views is not None or args.importance_width is not None:
+        raise _UsageError("--sizes/--train-views/--importance-width belong to --rd SCENE")
+    if args.original is None or args.compressed is None:
+        raise _UsageError("give ORIGINAL and COMPRESSED (or --rd SCENE --sizes LIST -o DIR)")
+    bg = _check_common(args)
+    import torch  # noqa: F401  (rendering needs it: a core-only install is told before any work)
+    t0 = time.perf_counter()
+    original = load_cloud(args.original)
+    compressed = load_cloud(args.compressed)
+    cams = _test_cameras(args, original)
+    if args.out is not None:
+        _check_outputs(args, [n for i, c in enumerate(cams) for n in view_png_names(i, c.name)],
+                       [args.original, args.compressed])
+
     def progress(i, n, name, p, s):
-        print(f"gsz-eval: view {i + 1}/{n} {name}: PSNR {p:.2f} dB  SSIM {s:.4f}",
-              file=sys.stderr, flush=True)
+        if args.verbosity > 0:
+            print(f"gsz-eval: view {i + 1}/{n} {name}: PSNR {p:.2f} dB  SSIM {s:.4f}",
+                  file=sys.stderr, flush=True)
 
     res = evaluate(original, compressed, cams, background=bg, progress=progress,
                    return_images=args.out is not None)
     images = res.pop("images", None)
+    res["original"] = os.fspath(args.original)
+    res["compressed"] = os.fspath(args.compressed)
+    so, sc = os.path.getsize(args.original), os.path.getsize(args.compressed)
+    res["bytes"] = {"original": so, "compressed": sc, "ratio": (so / sc) if sc else None}
     if args.out is not None:
         written = []
         try:
             os.makedirs(args.out, exist_ok=True)
             for i, (v, (ref, comp)) in enumerate(zip(res["views"], images)):
-                written += write_view_pngs(args.out, i, v["name"], ref, comp)
+                written += write_view_pngs(args.out, i, v["name"], ref, comp, labels=_view_labels(res, v))
         except OSError as e:
             raise GszError(f"cannot write images: {e.strerror or e}", args.out) from None
         res["images_written"] = written
         res["error_map_full_scale"] = ERROR_MAP_FULL_SCALE
-    res["original"] = os.fspath(args.original)
-    res["compressed"] = os.fspath(args.compressed)
-    so, sc = os.path.getsize(args.original), os.path.getsize(args.compressed)
-    res["bytes"] = {"original": so, "compressed": sc, "ratio": (so / sc) if sc else None}
     res["cameras"] = args.cameras if args.cameras is not None else "default"
     res["width"], res["height"] = cams[0].width, cams[0].height
     res["seconds"] = round(time.perf_counter() - t0, 3)
     return res
+
+
+def _run_rd(args) -> dict:
+    """``--rd SCENE --sizes LIST -o DIR``: rd.json, rd.png and one .gsz per reachable budget."""
+    from ..decoder.io_util import check_input_file
+    from .rd import budget_file_name, png_bytes, rd_figure, rd_points
+    from .report import require_matplotlib
+    if args.original is not None or args.compressed is not None:
+        raise _UsageError("--rd SCENE takes no ORIGINAL/COMPRESSED (it makes the compressed files)")
+    if not args.sizes or not args.out:
+        raise _UsageError("--rd SCENE needs --sizes LIST and -o DIR")
+    bg = _check_common(args)
+    from .sizes import parse_size
+    items = [x.strip() for x in args.sizes.split(",") if x.strip()]
+    if not items:
+        raise _UsageError(f"--sizes: expected budgets like 1MB,2MB,4MB, got {args.sizes!r}")
+    targets = sorted({(parse_size(x), x) for x in items})          # SizeSpecError: a usage error
+    targets = [(label, n) for n, label in targets]
+    from .search import SearchOptions
+    kw = {k: v for k, v in (("train_views", args.train_views), ("importance_width", args.importance_width))
+          if v is not None}
+    sopts = SearchOptions(**kw)
+
+    def bad(msg):
+        raise _UsageError(msg)
+    sopts.check_scene_options(bad)
+    require_matplotlib("--rd")
+    import torch  # noqa: F401  (the encodes need it: a core-only install is told before any work)
+    in_bytes = check_input_file(args.rd)
+    stem = os.path.splitext(os.path.basename(args.rd))[0]
+    names = ["rd.json", "rd.png"] + [budget_file_name(stem, label) for label, _ in targets]
+    _check_outputs(args, names, [args.rd])
+    t0 = time.perf_counter()
+    scene = load_cloud(args.rd)
+    cams = _test_cameras(args, scene)
+    from .progress import Progress
+    prog = Progress(verbosity=1) if args.verbosity >= 2 else None
+
+    def say(text):
+        if args.verbosity > 0:
+            print(f"gsz-eval: {text}", file=sys.stderr, flush=True)
+    points, unreachable = rd_points(scene, targets, cams, background=bg, options=sopts, source=args.rd,
+                                    report=say, progress=prog)
+    if not points:
+        raise GszError("no budget of --sizes is reachable: " + "; ".join(u["error"] for u in unreachable),
+                       args.rd)
+    os.makedirs(args.out, exist_ok=True)
+    for pt in points:
+        pt["file"] = os.path.join(args.out, budget_file_name(stem, pt["target"]))
+        atomic_write(pt["file"], pt.pop("data"))
+    rd = {"scene": os.fspath(args.rd), "input_bytes": in_bytes, "cameras": [c.name for c in cams],
+          "width": cams[0].width, "height": cams[0].height, "background": list(bg),
+          "psnr_cap_db": PSNR_CAP_DB, "note": NOTE, "points": points, "unreachable": unreachable,
+          "search": {k: getattr(sopts, k) for k in ("train_views", "importance_width", "blocks")},
+          "seconds": round(time.perf_counter() - t0, 2)}
+    rd["rd_png"] = os.path.join(args.out, "rd.png")
+    rd["rd_json"] = os.path.join(args.out, "rd.json")
+    atomic_write(rd["rd_png"], png_bytes(rd_figure(rd)))
+    atomic_write(rd["rd_json"], json.dumps(rd, indent=1, allow_nan=False).encode())
+    return rd
 
 
 def _print_table(res: dict) -> None:
@@ -269,23 +437,40 @@ def _print_table(res: dict) -> None:
     print(f"({res['note']})")
 
 
+def _print_rd(rd: dict) -> None:
+    print(f"scene {rd['scene']}  ({rd['input_bytes']:,} bytes), {len(rd['cameras'])} test views at "
+          f"{rd['width']}x{rd['height']}")
+    print(f"{'budget':<10} {'bytes':>12} {'PSNR dB':>9} {'SSIM':>8}  file")
+    for p in rd["points"]:
+        print(f"{p['target']:<10} {p['bytes']:>12,} {p['psnr']:>9.3f} {p['ssim']:>8.4f}  {p['file']}")
+    for u in rd["unreachable"]:
+        print(f"{u['target']:<10} {'unreachable':>12}")
+    print(f"curve: {rd['rd_png']}, {rd['rd_json']}")
+
+
 def main(argv=None) -> int:
+    from ..decoder.cli_common import EXIT_INTERRUPTED, fail, missing_extra, warn
     args = build_parser().parse_args(argv)
     try:
         with warnings.catch_warnings():
             # Warnings (extra PLY properties, lens distortion dropped) go to stderr as one line.
             warnings.simplefilter("always")
-            warnings.showwarning = lambda msg, *a, **k: print(f"gsz-eval: warning: {msg}",
-                                                              file=sys.stderr)
+            warnings.showwarning = lambda msg, *a, **k: warn("gsz-eval", msg, args.verbosity)
             res = _run(args)
-    except (GszError, _UsageError) as e:
-        print(f"gsz-eval: {e}", file=sys.stderr)
-        return 2
+    except GszError as e:
+        return fail("gsz-eval", e)
+    except ImportError as e:                  # a core-only install: name the extra, no traceback
+        err = missing_extra(e, "gsz-eval")
+        if err is None:
+            raise
+        return fail("gsz-eval", err)
     except KeyboardInterrupt:
         print("gsz-eval: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     if args.json:
         print(json.dumps(res, allow_nan=False))
+    elif args.rd is not None:
+        _print_rd(res)
     else:
         _print_table(res)
     return 0

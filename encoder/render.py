@@ -45,7 +45,8 @@ Remaining differences to graphdeco (all below ~1e-6 relative unless noted):
 
 Two implementations: a compiled C++ kernel (``kernels/render_cpu.cpp``: preprocessing and
 rasterisation, built once with ``torch.utils.cpp_extension`` and cached in
-``~/.cache/torch_extensions``) and a pure-torch reference (:func:`_preprocess`, vectorised over
+``~/.cache/torch_extensions`` under a name keyed by the gsz and torch versions and the source,
+:func:`kernel_build_name`) and a pure-torch reference (:func:`_preprocess`, vectorised over
 Gaussians, and :func:`_rasterize_torch`, a literal transcription of the per-pixel loop,
 vectorised over pixels; ~100x slower).  The kernel additionally skips, per Gaussian, the pixels outside a conservative
 box beyond which ``alpha < 1/255`` holds (an exact shortcut: such pixels are skipped by the rule
@@ -369,6 +370,48 @@ _KERNEL_LOCK = threading.Lock()
 _KERNEL_SRC = Path(__file__).resolve().parent.parent / "kernels" / "render_cpu.cpp"
 
 
+#: Compiler flags of the kernel: fixed (no -march=native) so every machine builds the same
+#: arithmetic; part of the build key.
+_KERNEL_CFLAGS = ["-O3", "-ffp-contract=off", "-fno-math-errno"]
+#: What gsz says, once, when it compiles the kernel (a first use, or a new gsz/torch/source).
+COMPILE_MESSAGE = "gsz: compiling the CPU rasteriser (once, ~1 min)"
+
+
+def _kernel_source() -> Path:
+    src = _KERNEL_SRC
+    if not src.exists():  # installed (non-editable) layout: gsz/kernels/render_cpu.cpp
+        from .. import kernels
+        src = Path(kernels.__file__).resolve().parent / "render_cpu.cpp"
+    return src
+
+
+def kernel_build_name(src: Path | None = None) -> str:
+    """The kernel's module and cache-folder name: ``gsz_render_cpu_<key>``, the key a hash of
+    the gsz version, the source, the flags, torch's version and the Python ABI.  Installs of
+    different gsz or torch versions (or a changed source) each keep their own build instead
+    of rebuilding a shared fixed-name one in turn; the same install finds its build again."""
+    import hashlib
+    import sys
+
+    from .. import __version__
+    h = hashlib.sha256()
+    for part in (__version__, torch.__version__, " ".join(_KERNEL_CFLAGS),
+                 f"py{sys.version_info[0]}{sys.version_info[1]}{getattr(sys, 'abiflags', '')}"):
+        h.update(part.encode() + b"\0")
+    h.update((src or _kernel_source()).read_bytes())
+    return f"gsz_render_cpu_{h.hexdigest()[:16]}"
+
+
+def _kernel_built(name: str) -> bool:
+    """Whether the build folder of ``name`` already holds its compiled module."""
+    try:
+        from torch.utils.cpp_extension import _get_build_directory
+        folder = _get_build_directory(name, verbose=False)
+    except Exception:                  # a torch without the helper: say nothing rather than wrong
+        return True
+    return any(Path(folder).glob(f"{name}*.so")) or any(Path(folder).glob(f"{name}*.pyd"))
+
+
 def _load_kernel():
     """The compiled rasteriser module, or None (with a warning) when it cannot be built."""
     global _KERNEL, _KERNEL_TRIED
@@ -378,14 +421,12 @@ def _load_kernel():
         _KERNEL_TRIED = True
         try:
             from torch.utils.cpp_extension import load
-            src = _KERNEL_SRC
-            if not src.exists():  # installed (non-editable) layout: gsz/kernels/render_cpu.cpp
-                import gsz.kernels
-                src = Path(gsz.kernels.__file__).resolve().parent / "render_cpu.cpp"
-            # Fixed flags (no -march=native) so every machine builds the same arithmetic.
-            _KERNEL = load(name="gsz_render_cpu", sources=[str(src)],
-                           extra_cflags=["-O3", "-ffp-contract=off", "-fno-math-errno"],
-                           verbose=False)
+            src = _kernel_source()
+            name = kernel_build_name(src)
+            if not _kernel_built(name):
+                import sys
+                print(COMPILE_MESSAGE, file=sys.stderr, flush=True)
+            _KERNEL = load(name=name, sources=[str(src)], extra_cflags=list(_KERNEL_CFLAGS), verbose=False)
         except Exception as exc:  # compiler missing, headers missing, ...
             warnings.warn(f"gsz.encoder.render: C++ rasteriser unavailable ({exc!r}); "
                           f"falling back to the (much slower) pure-torch rasteriser",

@@ -24,10 +24,10 @@ import math
 import re
 from fractions import Fraction
 
-from ..decoder.errors import GszError
+from ..decoder.errors import GszUsageError
 
 
-class SizeSpecError(GszError, ValueError):
+class SizeSpecError(GszUsageError):
     """A size, ratio or profile given by the user cannot be understood."""
 
 

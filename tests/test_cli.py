@@ -4,6 +4,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 import gsz
@@ -61,17 +62,17 @@ def test_bad_inputs_give_one_line_errors_and_no_output(tmp_path):
     junk.write_bytes(b"not a ply at all")
     out = tmp_path / "x.gsz"
     p = run("encode", junk, "-o", out, *FAST, check=False)
-    assert p.returncode == 2 and "junk.ply" in p.stderr and "Traceback" not in p.stderr
+    assert p.returncode == 1 and "junk.ply" in p.stderr and "Traceback" not in p.stderr
     assert not out.exists()
     p = run("encode", SAMPLE_SH0, "-o", out, "--bits", "17", check=False)
     assert p.returncode == 2 and "--bits" in p.stderr and not out.exists()
     bad = tmp_path / "bad.gsz"
     bad.write_bytes(b"\x89GSZ\r\n\x1a\n" + b"\x00" * 100)
     p = run("decode", bad, "-o", tmp_path / "y.ply", check=False)
-    assert p.returncode == 2 and "bad.gsz" in p.stderr and "Traceback" not in p.stderr
+    assert p.returncode == 1 and "bad.gsz" in p.stderr and "Traceback" not in p.stderr
     assert not (tmp_path / "y.ply").exists()
     p = run("info", tmp_path / "missing.gsz", check=False)
-    assert p.returncode == 2 and "not found" in p.stderr
+    assert p.returncode == 1 and "not found" in p.stderr
     # a size target with knobs only a fixed configuration has: one line naming them, no file
     p = run("encode", SAMPLE_SH0, "-o", out, "--ratio", "20", "--rel-error", "0.01", "--sh-bits", "8",
             check=False)
@@ -86,7 +87,7 @@ def test_layered_encode_decode_first_layers_and_partial(tmp_path):
     p = run("encode", SAMPLE_SH0, "-o", out, "--bits", "8", "--layers", "3", "--json", *FAST)
     report = json.loads(p.stdout)
     layers = report["layers"]
-    assert len(layers) == 3 and "geometry - layer 2" in p.stderr
+    assert len(layers) == 3 and "geometry - layer 2" not in p.stderr    # -v shows every part
     text = run("info", out).stdout
     assert "decodable at" in text and f"{layers[0]['gaussians']:,}" in text
     info = json.loads(run("info", out, "--json").stdout)
@@ -97,7 +98,7 @@ def test_layered_encode_decode_first_layers_and_partial(tmp_path):
     cut = tmp_path / "cut.gsz"
     cut.write_bytes(out.read_bytes()[:layers[1]["decodable_at"] + 3])
     bad = run("decode", cut, "-o", tmp_path / "x.ply", check=False)
-    assert bad.returncode == 2 and "truncated" in bad.stderr and "--partial" in bad.stderr
+    assert bad.returncode == 1 and "truncated" in bad.stderr and "--partial" in bad.stderr
     assert not (tmp_path / "x.ply").exists()
     part = run("decode", cut, "-o", tmp_path / "part.ply", "--partial", "--json")
     assert "warning: " in part.stderr and "decoded 2 of 3 layers" in part.stderr
@@ -148,10 +149,10 @@ def test_output_that_is_the_input_is_refused(small_pair, tmp_path, capsys):
     os.link(g, tmp_path / "hard.gsz")
     before = (ply.read_bytes(), g.read_bytes())
     for out in (ply, tmp_path / "alias.ply", f"{tmp_path}/./a.ply"):
-        assert main([str(ply), "-o", str(out), *TINY]) == 2
+        assert main([str(ply), "-o", str(out), *TINY, "-w"]) == 1      # never the input, even with -w
         assert "is the input file" in _one_line_error(capsys, out)
     for out in (g, tmp_path / "hard.gsz"):
-        assert decode_main([str(g), "-o", str(out)]) == 2
+        assert decode_main([str(g), "-o", str(out), "-w"]) == 1
         assert "is the input file" in _one_line_error(capsys, out)
     assert (ply.read_bytes(), g.read_bytes()) == before
 
@@ -166,7 +167,7 @@ def test_unwritable_output_fails_before_the_encode(small_pair, tmp_path, capsys)
     if os.path.isdir("/sys"):
         cases.append(("/sys/gsz-out.gsz", "Permission denied"))     # even root cannot write there
     for out, words in cases:
-        assert main([str(ply), "-o", out, *TINY[:-1]]) == 2        # not quiet: stages would show
+        assert main([str(ply), "-o", out, *TINY[:-1]]) == 1        # not quiet: stages would show
         err = capsys.readouterr().err
         assert words in err and "[gsz] importance" not in err and "Traceback" not in err, err
         assert len(err.strip().splitlines()) == 1
@@ -183,7 +184,7 @@ def test_write_failure_after_the_encode_names_the_output(small_pair, tmp_path, c
         raise OSError(errno.ENOSPC, "No space left on device")
     monkeypatch.setattr(io_util.os, "fsync", full)
     out = tmp_path / "o.gsz"
-    assert main([str(small_pair[0]), "-o", str(out), *TINY]) == 2
+    assert main([str(small_pair[0]), "-o", str(out), *TINY]) == 1
     assert "No space left on device" in _one_line_error(capsys, out)
     assert list(tmp_path.iterdir()) == []
 
@@ -194,19 +195,19 @@ def test_zero_vertex_ply_and_device_inputs(tmp_path, capsys):
     from gsz.encoder.cli import main
     empty = tmp_path / "empty.ply"
     empty.write_bytes(cloud_to_ply_bytes(gsz.read_ply(SAMPLE_SH0).subset([])))
-    assert main([str(empty), "-o", str(tmp_path / "e.gsz"), *TINY]) == 2
+    assert main([str(empty), "-o", str(tmp_path / "e.gsz"), *TINY]) == 1
     assert "0 vertices" in _one_line_error(capsys, empty)
     bad_q = tmp_path / "zero_q.ply"
     c = gsz.read_ply(SAMPLE_SH0).subset(list(range(50)))
     c.rotations[[7, 9]] = 0.0
     gsz.write_ply(c, bad_q)
-    assert main([str(bad_q), "-o", str(tmp_path / "q.gsz"), *TINY]) == 2
+    assert main([str(bad_q), "-o", str(tmp_path / "q.gsz"), *TINY]) == 1
     assert "2 vertices have an all-zero rotation quaternion" in _one_line_error(capsys, bad_q, "vertex 7")
-    assert main(["/dev/zero", "-o", str(tmp_path / "z.gsz"), *TINY]) == 2
+    assert main(["/dev/zero", "-o", str(tmp_path / "z.gsz"), *TINY]) == 1
     assert "not a regular file" in _one_line_error(capsys, "/dev/zero")
-    assert decode_main(["/dev/zero", "-o", str(tmp_path / "z.ply")]) == 2
+    assert decode_main(["/dev/zero", "-o", str(tmp_path / "z.ply")]) == 1
     assert "not a regular file" in _one_line_error(capsys, "/dev/zero")
-    assert info_main(["/dev/zero"]) == 2
+    assert info_main(["/dev/zero"]) == 1
     assert "not a regular file" in _one_line_error(capsys, "/dev/zero")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.ply", "zero_q.ply"]
 
@@ -312,3 +313,154 @@ def test_every_tool_has_version_and_help_without_torch(tool, module, fn):
     assert v.returncode == 0 and v.stdout.startswith(f"{tool} {gsz.__version__}\n"), v.stdout + v.stderr
     h = subprocess.run([sys.executable, "-c", code, "--help"], capture_output=True, text=True)
     assert h.returncode == 0 and "usage:" in h.stdout and h.stdout.rstrip().endswith("NO-TORCH"), h.stdout[-300:] + h.stderr
+
+
+# ---------------------------------------------------------------- issue 20: CLI conventions
+def test_existing_outputs_are_kept_unless_overwrite(small_pair, tmp_path, capsys):
+    """An existing output is refused (exit 1, one line naming it, the file untouched) before any
+    work; -w/--overwrite replaces it; the input is never replaced, not even with -w."""
+    from gsz.decoder.cli import decode_main
+    from gsz.encoder.cli import main
+    ply, g = small_pair
+    out = tmp_path / "o.gsz"
+    out.write_bytes(b"keep me")
+    assert main([str(ply), "-o", str(out), *TINY[:-1]]) == 1
+    err = _one_line_error(capsys, out)
+    assert err.startswith("gsz-encode: error: ") and "exists" in err and "-w/--overwrite" in err
+    assert out.read_bytes() == b"keep me"
+    assert main([str(ply), "-o", str(out), *TINY, "-w"]) == 0
+    assert out.read_bytes() == g.read_bytes()              # the same encode, deterministic
+    back = tmp_path / "back.ply"
+    back.write_bytes(b"keep me too")
+    assert decode_main([str(g), "-o", str(back), "-q"]) == 1
+    assert "exists" in _one_line_error(capsys, back) and back.read_bytes() == b"keep me too"
+    assert decode_main([str(g), "-o", str(back), "-q", "--overwrite"]) == 0
+    assert len(gsz.read_ply(back)) == len(gsz.load(str(g)))
+    rep = tmp_path / "rep"
+    rep.mkdir()
+    (rep / "report.json").write_text("{}")
+    assert main([str(ply), "-o", str(tmp_path / "r.gsz"), *TINY, "--report", str(rep)]) == 1
+    assert "exists" in _one_line_error(capsys, rep / "report.json")
+    assert (rep / "report.json").read_text() == "{}" and not (tmp_path / "r.gsz").exists()
+
+
+def test_dash_output_writes_the_file_to_stdout_and_nothing_else(small_pair, tmp_path):
+    ply, g = small_pair
+    p = subprocess.run([sys.executable, "-m", "gsz.encoder.cli", str(ply), "-o", "-", *TINY[:-1]],
+                       capture_output=True)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout == g.read_bytes()                      # exactly the .gsz bytes
+    assert b"[gsz] importance" in p.stderr and b"wrote stdout" in p.stderr
+    p = subprocess.run([sys.executable, "-m", "gsz.decoder.cli", str(g), "-o", "-"], capture_output=True)
+    assert p.returncode == 0, p.stderr
+    (tmp_path / "back.ply").write_bytes(p.stdout)
+    assert gsz.read_ply(tmp_path / "back.ply").equals(gsz.load(str(g)))
+    assert b"decoded" in p.stderr
+    p = run("encode", ply, "-o", "-", "--json", *TINY, check=False)
+    assert p.returncode == 2 and "--json" in p.stderr and p.stdout == ""
+
+
+def test_dash_output_refuses_a_terminal(small_pair):
+    import pty
+    master, slave = pty.openpty()
+    try:
+        p = subprocess.run([sys.executable, "-m", "gsz.decoder.cli", str(small_pair[1]), "-o", "-"],
+                           stdout=slave, stderr=subprocess.PIPE, text=True)
+    finally:
+        os.close(slave)
+        os.close(master)
+    assert p.returncode == 2 and "stdout is a terminal" in p.stderr
+
+
+def test_quiet_default_and_verbose_levels(small_pair, tmp_path):
+    """-q: nothing on stderr; default: stage names without times; -v: every stage's time."""
+    ply = small_pair[0]
+    args = [sys.executable, "-m", "gsz.encoder.cli", str(ply), *TINY[:-1]]
+    q = subprocess.run(args + ["-o", str(tmp_path / "q.gsz"), "-q"], capture_output=True, text=True)
+    n = subprocess.run(args + ["-o", str(tmp_path / "n.gsz")], capture_output=True, text=True)
+    v = subprocess.run(args + ["-o", str(tmp_path / "v.gsz"), "-v"], capture_output=True, text=True)
+    assert q.returncode == n.returncode == v.returncode == 0
+    assert q.stderr == "" and q.stdout == n.stdout == v.stdout == ""
+    assert "[gsz] importance" in n.stderr and "done in" not in n.stderr and "it/s" not in n.stderr
+    assert "importance done in" in v.stderr and len(v.stderr.splitlines()) > len(n.stderr.splitlines()) + 5
+    assert "{'" not in n.stderr + v.stderr                 # no Python dicts in the log
+    same = {(tmp_path / f).read_bytes() for f in ("q.gsz", "n.gsz", "v.gsz")}
+    assert len(same) == 1
+
+
+def test_usage_and_data_errors_have_one_format_and_their_exit_codes(small_pair, tmp_path):
+    """2 for a bad option (as argparse), 1 for bad data; 'gsz-xxx: error: ...' either way."""
+    ply, g = small_pair
+    junk = tmp_path.parent / f"{tmp_path.name}-junk.ply"
+    junk.write_bytes(b"ply\nnot really")
+    cases = [(("encode", ply, "-o", tmp_path / "a.gsz", "--bits", "0"), 2, "gsz-encode: error: "),
+             (("encode", ply, "-o", tmp_path / "a.gsz", "--size", "12 parsecs"), 2, "gsz-encode: error: "),
+             (("encode", ply, "-o", tmp_path / "a.gsz", "--nonsense"), 2, "gsz-encode: error: "),
+             (("encode", junk, "-o", tmp_path / "a.gsz"), 1, "gsz-encode: error: "),
+             (("decode", g, "-o", tmp_path / "a.ply", "--layers", "0"), 2, "gsz-decode: error: "),
+             (("decode", ply, "-o", tmp_path / "a.ply"), 1, "gsz-decode: error: "),
+             (("info", ply), 1, "gsz-info: error: ")]
+    for args, code, prefix in cases:
+        p = run(*args, check=False)
+        assert p.returncode == code and p.stderr.splitlines()[-1].startswith(prefix), (args, p.stderr)
+        assert "Traceback" not in p.stderr
+    assert sorted(os.listdir(tmp_path)) == []
+
+
+def test_help_shows_real_defaults_in_the_right_groups():
+    from gsz.encoder.cli import build_parser
+    text = build_parser().format_help()
+    assert "(default: None)" not in text and "default: False" not in text and "(default: 1)" not in text
+    assert "(default: 1) (default" not in text
+    groups = {g.title: [a.dest for a in g._group_actions] for g in build_parser()._action_groups}
+    assert "report" in groups["output"] and "overwrite" in groups["output"]
+    target = next(t for t in groups if t.startswith("size target"))
+    assert "solver" in groups[target] and "report" not in groups[target]
+    assert "reserve" in groups["fixed configuration (without a size target)"]
+    assert "--train-views TRAIN_VIEWS" in text and "(default: 24)" in text
+
+
+def test_unreachable_size_fails_before_the_importance_pass(tmp_path):
+    """A budget below the provable bound is refused in well under a second of work, with the
+    bound named; nothing is written."""
+    import time
+    from conftest import SAMPLE_SH3
+    t0 = time.perf_counter()
+    p = run("encode", SAMPLE_SH3, "-o", tmp_path / "x.gsz", "--size", "5kB", check=False)
+    took = time.perf_counter() - t0
+    assert p.returncode == 1 and "at least 7,983 bytes" in p.stderr and "smallest reachable" in p.stderr
+    assert "[gsz] importance" not in p.stderr and not (tmp_path / "x.gsz").exists()
+    assert took < 20, took              # the importance pass alone takes longer on 2 cores
+
+
+def test_report_works_with_a_fixed_configuration(small_pair, tmp_path):
+    from PIL import Image
+    from gsz.encoder.cli import main
+    rep = tmp_path / "rep"
+    assert main([str(small_pair[0]), "-o", str(tmp_path / "f.gsz"), *TINY, "--report", str(rep), "--blocks", "4"]) == 0
+    r = json.loads((rep / "report.json").read_text())
+    assert r["bits"]["raht"] == [[8] * 4] * 7 and r["bits"]["scales"] == [[8] * 4] * 3
+    with Image.open(rep / "bits.png") as im:
+        assert im.size[0] > 300 and im.size[1] > 150
+        px = np.asarray(im.convert("RGB"))
+    assert len(np.unique(px.reshape(-1, 3), axis=0)) > 50     # a plot: axes, text, colour bar
+
+
+@pytest.mark.parametrize("tool,module", [("gsz-encode", "gsz.encoder.cli"), ("gsz-eval", "gsz.encoder.evaluate")])
+def test_core_only_install_names_the_extra(small_pair, tmp_path, tool, module):
+    """Without torch (a core-only install, simulated by an import blocker) the encoder tools
+    say which extra to install, in one line, instead of a traceback."""
+    code = ("import sys\n"
+            "class Block:\n"
+            "    def find_spec(self, name, path=None, target=None):\n"
+            "        if name == 'torch' or name.startswith('torch.'):\n"
+            "            raise ModuleNotFoundError(\"No module named 'torch'\", name='torch')\n"
+            "sys.meta_path.insert(0, Block())\n"
+            f"import runpy; sys.argv[0] = '{tool}'\n"
+            f"runpy.run_module('{module}', run_name='__main__')\n")
+    ply, g = small_pair
+    args = ([str(ply), "-o", str(tmp_path / "x.gsz")] if tool == "gsz-encode" else [str(ply), str(g)])
+    p = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True)
+    assert p.returncode == 1, p.stderr
+    assert p.stderr.strip() == f'{tool}: error: {tool} needs torch, which is not installed: pip install "gsz[encoder]"'
+    assert os.listdir(tmp_path) == []

@@ -53,13 +53,21 @@ def test_identical_scene_gives_cap_and_writes_pngs(tmp_path):
     sbs = [f for f in files if f.endswith("_side_by_side.png")]
     err = [f for f in files if f.endswith("_error.png")]
     assert len(sbs) == len(err) == 2
+    from gsz.encoder.evaluate import CAPTION_PX, COLOUR_BAR_PX
     with Image.open(out / sbs[0]) as im:
-        assert im.size == (320, 120)
+        assert im.size == (320, CAPTION_PX + 120)
         a = np.asarray(im)
-    assert np.array_equal(a[:, :160], a[:, 160:])          # identical halves
-    assert a.max() > 50                                     # and something was rendered
+    pic, cap = a[CAPTION_PX:], a[:CAPTION_PX]
+    assert np.array_equal(pic[:, :160], pic[:, 160:])      # identical halves
+    assert pic.max() > 50                                   # and something was rendered
+    assert not np.array_equal(cap[:, :160], cap[:, 160:])  # captions: original / decoded
+    assert (cap > 200).sum() > 200                          # white text on the caption bar
     with Image.open(out / err[0]) as im:
-        assert im.size == (160, 120) and np.asarray(im).max() == 0  # no error anywhere
+        assert im.size == (160, 120 + COLOUR_BAR_PX)
+        e = np.asarray(im)
+    assert e[:120].max() == 0                               # no error anywhere
+    bar = e[120 + 4:120 + 14, 6:-6]                         # the colour bar: black -> white
+    assert bar[:, 0].max() == 0 and bar[:, -1].min() >= 250 and (bar[0, :, 0] > 0).sum() > 100
 
 
 def test_psnr_falls_as_opacity_perturbation_grows(tmp_path, sample_sh0):
@@ -105,9 +113,9 @@ def test_bad_input_exits_2_with_one_line(tmp_path, case):
     if case == "bad_gsz":
         (tmp_path / "junk.gsz").write_bytes(b"\x00not a gsz file" * 4)
     proc = run_eval(*args[0], "--json")
-    assert proc.returncode == 2, proc.stderr
+    assert proc.returncode == (2 if case == "bad_background" else 1), proc.stderr   # usage / data
     lines = [ln for ln in proc.stderr.splitlines() if not ln.startswith("gsz-eval: warning")]
-    assert len(lines) == 1 and lines[0].startswith("gsz-eval: ") and args[1] in lines[0], proc.stderr
+    assert len(lines) == 1 and lines[0].startswith("gsz-eval: error: ") and args[1] in lines[0], proc.stderr
     assert "Traceback" not in proc.stderr and proc.stdout == ""
 
 
@@ -123,3 +131,47 @@ def test_evaluate_api_reuses_reference_images(sample_sh3):
     assert full["num_gaussians"] == {"original": 12000, "compressed": 12000}
     with pytest.raises(GszError, match="reference images"):
         evaluate(refs[:1], b, cams)
+
+
+def test_existing_images_are_kept_unless_overwrite(tmp_path):
+    out = tmp_path / "imgs"
+    out.mkdir()
+    victim = out / "000_test_000_side_by_side.png"
+    victim.write_bytes(b"keep me")
+    proc = run_eval(SAMPLE_SH3, SAMPLE_SH3, *FAST, "-o", out)
+    assert proc.returncode == 1 and "exists" in proc.stderr and "-w/--overwrite" in proc.stderr
+    assert "gsz-eval: view" not in proc.stderr                # refused before rendering
+    assert victim.read_bytes() == b"keep me" and os.listdir(out) == [victim.name]
+    run_eval(SAMPLE_SH3, SAMPLE_SH3, *FAST, "-o", out, "-w", "-q", check_rc=0)
+    assert victim.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and len(os.listdir(out)) == 4
+
+
+def test_rd_curve_of_a_scene_from_one_command(tmp_path):
+    """--rd: every reachable budget is encoded (within 0.5 % below it) and scored exactly as
+    gsz-eval scores the written file; an unreachable budget is listed, not fatal."""
+    scene = tmp_path / "small.ply"
+    c = gsz.read_ply(SAMPLE_SH0)
+    gsz.write_ply(c.subset(np.arange(0, len(c), 20)), scene)
+    out = tmp_path / "rd"
+    args = ["--rd", scene, "--sizes", "20kB,10kB,500B", *FAST, "--train-views", "2",
+            "--importance-width", "64", "-o", out]
+    proc = run_eval(*args, "--json", check_rc=0)
+    rd = json.loads(proc.stdout)
+    assert [p["target"] for p in rd["points"]] == ["10kB", "20kB"]
+    for p in rd["points"]:
+        assert 0.995 * p["target_bytes"] <= p["bytes"] <= p["target_bytes"]
+        assert os.path.getsize(p["file"]) == p["bytes"]
+    assert rd["points"][0]["psnr"] < rd["points"][1]["psnr"] < 100
+    (u,) = rd["unreachable"]
+    assert u["target"] == "500B" and "at least" in u["error"]
+    assert sorted(os.listdir(out)) == ["rd.json", "rd.png", "small-10kB.gsz", "small-20kB.gsz"]
+    assert json.loads((out / "rd.json").read_text())["points"] == rd["points"]
+    from PIL import Image
+    with Image.open(out / "rd.png") as im:
+        assert im.size[0] >= 500 and im.size[1] >= 400
+    again = json.loads(run_eval(scene, rd["points"][0]["file"], *FAST, "--json", check_rc=0).stdout)
+    assert again["psnr"] == rd["points"][0]["psnr"] and again["ssim"] == rd["points"][0]["ssim"]
+    proc = run_eval(*args)                                     # outputs exist now
+    assert proc.returncode == 1 and "exists" in proc.stderr
+    proc = run_eval("--rd", scene, "--sizes", "1 parsec", "-o", out)
+    assert proc.returncode == 2 and proc.stderr.startswith("gsz-eval: error: ")

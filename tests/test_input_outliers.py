@@ -121,7 +121,7 @@ def test_gsz_encode_prints_one_warning_line_per_fix(tmp_path, capsys):
     src, out = tmp_path / "bad.ply", tmp_path / "bad.gsz"
     gsz.write_ply(c, src)
     rc = main([str(src), "-o", str(out), "--bits", "10", "--train-views", "1", "--importance-width", "32",
-               "--codebook", "16", "-q", "--json"])
+               "--codebook", "16", "--json"])         # not -q: it keeps only errors
     cap = capsys.readouterr()
     assert rc == 0 and out.exists()
     lines = [ln for ln in cap.err.splitlines() if ln.startswith("gsz-encode: warning: ")]

@@ -397,3 +397,43 @@ def test_fallback_to_torch_when_kernel_cannot_build(monkeypatch):
     with warnings.catch_warnings():
         warnings.simplefilter("error")                 # warned once, not per call
         R.render(cloud, eye_camera(33, 33, 40.0))
+
+
+def test_kernel_cache_is_keyed_and_a_compile_is_announced_once(tmp_path, monkeypatch, capsys):
+    """The compiled kernel's name (its cache folder) changes with the gsz version, torch's
+    version and the source, so installs do not rebuild one shared build in turn; a compile
+    prints one line, finding the build prints nothing."""
+    import gsz
+    import torch.utils.cpp_extension as cpp
+    from gsz.encoder import render as R
+    src = tmp_path / "k.cpp"
+    src.write_text("// kernel v1\n")
+    name = R.kernel_build_name(src)
+    assert name.startswith("gsz_render_cpu_") and name.isidentifier()
+    assert R.kernel_build_name(src) == name                      # stable
+    src.write_text("// kernel v2\n")
+    assert R.kernel_build_name(src) != name
+    src.write_text("// kernel v1\n")
+    monkeypatch.setattr(gsz, "__version__", "9.9.9")
+    assert R.kernel_build_name(src) != name
+    monkeypatch.undo()
+    monkeypatch.setattr(R.torch, "__version__", "0.0.1+other")
+    assert R.kernel_build_name(src) != name
+    monkeypatch.undo()
+
+    calls = []
+
+    def fake_load(name, sources, extra_cflags, verbose):        # records instead of compiling
+        calls.append(name)
+        return f"module {name}"
+    monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path / "ext"))
+    monkeypatch.setattr(cpp, "load", fake_load)
+    for built in (False, True):
+        monkeypatch.setattr(R, "_KERNEL", None)
+        monkeypatch.setattr(R, "_KERNEL_TRIED", False)
+        assert R._load_kernel() == f"module {R.kernel_build_name()}"
+        err = capsys.readouterr().err
+        assert err.count(R.COMPILE_MESSAGE) == (0 if built else 1), err
+        folder = tmp_path / "ext" / calls[-1]
+        (folder / f"{calls[-1]}.so").write_bytes(b"")           # what a finished build leaves
+    assert calls == [R.kernel_build_name()] * 2

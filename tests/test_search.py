@@ -103,7 +103,7 @@ def test_cli_size_units_json_and_report(tmp_path):
     p = subprocess.run([sys.executable, "-c", code, str(SAMPLE_SH0), "-o", str(tmp_path / "q.gsz"),
                         "--size", "2kB", "--train-views", "4", "--importance-width", "96"],
                        capture_output=True, text=True)
-    assert p.returncode == 2 and "smallest reachable" in p.stderr and not (tmp_path / "q.gsz").exists()
+    assert p.returncode == 1 and "smallest reachable" in p.stderr and not (tmp_path / "q.gsz").exists()
 
 
 def test_channel_weights_are_measured_sensitivities():

@@ -232,7 +232,7 @@ def test_cli_lists_tiles_and_decodes_a_region(tmp_path, capsys):
     out = tmp_path / "r.ply"
     assert decode_main([str(VEC), "-o", str(out), "--region", "-0.05", "-0.02", "-0.05", "0.02", "0.05", "0.05"]) == 0
     assert read_ply(out).equals(decode(VEC, region=((-0.05, -0.02, -0.05), (0.02, 0.05, 0.05))))
-    assert decode_main([str(VEC), "-o", str(out), "--tiles", "1"]) == 0
+    assert decode_main([str(VEC), "-o", str(out), "--tiles", "1", "-w"]) == 0
     assert len(read_ply(out)) == info["tiles"][1]["gaussians"]
     assert decode_main([str(VEC), "-o", str(out), "--tiles", "x"]) == 2
     assert "--tiles must be" in capsys.readouterr().err

@@ -152,8 +152,8 @@ def test_cli_screenshot_size_and_background(ctx, tmp_path, capsys, sample_sh3):
     assert (img[0, 0] == 1.0).all() and img.mean() < 0.99   # white background, scene visible
 
 
-def _one_line_error(rc, err):
-    assert rc == 2
+def _one_line_error(rc, err, code=2):
+    assert rc == code, err          # 2: a bad option, 1: bad data
     lines = [ln for ln in err.strip().splitlines() if ln]
     assert len(lines) == 1 and lines[0].startswith("gsz-view: error:"), err
     return lines[0]
@@ -161,11 +161,11 @@ def _one_line_error(rc, err):
 
 def test_cli_errors(ctx, tmp_path, capsys):
     out = tmp_path / "x.png"
-    line = _one_line_error(*_run_cli([tmp_path / "missing.ply", "--screenshot", out], capsys)[::2])
+    line = _one_line_error(*_run_cli([tmp_path / "missing.ply", "--screenshot", out], capsys)[::2], code=1)
     assert "missing.ply" in line
     bad = tmp_path / "corrupt.gsz"
     bad.write_bytes(b"GSZ\x00" + os.urandom(200))
-    line = _one_line_error(*_run_cli([bad, "--screenshot", out], capsys)[::2])
+    line = _one_line_error(*_run_cli([bad, "--screenshot", out], capsys)[::2], code=1)
     assert "corrupt.gsz" in line
     line = _one_line_error(*_run_cli([SAMPLE_SH0, "--screenshot", out, "--camera", 99], capsys)[::2])
     assert "--camera" in line
@@ -201,3 +201,19 @@ def test_cli_screenshot_of_the_first_layers_of_a_layered_file(ctx, tmp_path, cap
     assert "has 3 layer(s)" in line
     line = _one_line_error(*_run_cli([SAMPLE_SH0, "--screenshot", tmp_path / "x.png", "--layers", 1], capsys)[::2])
     assert "not a .gsz" in line
+
+
+def test_cli_screenshot_keeps_an_existing_file_and_prints_frame_stats(ctx, tmp_path, capsys):
+    out = tmp_path / "shot.png"
+    out.write_bytes(b"keep me")
+    line = _one_line_error(*_run_cli([SAMPLE_SH0, "--screenshot", out, "--width", 64], capsys)[::2], code=1)
+    assert "exists" in line and "-w/--overwrite" in line and out.read_bytes() == b"keep me"
+    line = _one_line_error(*_run_cli([SAMPLE_SH0, "--screenshot", SAMPLE_SH0, "-w"], capsys)[::2], code=1)
+    assert "is the input file" in line
+    rc, so, se = _run_cli([SAMPLE_SH0, "--screenshot", out, "--width", 64, "-w", "--stats"], capsys)
+    assert rc == 0 and so == "", se
+    assert _read_png(out).shape == (48, 64, 3)
+    stats = [ln for ln in se.splitlines() if ln.startswith("gsz-view: frame ")]
+    assert len(stats) == 1 and " ms" in stats[0] and "sort" in stats[0] and "20,000 splats" in stats[0], se
+    rc, so, se = _run_cli([SAMPLE_SH0, "--screenshot", out, "--width", 64, "-w", "-q"], capsys)
+    assert rc == 0 and so == se == ""

@@ -205,10 +205,12 @@ def test_panel_and_screenshot_button(window, sample_sh0, tmp_path):
         app.handle_event(va.KeyDown("tab"))
         without = _frame(window, app)
         assert app.settings.show_panel is False
-        # the panel covers part of the frame (on the right); the rest is the same scene
-        d = np.abs(with_panel.astype(int) - without.astype(int)).max(axis=2)
+        # the panel has its own strip at the right; without it the scene takes the whole width
+        from gsz.viewer.state import panel_width
+        strip = int(round(panel_width(W)))
+        assert with_panel.shape == without.shape == (H, W, 3) and app.width == W
+        d = np.abs(with_panel[:, W - strip:].astype(int) - without[:, W - strip:].astype(int)).max(axis=2)
         assert (d > 50).mean() > 0.1
-        assert d[:, :W // 4].max() == 0
         app.handle_event(va.KeyDown("p"))            # screenshot key
         shots = sorted(tmp_path.glob("gsz-view-*.png"))
         assert len(shots) == 1
@@ -412,3 +414,85 @@ def test_simulated_network_builds_the_scene_up_layer_by_layer(window, sample_sh3
         assert len(got) == len(rows) and all(0 <= b - r["decodable_at"] < PIECE for b, r in zip(got, rows))
     finally:
         app.close()
+
+
+def test_panel_covers_neither_half(window, sample_sh3, decoded):
+    """With the panel shown the scenes are composed left of its strip: in side-by-side mode
+    the decoded half ends where the panel begins, and what is on screen there is the frame."""
+    from gsz.viewer.state import panel_width
+    b = va.scene_from_bytes("decoded", decoded.data, decoded.cloud)
+    app = _app(window, sample_sh3, b)
+    try:
+        app.settings.show_panel = True
+        app.set_mode("side")
+        _frame(window, app)
+        img = _frame(window, app)
+        strip = int(round(panel_width(W)))
+        assert app.width == W - strip and app.view_camera().width == (W - strip) // 2
+        out = app.read_output()
+        assert out.shape == (H, W - strip, 3)
+        # every pixel of both halves is on screen unchanged (labels are drawn over the top rows)
+        np.testing.assert_array_equal(img[40:, :W - strip], out[40:])
+        assert out[40:, (W - strip) // 2 + 2:].max() > 50           # the decoded half is drawn
+        assert np.abs(img[:, W - strip:].astype(int) - 15).max() > 0   # the panel's strip
+    finally:
+        app.close()
+
+
+def test_this_view_psnr_follows_the_gsz_eval_protocol(window, sample_sh3, decoded):
+    """Snapped to test camera i, "this view" is exactly gsz-eval's number for view i (CPU
+    renders at the camera's own size, same background, same metric), whatever the layout."""
+    from gsz.encoder.evaluate import evaluate
+    b = va.scene_from_bytes("decoded", decoded.data, decoded.cloud)
+    app = _app(window, sample_sh3, b)
+    try:
+        cam = app.cameras.test[1]
+        app.snap(1)
+        ref = evaluate(sample_sh3, decoded.cloud, [cam])
+        for mode in ("side", "split"):
+            app.set_mode(mode)
+            _frame(window, app)
+            app.request_metrics(wait=True)
+            m = app.current_metrics()
+            assert m["psnr"] == ref["psnr"] and m["ssim"] == ref["ssim"], (mode, m, ref["views"])
+            assert (m["width"], m["height"]) == (cam.width, cam.height)
+        app.settings.background = (1.0, 1.0, 1.0)                  # the shown background counts
+        app.request_metrics(wait=True)
+        white = evaluate(sample_sh3, decoded.cloud, [cam], background=(1.0, 1.0, 1.0))
+        assert app.current_metrics()["psnr"] == white["psnr"]
+    finally:
+        app.close()
+
+
+def test_interactive_without_a_display_says_so_at_once(monkeypatch, capsys, tmp_path):
+    """No DISPLAY/WAYLAND_DISPLAY: one line pointing to --screenshot, exit 1, no window."""
+    import sys
+    import time
+    from conftest import SAMPLE_SH0
+    from gsz.viewer.cli import main
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the environment check is Linux's")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    t0 = time.perf_counter()
+    assert main([str(SAMPLE_SH0)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("gsz-view: error: no display") and "--screenshot" in err[0]
+    assert time.perf_counter() - t0 < 5
+
+
+def test_interactive_with_an_unreachable_display_fails_with_one_line(tmp_path):
+    """A DISPLAY that cannot be opened: glfw's failure becomes one line naming --screenshot."""
+    import subprocess
+    import sys
+    from conftest import SAMPLE_SH0
+    if not sys.platform.startswith("linux"):
+        pytest.skip("X11 display names are Linux's")
+    env = {k: v for k, v in __import__("os").environ.items() if k not in ("WAYLAND_DISPLAY",)}
+    env["DISPLAY"] = ":4321"
+    p = subprocess.run([sys.executable, "-m", "gsz.viewer.cli", str(SAMPLE_SH0)], env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 1, p.stderr
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("gsz-view: error: cannot open a window"), p.stderr
+    assert "--screenshot" in lines[0] and "Traceback" not in p.stderr

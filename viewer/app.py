@@ -461,7 +461,7 @@ class ViewerApp(ViewState):
             self.stats["frame_s"] = time.perf_counter() - t0
             self.frame_times = (self.frame_times + [time.perf_counter()])[-30:]
         if self.stats["sort_current"] and self.settings.auto_metrics and self.comparing \
-                and len(self._drawn) == 2 and time.monotonic() - self._last_move > 0.3:
+                and time.monotonic() - self._last_move > 0.3:
             self.request_metrics()
 
     def _draw(self, cam, needed) -> None:

@@ -9,8 +9,11 @@
 
 Cameras: ``--cameras`` (cameras.json or a COLMAP model) or, by default, the ORIGINAL's default
 camera set -- the same views gsz-eval scores (``load_cameras(None, cloud).test``).  The
-screenshot path needs no display and no GPU (EGL; Mesa llvmpipe renders on the CPU).
-Exit status: 0 ok, 2 bad input (one-line message), 1 no usable OpenGL.
+screenshot path needs no display and no GPU (EGL; Mesa llvmpipe renders on the CPU); the window
+needs a display: without one (Linux: neither DISPLAY nor WAYLAND_DISPLAY set) gsz-view says so
+and points to ``--screenshot`` instead of running an invisible window.
+Exit status: 0 ok, 1 error (bad input, no display or usable OpenGL, an existing --screenshot
+file without -w), 2 bad options, 130 interrupted.
 """
 from __future__ import annotations
 
@@ -20,20 +23,22 @@ import sys
 
 import numpy as np
 
-from ..decoder.errors import GszError
+from ..decoder.errors import GszError, GszUsageError
 
 __all__ = ["main", "build_parser"]
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ..decoder.cli_common import HelpFormatter, add_overwrite, add_verbosity, add_version_flag
     p = argparse.ArgumentParser(
-        prog="gsz-view",
+        prog="gsz-view", formatter_class=HelpFormatter,
         description="Interactive viewer for .gsz/.ply Gaussian-splat scenes with A/B compare "
                     "against the original (split, side by side, flip, error heat map).",
         epilog="Window keys: drag orbit, right-drag look, middle/shift-drag pan, wheel zoom, "
                "WASD/QE fly (shift x4), 1/2/3 single/split/side, F or space flip, H heat map, "
-               "[ ] previous/next camera, R reset, P screenshot, Tab panel, Esc quit.")
-    from ..decoder.cli import add_version_flag
+               "[ ] previous/next camera, R reset, P screenshot, Tab panel, Esc quit.  The window "
+               "needs a display; --screenshot does not.  Exit status: 0 ok, 1 error (bad input, "
+               "no display or OpenGL, output exists), 2 bad options, 130 interrupted.")
     add_version_flag(p)
     p.add_argument("file", help="scene to show (.gsz, .ply, .glb or .gltf, told by content); with --budgets, the original")
     g = p.add_mutually_exclusive_group()
@@ -53,7 +58,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="window: replay the .gsz (FILE, or the decoded side of --compare) as if it "
                         "arrived at RATE (e.g. 2MB/s): the scene builds up layer by layer; the panel "
                         "can replay at other rates")
-    p.add_argument("--screenshot", metavar="OUT.png", help="render one frame headless and exit")
+    p.add_argument("--screenshot", metavar="OUT.png", help="render one frame headless (no display "
+                   "needed) and exit")
+    add_overwrite(p)
+    p.add_argument("--stats", action="store_true",
+                   help="print the frame time (and sort / GPU preprocess / draw times) on stderr: "
+                        "once for --screenshot, about once a second in the window")
+    add_verbosity(p, quiet_help="errors only", verbose_help="(no more detail than the default)")
     p.add_argument("--camera", type=int, default=0, metavar="I", help="TEST camera index for "
                    "--screenshot and the initial view (default 0)")
     p.add_argument("--width", type=int, default=None, help="image width (screenshot default 800, "
@@ -80,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-class _UsageError(GszError):
+class _UsageError(GszUsageError):
     pass
 
 
@@ -216,6 +227,9 @@ def _screenshot(args, a, b, jobs) -> str:
         app.step(0.0)   # picks up a finished budget encode
         app.control.snap_to(cam)
         app.render(wait_for_sort=True)
+        if args.stats:
+            from .window import stats_line
+            print(f"gsz-view: {stats_line(app)}", file=sys.stderr, flush=True)
         labels = args.labels if args.labels is not None else app.comparing
         if labels and app.comparing:
             app.request_metrics(wait=True)
@@ -272,7 +286,7 @@ def _interactive(args, a, b, jobs) -> None:
         raise _UsageError(f"--camera {args.camera}: the camera set has {len(cams.test)} test cameras")
     comparing = b is not None or jobs is not None
     settings = _settings(args, comparing, a, b)
-    win = Window(width, height, f"gsz-view - {os.path.basename(args.file)}")
+    win = Window(width, height, f"gsz-view - {os.path.basename(args.file)}", headless=False)
     try:
         fw, fh = win.framebuffer_size()
         app = ViewerApp(win.ctx, a, b, cameras=cams,
@@ -286,33 +300,61 @@ def _interactive(args, a, b, jobs) -> None:
         if jobs is not None:
             jobs.start()
         try:
-            run(win, app)
+            run(win, app, stats=(lambda line: print(f"gsz-view: {line}", file=sys.stderr, flush=True))
+                if args.stats else None)
         finally:
             app.close()
     finally:
         win.close()
 
 
+def no_display_reason() -> str | None:
+    """Why the window cannot open here, when the environment already says so: on Linux (and
+    the BSDs) a window needs an X11 or Wayland display; elsewhere glfw decides."""
+    if not sys.platform.startswith(("linux", "freebsd", "openbsd", "netbsd")):
+        return None
+    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        return None
+    return ("no display (neither DISPLAY nor WAYLAND_DISPLAY is set), so the viewer window cannot "
+            "open; render a view without one: gsz-view FILE [--compare ORIG] --screenshot OUT.png "
+            "[--camera I]")
+
+
+def _check_screenshot_path(args) -> None:
+    from ..decoder.cli_common import check_output
+    check_output(args.screenshot, inputs=[args.file, args.compare, args.cameras], overwrite=args.overwrite)
+
+
 def main(argv=None) -> int:
+    from ..decoder.cli_common import EXIT_INTERRUPTED, fail, missing_extra
     args = build_parser().parse_args(argv)
-    from .gl_renderer import GLUnavailable
     try:
+        if args.screenshot:
+            _check_screenshot_path(args)       # before loading: an existing file stays, fast
+        else:
+            reason = no_display_reason()
+            if reason:
+                raise GszError(reason)          # before loading anything: say it at once
         a, b, jobs = _load_scenes(args)
         if args.screenshot:
             out = _screenshot(args, a, b, jobs)
-            print(f"gsz-view: wrote {out}")
+            if args.verbosity > 0:
+                print(f"gsz-view: wrote {out}", file=sys.stderr)
         else:
             _interactive(args, a, b, jobs)
         return 0
-    except GLUnavailable as e:
-        print(f"gsz-view: error: {e}", file=sys.stderr)
-        return 1
-    except (GszError, OSError) as e:
-        msg = str(e) if isinstance(e, GszError) else f"{e.strerror or e}: {e.filename or ''}".rstrip(": ")
-        print(f"gsz-view: error: {msg}", file=sys.stderr)
-        return 2
+    except ImportError as e:                   # a core-only install: name the extra
+        err = missing_extra(e, "gsz-view")
+        if err is None:
+            raise
+        return fail("gsz-view", err)
+    except GszError as e:                      # GLUnavailable is one: exit 1
+        return fail("gsz-view", e)
+    except OSError as e:
+        return fail("gsz-view", f"{e.strerror or e}: {e.filename or ''}".rstrip(": "), 1)
     except KeyboardInterrupt:
-        return 130
+        print("gsz-view: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -24,6 +24,21 @@ if TYPE_CHECKING:      # annotations only: importing them would load the GL stac
 MODES = ("single", "split", "side")
 #: full scale of the heat map (same as gsz-eval's error PNG)
 HEAT_FULL_SCALE = 0.1
+#: the panel's strip at the window's right edge (window coordinates): a share of the window's
+#: width within these bounds; the scenes are drawn left of it, so it covers neither half
+PANEL_MIN, PANEL_MAX, PANEL_SHARE = 200, 320, 0.3
+
+
+def panel_width(display_width: float) -> float:
+    """Width of the panel strip in a window ``display_width`` wide (window coordinates)."""
+    return float(min(PANEL_MAX, max(PANEL_MIN, PANEL_SHARE * float(display_width))))
+
+
+def view_key(camera) -> tuple:
+    """Identity of what a camera sees: pose, intrinsics and size."""
+    return (np.concatenate([camera.R.reshape(-1), camera.t,
+                            [camera.fx, camera.fy, camera.cx, camera.cy]]).astype(np.float64).tobytes(),
+            int(camera.width), int(camera.height))
 
 
 def format_bytes(n) -> str:
@@ -102,9 +117,11 @@ class ViewState:
 
     def __init__(self, settings: Settings | None = None):
         self.settings = settings or Settings()
-        self._metrics = None                # (key, {"psnr", "ssim"}) of the last finished
-        self._metrics_pending = None
+        self._metrics = None                # (key, {"psnr", "ssim", ...}) of the last finished
+        self._metrics_pending = None        # key the worker computes now
+        self._metrics_want = None           # the newest request not started yet
         self._metrics_lock = threading.Lock()
+        self._metrics_cond = threading.Condition(self._metrics_lock)
         self._metrics_thread = None
         self._drawn = {}
 
@@ -165,53 +182,84 @@ class ViewState:
         return (len(f) - 1) / (f[-1] - f[0]) if len(f) > 1 and f[-1] > f[0] else 0.0
 
     # -- metrics -----------------------------------------------------------------------------------
+    def metrics_camera(self):
+        """The camera "this view" is scored at: the current pose at the snapped camera's own
+        size and intrinsics (so a test view scores exactly as gsz-eval scores it), or, away
+        from any snapped camera, at gsz-eval's default width with the shown aspect."""
+        from ..encoder.cameras import DEFAULT_VIEW_WIDTH
+        snapped = getattr(self.control, "_snapped", None)
+        if snapped is not None:
+            return self.control.camera(snapped.width, snapped.height)
+        w, h = self._render_size()
+        return self.control.camera(DEFAULT_VIEW_WIDTH, max(1, round(DEFAULT_VIEW_WIDTH * h / max(w, 1))))
+
+    def _metrics_key(self, cam=None):
+        s = self.settings
+        cam = cam or self.metrics_camera()
+        return (view_key(cam), id(self.b), id(self.a.cloud), id(self.b.cloud) if self.b else None,
+                tuple(float(v) for v in s.background), int(s.sh_degree), float(s.scale_modifier))
+
     def request_metrics(self, wait: bool = False):
-        """PSNR/SSIM of B against A for the current view, from the two GL renders (clamped,
-        8-bit rounded as gsz-eval does), computed on a worker thread (torch SSIM).  Call it
-        from the GL thread (it reads the renders back); ``wait`` blocks until the numbers
-        are in :meth:`current_metrics`."""
-        drawn = self._drawn
-        if "a" not in drawn or "b" not in drawn:
+        """PSNR/SSIM of B against A for the current view with gsz-eval's protocol: both clouds
+        rendered by the CPU reference renderer (:mod:`gsz.encoder.render`) at
+        :meth:`metrics_camera` on the background shown, compared by
+        :func:`gsz.encoder.evaluate.evaluate` (8-bit rounding, 100 dB cap, reference SSIM).
+        Runs on one worker thread (the newest request wins); ``wait`` blocks until this view's
+        numbers are in :meth:`current_metrics` (or the worker failed: see :attr:`status`)."""
+        if not self.comparing:
             return
-        key = self._drawn_key
+        cam = self.metrics_camera()
+        key = self._metrics_key(cam)
+        s = self.settings
+        job = (key, self.a.cloud, self.b.cloud, cam, tuple(float(v) for v in s.background),
+               int(s.sh_degree), float(s.scale_modifier))
         with self._metrics_lock:
             done = self._metrics is not None and self._metrics[0] == key
-            running = self._metrics_pending == key
-            if not (done or running):
-                self._metrics_pending = key
-        if done or running:
-            # Join OUTSIDE the lock: the worker takes it to publish its result.
-            if running and wait and self._metrics_thread is not None:
-                self._metrics_thread.join()
-            return
-        img_a = drawn["a"].read()[..., :3]
-        img_b = drawn["b"].read()[..., :3]
+            if not done and self._metrics_pending != key:
+                self._metrics_want = job
+                if self._metrics_thread is None:          # the worker clears it as it ends
+                    self._metrics_thread = threading.Thread(target=self._metrics_worker,
+                                                            name="gsz-view-metrics", daemon=True)
+                    self._metrics_thread.start()
+            if wait:
+                self._metrics_cond.wait_for(lambda: (self._metrics is not None and self._metrics[0] == key)
+                                            or (self._metrics_want is None and self._metrics_pending is None))
 
-        def work():
+    def _metrics_worker(self) -> None:
+        from ..encoder.evaluate import evaluate
+        from ..encoder.render import render
+        while True:
+            with self._metrics_lock:
+                job, self._metrics_want = self._metrics_want, None
+                if job is None:
+                    self._metrics_thread = None
+                    self._metrics_cond.notify_all()
+                    return
+                self._metrics_pending = job[0]
+            key, a, b, cam, bg, deg, scale = job
             result = None
             try:
-                from ..encoder.metrics import psnr, quantize_8bit, ssim
-                qa, qb = quantize_8bit(img_a), quantize_8bit(img_b)
-                result = {"psnr": float(psnr(qa, qb)), "ssim": float(ssim(qa, qb))}
+                def render_fn(cloud, camera, background):
+                    return render(cloud, camera, background=background,
+                                  sh_degree=min(deg, cloud.sh_degree), scale_modifier=scale)
+                ev = evaluate(a, b, [cam], background=bg, render_fn=render_fn)
+                result = {"psnr": ev["psnr"], "ssim": ev["ssim"], "width": cam.width, "height": cam.height}
             except Exception as e:   # e.g. torch missing: say so in the panel, never hang
                 self.status = f"PSNR/SSIM failed: {type(e).__name__}: {e}"
-            finally:
-                with self._metrics_lock:
-                    if result is not None:
-                        self._metrics = (key, result)
-                    if self._metrics_pending == key:
-                        self._metrics_pending = None
-
-        self._metrics_thread = threading.Thread(target=work, name="gsz-view-metrics", daemon=True)
-        self._metrics_thread.start()
-        if wait:
-            self._metrics_thread.join()
+            with self._metrics_lock:
+                if result is not None:
+                    self._metrics = (key, result)
+                self._metrics_pending = None
+                self._metrics_cond.notify_all()
 
     def current_metrics(self):
-        """{"psnr", "ssim"} for the view last drawn, or None (not computed / view changed)."""
+        """{"psnr", "ssim", "width", "height"} for the current view, or None (not computed yet,
+        or the view changed since)."""
+        if not self.comparing:
+            return None
         with self._metrics_lock:
             m = self._metrics
-        if m is not None and m[0] == getattr(self, "_drawn_key", None):
+        if m is not None and m[0] == self._metrics_key():
             return m[1]
         return None
 

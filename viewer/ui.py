@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from .state import MODES, format_bytes
+from .state import MODES, format_bytes, panel_width
 
 _MODE_LABELS = {"single": "single / flip (F)", "split": "split (2)", "side": "side by side (3)"}
 
@@ -51,12 +51,15 @@ def draw_panel(app) -> None:
     draw_labels(app)
     if not s.show_panel:
         return
-    # Docked to the right edge at first (the user may move it); narrower in small windows.
-    disp_w = imgui.get_io().display_size.x
-    panel_w = min(320.0, max(200.0, 0.45 * disp_w))
-    imgui.set_next_window_pos(imgui.ImVec2(disp_w - panel_w - 10.0, 30.0), imgui.Cond_.first_use_ever)
-    imgui.set_next_window_size(imgui.ImVec2(panel_w, 0.0), imgui.Cond_.first_use_ever)
-    imgui.begin("gsz-view")
+    # The panel fills its own strip at the right edge; the scenes are drawn left of it
+    # (gsz.viewer.window.frame), so it covers neither the original nor the decoded half.
+    io = imgui.get_io()
+    disp_w, disp_h = io.display_size.x, io.display_size.y
+    panel_w = panel_width(disp_w)
+    imgui.set_next_window_pos(imgui.ImVec2(disp_w - panel_w, 0.0), imgui.Cond_.always)
+    imgui.set_next_window_size(imgui.ImVec2(panel_w, disp_h), imgui.Cond_.always)
+    imgui.begin("gsz-view", None, imgui.WindowFlags_.no_move | imgui.WindowFlags_.no_resize
+                | imgui.WindowFlags_.no_collapse)
     st = app.stats
     fps = app.fps
     imgui.text((f"{fps:5.1f} FPS" if fps else "idle (view unchanged)")
@@ -122,6 +125,7 @@ def draw_panel(app) -> None:
         m = app.current_metrics()
         if m:
             imgui.text(f"this view: PSNR {m['psnr']:.2f} dB   SSIM {m['ssim']:.4f}")
+            imgui.text_disabled(f"(gsz-eval protocol: CPU renders at {m['width']}x{m['height']})")
         else:
             imgui.text("this view: PSNR/SSIM pending")
         _, s.auto_metrics = imgui.checkbox("auto PSNR/SSIM when the view rests", s.auto_metrics)

@@ -15,7 +15,8 @@ import time
 from .app import KeyDown, KeyUp, MouseDown, MouseMove, MouseUp, Scroll
 from .gl_renderer import GLUnavailable
 
-__all__ = ["Window", "OffscreenWindow", "open_window", "frame", "run", "has_display"]
+__all__ = ["Window", "OffscreenWindow", "open_window", "frame", "run", "has_display", "scene_width",
+           "stats_line"]
 
 # app key name -> imgui.Key attribute
 _KEYS = {**{c: c for c in "wasdqefhrpnb"}, "1": "_1", "2": "_2", "3": "_3", "space": "space",
@@ -86,8 +87,11 @@ class Window(_ImguiInput):
             if not hasattr(glfw, "PLATFORM_NULL"):
                 raise GLUnavailable("this glfw has no null platform (needs GLFW >= 3.4)")
             glfw.init_hint(glfw.PLATFORM, glfw.PLATFORM_NULL)
+        glfw.ERROR_REPORTING = "ignore"     # failures become one GLUnavailable line, not warnings
         if not glfw.init():
-            raise GLUnavailable("glfw.init() failed (no display? set DISPLAY or use --screenshot)")
+            why = (glfw.get_error()[1] or b"").decode(errors="replace")
+            raise GLUnavailable(f"cannot open a window: glfw could not start ({why or 'no display'}); "
+                                "render a view without one with --screenshot OUT.png [--camera I]")
         glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 4)
         glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
         glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
@@ -96,8 +100,10 @@ class Window(_ImguiInput):
             glfw.window_hint(glfw.CONTEXT_CREATION_API, glfw.EGL_CONTEXT_API)
         self.win = glfw.create_window(int(width), int(height), title, None, None)
         if not self.win:
+            why = (glfw.get_error()[1] or b"").decode(errors="replace")
             glfw.terminate()
-            raise GLUnavailable("cannot open an OpenGL 4.3 window")
+            raise GLUnavailable(f"cannot open an OpenGL 4.3 window ({why or 'no reason given'}); "
+                                "--screenshot OUT.png renders without a window")
         glfw.make_context_current(self.win)
         glfw.swap_interval(0)   # uncapped: the FPS readout should mean something
         try:
@@ -141,12 +147,13 @@ class Window(_ImguiInput):
         imgui.new_frame()
 
     def end_frame(self, app=None):
-        """Show the app's frame, draw imgui on top, swap."""
+        """Show the app's frame (the scene area at the left), draw imgui on top, swap."""
         imgui = self.imgui
         imgui.render()
         self.ctx.screen.use()
         fw, fh = self.framebuffer_size()
         self.ctx.viewport = (0, 0, fw, fh)
+        self.ctx.clear(0.06, 0.06, 0.06, 1.0)        # the panel strip's background
         if app is not None and app.output is not None:
             app.present(self.ctx.screen)
         imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
@@ -218,6 +225,7 @@ class OffscreenWindow(_ImguiInput):
         imgui.render()
         self.screen.use()
         self.ctx.viewport = (0, 0, *self.size)
+        self.ctx.clear(0.06, 0.06, 0.06, 1.0)
         if app is not None and app.output is not None:
             app.present(self.screen)
         imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
@@ -253,12 +261,24 @@ def open_window(width: int = 1280, height: int = 720, title: str = "gsz-view", *
         return OffscreenWindow(width, height, title)
 
 
+def scene_width(window, app) -> int:
+    """Framebuffer pixels left of the panel strip (the whole width with the panel hidden)."""
+    fw, _ = window.framebuffer_size()
+    if not app.settings.show_panel:
+        return fw
+    from .state import panel_width
+    sc = window.pixel_scale()
+    return max(1, fw - int(round(panel_width(fw / sc) * sc)))
+
+
 def frame(window: Window, app, dt: float, *, events=(), wait: float = 0.0) -> None:
-    """One full frame: input (window + injected ``events``), step, panel, render, show."""
+    """One full frame: input (window + injected ``events``), step, panel, render, show.  The
+    scenes take the window left of the panel's strip."""
     window.begin_frame(wait)
     fw, fh = window.framebuffer_size()
-    if (fw, fh) != (app.width, app.height) and fw > 0 and fh > 0:
-        app.resize(fw, fh)
+    sw = scene_width(window, app)
+    if (sw, fh) != (app.width, app.height) and fw > 0 and fh > 0:
+        app.resize(sw, fh)
     for ev in list(window.input_events()) + list(events):
         app.handle_event(ev)
     app.step(dt)
@@ -267,11 +287,23 @@ def frame(window: Window, app, dt: float, *, events=(), wait: float = 0.0) -> No
     window.end_frame(app)
 
 
-def run(window: Window, app) -> None:
+def stats_line(app) -> str:
+    """One line of the last rendered frame's times (``--stats``)."""
+    st = app.stats
+    n = sum(len(s.cloud) for _, s in app._scenes_needed())
+    fps = app.fps
+    return (f"frame {1e3 * st['frame_s']:.1f} ms" + (f" ({fps:.1f} FPS)" if fps else "")
+            + f": sort {1e3 * st['sort_s']:.1f} ms, gpu preprocess {1e3 * st['preprocess_s']:.1f} ms, "
+            f"draw {1e3 * st.get('draw_s', 0.0):.1f} ms; {app.width}x{app.height}, {n:,} splats")
+
+
+def run(window: Window, app, *, stats=None) -> None:
     """The interactive loop until the window closes or the app quits (Esc).  Sleeps in
-    ``wait_events_timeout`` when nothing changes, so an idle viewer uses no CPU."""
+    ``wait_events_timeout`` when nothing changes, so an idle viewer uses no CPU.  ``stats``:
+    a callback given :func:`stats_line` about once a second while frames are rendered."""
     last = time.perf_counter()
     idle_frames = 0
+    told = last
     while not window.should_close and not app.quit:
         now = time.perf_counter()
         dt, last = min(now - last, 0.25), now
@@ -280,3 +312,6 @@ def run(window: Window, app) -> None:
         frame(window, app, dt, wait=wait)
         window.swap()
         idle_frames = idle_frames + 1 if not app.needs_redraw else 0
+        if stats is not None and now - told >= 1.0 and app.frame_times and app.frame_times[-1] > told:
+            stats(stats_line(app))
+            told = now

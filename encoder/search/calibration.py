@@ -183,6 +183,8 @@ def calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh
         if budget_bytes is None:
             break
     if best is None:
-        progress.log(f"tau {stage.reserve}: no allocation fits; calibration {history}")
+        smallest = min((h["actual_bytes"] for h in history if h.get("actual_bytes")), default=None)
+        progress.log(f"tau {stage.reserve}: no allocation fits ({len(history)} calibration round(s)"
+                     + (f", smallest {smallest:,} bytes)" if smallest else ")"))
         return None
     return Calibrated(best, history, saturated, sh_plan, r.fixed)

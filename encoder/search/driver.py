@@ -53,6 +53,8 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     cloud, fixes, kept = sanitize_cloud(cloud, source)
     if importance is not None and kept is not None:
         importance = importance[kept]
+    from .bound import check_reachable
+    check_reachable(cloud, target_bytes, options)      # before the importance pass: fails fast
 
     # every candidate's octree is coded on this thread while the caller computes the candidate's
     # SH statistics and rate tables (flowers: ~1.4 s of each ~10 s candidate)
