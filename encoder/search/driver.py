@@ -149,6 +149,8 @@ class BudgetSearch:
         # the scalar SH path lost to the codebook as rendered once: not weighed again (what
         # decides it -- palette-like or continuous SH, the rate -- is the same at every tau)
         self.scalar_lost = False
+        # ... and the same for the kept vectors in importance classes (docs/design/sh-classes.md)
+        self.classes_lost = False
         self.t0 = self.c0 = None
 
     # --- stages -------------------------------------------------------------------------------
@@ -290,7 +292,8 @@ class BudgetSearch:
             return
         stage = self.stage_for(tau, d, fl)
         encs = encode_tau(stage, self.target,
-                          dataclasses.replace(sopts, sh_scalar=False) if self.scalar_lost else sopts,
+                          dataclasses.replace(sopts, sh_scalar=sopts.sh_scalar and not self.scalar_lost,
+                                              sh_classes=sopts.sh_classes and not self.classes_lost),
                           self.sh_models(stage), progress, self.log, self.judge.weights, min_keep=min_keep)
         # re-split / kept-layer-0 variants may be chosen despite a lower PSNR: render them fully
         rival = self.best().view_psnr if self.candidates and regular else None
@@ -316,6 +319,10 @@ class BudgetSearch:
             self.scalar_lost = True
             progress.log("the codebook SH path renders better than the scalar path: the scalar path "
                          "is not weighed again in this search")
+        if "classes" in paths and scored and best_of(scored).encoded.sh_path != "classes":
+            self.classes_lost = True
+            progress.log("kept SH vectors in importance classes render worse than another SH path: "
+                         "not weighed again in this search")
         if scored:
             # one candidate per (tau, depth, split): the better SH path as rendered
             self.candidates.append(best_of(scored))
