@@ -17,7 +17,7 @@ SPZ (.spz) v2, v3, v4     gzip holding ``NGSP`` / ``NGSP``              :mod:`.s
 PlayCanvas SOG            a zip holding meta.json (.sog) / a JSON
                           object with ``means`` and ``quats``
                           (meta.json beside its WebP textures)          :mod:`.sog` (formats extra)
-.ksplat (GaussianSplats3D) a header consistent with the file's size     :mod:`.ksplat`
+GaussianSplats3D .ksplat  a header consistent with the file's size     :mod:`.ksplat`
 antimatter15 .splat       size a multiple of 32, finite positions and
                           positive scales in its first rows             :mod:`.splat`
 ========================= ============================================= ========================

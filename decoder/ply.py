@@ -92,7 +92,7 @@ def read_ply(path, *, check_finite: bool = True) -> GaussianCloud:
     for p in required:
         if p not in names:
             raise PlyFormatError(f"missing vertex property '{p}'", path)
-    known = set(required) | set(_NORMALS) | set(_RGB)     # red/green/blue beside f_dc only repeat it
+    known = set(required) | set(_NORMALS)
     extra = [p for p in names if p not in known]
     if extra:
         warnings.warn(f"{path}: ignoring {len(extra)} extra vertex properties: {', '.join(extra[:8])}"
@@ -202,12 +202,28 @@ def _rest_prop_name(flat_col: int, k: int) -> str:
     return f"f_rest_{c * k + k_i}"
 
 
+def _graphdeco_names(k: int) -> list:
+    return _BASE + _NORMALS + _DC + [f"f_rest_{i}" for i in range(3 * k)] + ["opacity"] + _SCALE + _ROT
+
+
+def _graphdeco_header(n: int, names: list) -> bytes:
+    header = ["ply", "format binary_little_endian 1.0", "comment written by gsz",
+              f"element vertex {n}"] + [f"property float {p}" for p in names] + ["end_header"]
+    return ("\n".join(header) + "\n").encode("ascii")
+
+
+def graphdeco_ply_bytes(num_gaussians: int, sh_degree: int) -> int:
+    """Size of the graphdeco PLY (as :func:`write_ply` writes it) of a scene of this many
+    Gaussians and SH degree: what a compression ratio of a non-PLY input is measured against."""
+    names = _graphdeco_names(SH_REST_COUNT[sh_degree])
+    return len(_graphdeco_header(num_gaussians, names)) + 4 * len(names) * num_gaussians
+
+
 def cloud_to_ply_bytes(cloud: GaussianCloud) -> bytes:
     """Serialise a cloud as a binary little-endian graphdeco PLY (float32 everywhere)."""
     n = len(cloud)
     k = cloud.sh_rest.shape[1]
-    rest_names = [f"f_rest_{i}" for i in range(3 * k)]
-    names = _BASE + _NORMALS + _DC + rest_names + ["opacity"] + _SCALE + _ROT
+    names = _graphdeco_names(k)
     mat = np.empty((n, len(names)), dtype="<f4")
     mat[:, 0:3] = cloud.positions
     mat[:, 3:6] = 0.0
@@ -219,9 +235,7 @@ def cloud_to_ply_bytes(cloud: GaussianCloud) -> bytes:
     mat[:, o] = cloud.opacities
     mat[:, o + 1:o + 4] = cloud.scales
     mat[:, o + 4:o + 8] = cloud.rotations
-    header = ["ply", "format binary_little_endian 1.0", "comment written by gsz",
-              f"element vertex {n}"] + [f"property float {p}" for p in names] + ["end_header"]
-    return ("\n".join(header) + "\n").encode("ascii") + mat.tobytes()
+    return _graphdeco_header(n, names) + mat.tobytes()
 
 
 def write_ply(cloud: GaussianCloud, path) -> None:

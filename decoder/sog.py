@@ -61,8 +61,11 @@ def read_sog(path) -> GaussianCloud:
     def load(name):
         rel = _texture_name(name, path)
         full = os.path.join(folder, *rel.split("/"))
-        check_input_file(full, SogFormatError)
-        return read_all(full, SogFormatError)
+
+        def beside(message, _where=None):        # the problem of a texture, named from meta.json
+            return SogFormatError(f"its texture {rel}: {message}", path)
+        check_input_file(full, beside)
+        return read_all(full, beside)
 
     return _decode(meta, load, path)
 

@@ -110,7 +110,7 @@ def spz_from_bytes(data: bytes, name=None, *, frame: str | None = None,
 def _header(head: bytes, fail):
     """(version, count, SH degree, fractional bits, flags) of the first 16 bytes."""
     if len(head) < HEADER_BYTES:
-        raise fail(f"truncated: {len(head)} bytes, less than the 16-byte SPZ header")
+        raise fail(f"truncated: only {len(head)} bytes of the 16-byte SPZ header")
     magic, version, n, degree, frac, flags = struct.unpack_from("<4sIIBBB", head)
     if magic != MAGIC:
         raise fail("not an SPZ file (no NGSP magic in its header)")
@@ -151,14 +151,19 @@ def _unpack_gzip(data, fail, max_gaussians):
         if need > _GZIP_MAX_RATIO * len(data) + (1 << 20):
             raise fail(f"declares {n:,} Gaussians ({need:,} bytes) but holds only {len(data):,} "
                        "compressed bytes, which gzip cannot expand that far: truncated or corrupt")
-        body = d.decompress(d.unconsumed_tail, need + (1 << 16))   # room for extension records
-        while len(body) < need + (1 << 16) and d.unconsumed_tail:
-            body += d.decompress(d.unconsumed_tail, need + (1 << 16) - len(body))
-    except zlib.error as e:
+        cap = need + (1 << 16) + 1             # room for extension records, and one byte to spot excess
+        body = d.decompress(d.unconsumed_tail, cap)
+        while len(body) < cap and d.unconsumed_tail and not d.eof:
+            body += d.decompress(d.unconsumed_tail, cap - len(body))
+    except zlib.error as e:                  # includes a CRC or length mismatch at the stream's end
         raise fail(f"corrupt gzip data: {e}") from None
     if len(body) < need:
         raise fail(f"truncated: the gzip stream holds {len(body):,} of the {need:,} data bytes its header "
                    f"declares ({n:,} Gaussians, SH degree {degree})")
+    if len(body) == cap:
+        raise fail(f"holds more data than its header declares ({n:,} Gaussians, SH degree {degree}): corrupt")
+    if not d.eof:
+        raise fail("truncated: the gzip stream stops before its end (its checksum is missing)")
     start = 0
     stored = None
     if flags & FLAG_EXTENSIONS and len(body) > need:
