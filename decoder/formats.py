@@ -103,20 +103,32 @@ def sniff_file(path, error=GszError) -> str:
     except OSError as e:
         raise error(f"cannot read: {e.strerror or e}", path) from None
     kind = sniff(head, size)
-    if kind == GLTF and size <= _SOG_META_MAX and _is_sog_meta(path):
-        return SOG
+    if kind == GLTF and size <= _SOG_META_MAX:
+        json_kind = _json_kind(path)
+        if json_kind == "lod":
+            raise error("is a streamed SOG (lod-meta.json), which gsz does not read: convert it to a .sog "
+                        "or PLY with splat-transform first", path)
+        if json_kind == SOG:
+            return SOG
     if kind is None:
         raise error(_not_a_scene(path, head, size), path)
     return kind
 
 
-def _is_sog_meta(path: str) -> bool:
+def _json_kind(path: str) -> str | None:
+    """SOG for a SOG meta.json, "lod" for a streamed SOG's lod-meta.json, else None (glTF, or
+    JSON the glTF reader will name the problem of)."""
     from .sog import is_sog_meta
     try:
         with open(path, "rb") as f:
-            return is_sog_meta(json.loads(f.read().decode("utf-8-sig")))
+            doc = json.loads(f.read().decode("utf-8-sig"))
     except (OSError, UnicodeDecodeError, ValueError):
-        return False                          # the glTF reader gives the real error
+        return None
+    if is_sog_meta(doc):
+        return SOG
+    if isinstance(doc, dict) and "lodLevels" in doc and "tree" in doc:
+        return "lod"
+    return None
 
 
 def _not_a_scene(path: str, head: bytes, size: int) -> str:

@@ -166,8 +166,8 @@ def _rgb_dc(data, path: str) -> np.ndarray:
         else:
             raise PlyFormatError(f"property '{p}' is not numeric", path)
     rgb = np.stack(chans, axis=1)
-    if rgb.dtype.kind == "f" and all(np.issubdtype(np.asarray(data[p]).dtype, np.floating) for p in _RGB) \
-            and rgb.size and np.nanmax(rgb) > 1.0:
+    floats = all(np.issubdtype(np.asarray(data[p]).dtype, np.floating) for p in _RGB)
+    if floats and rgb.size and np.nanmax(rgb) > 1.0:    # float colours written as 0..255
         rgb = rgb / 255.0
     return dc_of_colour(rgb)
 

@@ -126,7 +126,10 @@ def _pillow(path):
 def _texture(load, name, path, Image, min_texels: int, max_texels: int):
     """([H*W, 4] uint8 RGBA texels, W) of the WebP ``name``; its size checked before decoding."""
     raw = load(name)
+    limit = Image.MAX_IMAGE_PIXELS
     try:
+        # our own bound replaces Pillow's bomb guard, which would refuse a real ~100 M-Gaussian scene
+        Image.MAX_IMAGE_PIXELS = max(max_texels, limit or 0) + 1
         im = Image.open(io.BytesIO(raw))
         w, h = im.size
         if im.format != "WEBP":
@@ -139,6 +142,8 @@ def _texture(load, name, path, Image, min_texels: int, max_texels: int):
         raise
     except Exception as e:          # Pillow raises many types for a damaged image
         raise SogFormatError(f"texture {name} is not a readable WebP: {e}", path) from None
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
     return rgba.reshape(-1, 4), w
 
 

@@ -317,6 +317,8 @@ def test_truncated_and_corrupt_files_say_what_is_wrong(tmp_path):
     cply = (FORMATS / "jug.compressed.ply").read_bytes()
     _expect_error(write("a.compressed.ply", cply[: len(cply) // 2]), PlyFormatError)
     _expect_error(write("x.bin", b"\x1f\x8b" + bytes(100)), GszError, "gzip data, but not an SPZ")
+    lod = {"lodLevels": 2, "counts": [1, 1], "filenames": ["0_0/meta.json"], "tree": {"bound": {}}}
+    _expect_error(write("lod-meta.json", json.dumps(lod).encode()), GszError, "streamed SOG")
 
 
 def test_sog_needs_pillow_and_says_which_extra(monkeypatch):
@@ -444,7 +446,7 @@ def test_encode_an_spz_by_ratio_and_decode_to_spz(tmp_path):
     assert p.returncode == 2 and "invalid choice" in p.stderr
 
 
-def test_inputs_keep_warnings_and_errors_typed():
+def test_error_types_and_no_warning_on_clean_files():
     """SceneFormatError is a ValueError and a GszError, one base for every delivery format."""
     for cls in (SpzFormatError, SplatFormatError, KsplatFormatError, SogFormatError):
         assert issubclass(cls, SceneFormatError) and issubclass(cls, GszError) and issubclass(cls, ValueError)
