@@ -5,8 +5,9 @@ The top-level namespace re-exports the numpy-only core (no torch import here):
     import gsz
     cloud = gsz.read_ply("point_cloud.ply")
     gsz.write_ply(cloud, "copy.ply")
-    cloud = gsz.load("scene.glb")          # PLY, .gsz, .glb or .gltf, told by content
-    gsz.save(cloud, "scene.glb")           # .ply, or plain KHR_gaussian_splatting .glb/.gltf
+    cloud = gsz.load("scene.spz")          # PLY (and its variants), .gsz, .glb, .gltf, .spz, .sog,
+                                           # .ksplat, .splat, told by content
+    gsz.save(cloud, "scene.spz")           # .ply, .spz, or plain KHR_gaussian_splatting .glb/.gltf
 
 Sub-packages: ``gsz.decoder`` (numpy-only bitstream reader), ``gsz.encoder`` (torch CPU
 encoder, renderer, metrics), ``gsz.kernels`` (CUDA/CPU quantisation kernels), ``gsz.viewer``.

@@ -7,12 +7,14 @@ in the environment forces the NumPy reference path; ``decoder_path()`` is "nativ
 from .cloud import GaussianCloud, sh_rest_count
 from .errors import (CameraFormatError, CloudValidationError, GltfFormatError, GszError, GszFormatError,
                      GszInputWarning, GszLimitError, GszOutputError, GszTruncatedError, GszTruncatedWarning,
-                     PlyFormatError)
+                     KsplatFormatError, MissingExtraError, PlyFormatError, SceneFormatError, SogFormatError,
+                     SplatFormatError, SpzFormatError)
 from .ply import read_ply, write_ply
 
 __all__ = ["GaussianCloud", "sh_rest_count", "GszError", "GszFormatError", "PlyFormatError",
            "CloudValidationError", "CameraFormatError", "GltfFormatError", "GszLimitError", "GszTruncatedError",
-           "GszTruncatedWarning", "GszInputWarning", "GszOutputError",
+           "GszTruncatedWarning", "GszInputWarning", "GszOutputError", "SceneFormatError", "SpzFormatError",
+           "SplatFormatError", "KsplatFormatError", "SogFormatError", "MissingExtraError",
            "read_ply", "write_ply"]
 from .decode import decode, inspect  # noqa: E402
 from .formats import load, save  # noqa: E402

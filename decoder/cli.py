@@ -24,15 +24,19 @@ def add_max_gaussians(p: argparse.ArgumentParser) -> None:
 
 
 def decode_main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="gsz-decode", description="Decode a .gsz file to a 3DGS PLY or glTF.",
+    p = argparse.ArgumentParser(prog="gsz-decode", description="Decode a .gsz file to a 3DGS PLY, an .spz or glTF.",
                                 formatter_class=HelpFormatter,
                                 epilog="Exit status: 0 ok, 1 error (bad input, cannot write), 2 bad options, "
                                        "130 interrupted.")
     add_version_flag(p)
     p.add_argument("input", help="input .gsz file, or a .glb carrying one (EXT_gaussian_splatting_compression_gsz)")
     p.add_argument("-o", "--output", required=True,
-                   help="output: OUT.ply (graphdeco PLY), or OUT.glb / OUT.gltf (plain KHR_gaussian_splatting "
+                   help="output: OUT.ply (graphdeco PLY), OUT.spz (SPZ, see --spz-version; RDF frame, as "
+                        "splat-transform writes it), or OUT.glb / OUT.gltf (plain KHR_gaussian_splatting "
                         "glTF, float32; needs the gltf extra); written atomically; - writes the PLY to stdout")
+    p.add_argument("--spz-version", type=int, choices=(3, 4), default=3,
+                   help="SPZ version of an .spz output: 3 (gzip, read by every SPZ reader) or 4 (zstd "
+                        "streams, smaller; splat-transform 3.x and the current spz library read it)")
     add_overwrite(p)
     p.add_argument("--layers", type=int, default=None, metavar="K",
                    help="decode only the first K importance layers (default: all)")
@@ -120,6 +124,14 @@ def _decode_to_file(a):
             from .decode import payload_frame
             from .gltf import write_gltf
             write_gltf(cloud, a.output, frame=payload_frame(a.input))
+        elif a.output.lower().endswith(".spz"):
+            from .container import FRAME_RUB
+            from .decode import payload_frame
+            from .frames import to_rdf
+            from .spz import write_spz
+            if payload_frame(a.input) == FRAME_RUB:      # gsz writes SPZ in RDF, as splat-transform does
+                cloud = to_rdf(cloud, "RUB")
+            write_spz(cloud, a.output, version=a.spz_version)
         else:
             write_output(a.output, cloud_to_ply_bytes(cloud))
     except GszError as e:

@@ -64,3 +64,30 @@ class GszInputWarning(UserWarning):
     """An input scene held something gsz fixed or ignored to encode the rest well (an absurd
     value clamped, a far-away Gaussian dropped, vertices after the ones a PLY header declares);
     the message names the file, the property and the count."""
+
+
+class SceneFormatError(GszError, ValueError):
+    """A delivery-format scene file (.spz, .splat, .ksplat, .sog) is truncated, corrupt or uses
+    a feature gsz does not read; the message names the file, the format and the problem.  Each
+    format has its own subclass (a PlayCanvas compressed PLY is a :class:`PlyFormatError`)."""
+
+
+class SpzFormatError(SceneFormatError):
+    """An .spz file (Niantic/Adobe SPZ, versions 1-4) cannot be read."""
+
+
+class SplatFormatError(SceneFormatError):
+    """An antimatter15 .splat file (32-byte rows) cannot be read."""
+
+
+class KsplatFormatError(SceneFormatError):
+    """A mkkellogg GaussianSplats3D .ksplat file cannot be read."""
+
+
+class SogFormatError(SceneFormatError):
+    """A PlayCanvas SOG scene (.sog zip bundle or its meta.json) cannot be read."""
+
+
+class MissingExtraError(GszError, ImportError):
+    """Reading or writing a file needs an optional library that is not installed; the message
+    names the pip extra that brings it."""

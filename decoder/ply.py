@@ -1,4 +1,4 @@
-"""Read and write the graphdeco-inria 3DGS PLY layout.
+"""Read and write the graphdeco-inria 3DGS PLY layout, and read its common variants.
 
 Layout (one ``vertex`` element, float32 properties)::
 
@@ -7,6 +7,14 @@ Layout (one ``vertex`` element, float32 properties)::
 
 ``f_rest`` is channel-major in the file (all K coefficients of R, then G, then B); in
 :class:`GaussianCloud` it is held coefficient-major as ``sh_rest[N, K, 3]``.
+
+Variants read as well, told by their properties: the base colour as ``red green blue`` (uchar,
+or float in 0..1) instead of ``f_dc_*`` (nerfstudio's and gsplat's ``rgb`` export mode; SH
+degree 0 unless ``f_rest_*`` are there too); 2D Gaussian splatting's surfels (``scale_0
+scale_1`` only: the third axis is set to 1/100 of the smaller one, with a warning); any
+property order, extra properties (ignored with a warning), other numeric types and either
+endianness; and PlayCanvas's compressed PLY (``chunk`` + packed ``vertex`` elements,
+:mod:`gsz.decoder.compressed_ply`).
 """
 from __future__ import annotations
 
@@ -24,6 +32,9 @@ _DC = ["f_dc_0", "f_dc_1", "f_dc_2"]
 _SCALE = ["scale_0", "scale_1", "scale_2"]
 _ROT = ["rot_0", "rot_1", "rot_2", "rot_3"]
 _NORMALS = ["nx", "ny", "nz"]
+_RGB = ["red", "green", "blue"]
+#: a 2DGS surfel's missing third log-scale: the smaller in-plane one less ln(100)
+SURFEL_THICKNESS_LOG = float(np.log(100.0))
 _REST_TO_DEGREE = {3 * k: d for d, k in SH_REST_COUNT.items()}
 
 
@@ -52,6 +63,9 @@ def read_ply(path, *, check_finite: bool = True) -> GaussianCloud:
         raise PlyFormatError(f"cannot parse PLY: {e}", path) from None
     if "vertex" not in [el.name for el in ply.elements]:
         raise PlyFormatError("has no 'vertex' element", path)
+    from .compressed_ply import decode_compressed_ply, is_compressed_ply
+    if is_compressed_ply(ply):
+        return decode_compressed_ply(ply, path)
     vertex = ply["vertex"]
     data = vertex.data
     names = list(data.dtype.names or ())
@@ -69,7 +83,12 @@ def read_ply(path, *, check_finite: bool = True) -> GaussianCloud:
     degree = _REST_TO_DEGREE[len(rest_names)]
     k = SH_REST_COUNT[degree]
 
-    required = _BASE + _DC + rest_names + ["opacity"] + _SCALE + _ROT
+    # nerfstudio/gsplat "rgb" mode: base colour as red/green/blue instead of f_dc
+    rgb_colour = not any(p in names for p in _DC) and all(p in names for p in _RGB)
+    # 2D Gaussian splatting: flat surfels with two scales
+    surfels = "scale_2" not in names and "scale_0" in names and "scale_1" in names
+    scale_names = _SCALE[:2] if surfels else _SCALE
+    required = _BASE + (_RGB if rgb_colour else _DC) + rest_names + ["opacity"] + scale_names + _ROT
     for p in required:
         if p not in names:
             raise PlyFormatError(f"missing vertex property '{p}'", path)
@@ -104,12 +123,22 @@ def read_ply(path, *, check_finite: bool = True) -> GaussianCloud:
     rest = np.empty((n, k, 3), np.float32)
     for c in range(3 if k else 0):
         rest[:, :, c] = cols(rest_names[c * k:(c + 1) * k])
+    if surfels:
+        two = cols(scale_names)
+        scales = np.concatenate([two, two.min(axis=1, keepdims=True) - SURFEL_THICKNESS_LOG], axis=1)
+        warnings.warn(GszInputWarning(
+            f"{path}: {n:,} 2D Gaussian (surfel) vertices have scale_0 and scale_1 only: read as flat "
+            "3D Gaussians, the third axis 1/100 of the smaller one"), stacklevel=2)
+    else:
+        scales = cols(_SCALE)
+    sh_dc = _rgb_dc(data, path) if rgb_colour else cols(_DC)
     cloud = GaussianCloud(
-        positions=cols(_BASE), scales=cols(_SCALE), rotations=cols(_ROT),
-        opacities=cols(["opacity"])[:, 0], sh_dc=cols(_DC), sh_rest=rest, sh_degree=degree)
+        positions=cols(_BASE), scales=scales, rotations=cols(_ROT),
+        opacities=cols(["opacity"])[:, 0], sh_dc=sh_dc, sh_rest=rest, sh_degree=degree)
     if check_finite:
-        for fname, props in (("positions", _BASE), ("scales", _SCALE), ("rotations", _ROT),
-                             ("opacities", ["opacity"]), ("sh_dc", _DC), ("sh_rest", rest_names)):
+        for fname, props in (("positions", _BASE), ("scales", scale_names + ["scale_2"] * surfels),
+                             ("rotations", _ROT), ("opacities", ["opacity"]),
+                             ("sh_dc", _RGB if rgb_colour else _DC), ("sh_rest", rest_names)):
             arr = getattr(cloud, fname).reshape(n, len(props))     # not -1: n may be 0
             if all(np.isfinite(arr[s:s + 65536]).all() for s in range(0, n, 65536)):
                 continue                      # in row steps: no N x 3K bool temporaries
@@ -121,6 +150,26 @@ def read_ply(path, *, check_finite: bool = True) -> GaussianCloud:
                     f"property '{prop}' has {int(bad[:, c].sum())} non-finite values "
                     f"(first at vertex {int(r)})", path)
     return cloud
+
+
+def _rgb_dc(data, path: str) -> np.ndarray:
+    """SH DC of a base colour stored as red/green/blue: integers over their type's range (uchar:
+    0..255, as nerfstudio writes it), floats as 0..1 (or 0..255 when any exceeds 1)."""
+    from .delivery import dc_of_colour
+    chans = []
+    for p in _RGB:
+        v = np.asarray(data[p])
+        if np.issubdtype(v.dtype, np.integer):
+            chans.append(v.astype(np.float64) / max(1, np.iinfo(v.dtype).max))
+        elif np.issubdtype(v.dtype, np.floating):
+            chans.append(v.astype(np.float64))
+        else:
+            raise PlyFormatError(f"property '{p}' is not numeric", path)
+    rgb = np.stack(chans, axis=1)
+    floats = all(np.issubdtype(np.asarray(data[p]).dtype, np.floating) for p in _RGB)
+    if floats and rgb.size and np.nanmax(rgb) > 1.0:    # float colours written as 0..255
+        rgb = rgb / 255.0
+    return dc_of_colour(rgb)
 
 
 def _warn_undeclared_data(f, ply, path: str) -> None:
@@ -153,12 +202,28 @@ def _rest_prop_name(flat_col: int, k: int) -> str:
     return f"f_rest_{c * k + k_i}"
 
 
+def _graphdeco_names(k: int) -> list:
+    return _BASE + _NORMALS + _DC + [f"f_rest_{i}" for i in range(3 * k)] + ["opacity"] + _SCALE + _ROT
+
+
+def _graphdeco_header(n: int, names: list) -> bytes:
+    header = ["ply", "format binary_little_endian 1.0", "comment written by gsz",
+              f"element vertex {n}"] + [f"property float {p}" for p in names] + ["end_header"]
+    return ("\n".join(header) + "\n").encode("ascii")
+
+
+def graphdeco_ply_bytes(num_gaussians: int, sh_degree: int) -> int:
+    """Size of the graphdeco PLY (as :func:`write_ply` writes it) of a scene of this many
+    Gaussians and SH degree: what a compression ratio of a non-PLY input is measured against."""
+    names = _graphdeco_names(SH_REST_COUNT[sh_degree])
+    return len(_graphdeco_header(num_gaussians, names)) + 4 * len(names) * num_gaussians
+
+
 def cloud_to_ply_bytes(cloud: GaussianCloud) -> bytes:
     """Serialise a cloud as a binary little-endian graphdeco PLY (float32 everywhere)."""
     n = len(cloud)
     k = cloud.sh_rest.shape[1]
-    rest_names = [f"f_rest_{i}" for i in range(3 * k)]
-    names = _BASE + _NORMALS + _DC + rest_names + ["opacity"] + _SCALE + _ROT
+    names = _graphdeco_names(k)
     mat = np.empty((n, len(names)), dtype="<f4")
     mat[:, 0:3] = cloud.positions
     mat[:, 3:6] = 0.0
@@ -170,9 +235,7 @@ def cloud_to_ply_bytes(cloud: GaussianCloud) -> bytes:
     mat[:, o] = cloud.opacities
     mat[:, o + 1:o + 4] = cloud.scales
     mat[:, o + 4:o + 8] = cloud.rotations
-    header = ["ply", "format binary_little_endian 1.0", "comment written by gsz",
-              f"element vertex {n}"] + [f"property float {p}" for p in names] + ["end_header"]
-    return ("\n".join(header) + "\n").encode("ascii") + mat.tobytes()
+    return _graphdeco_header(n, names) + mat.tobytes()
 
 
 def write_ply(cloud: GaussianCloud, path) -> None:

@@ -23,8 +23,10 @@ def build_parser() -> argparse.ArgumentParser:
                "0 ok, 1 error (bad input, unreachable size, output exists or cannot be written), "
                "2 bad options, 130 interrupted.")
     add_version_flag(p)
-    p.add_argument("input", help="input scene, told by content: a graphdeco 3DGS PLY (SH degree 0-3) or a "
-                                 "KHR_gaussian_splatting .glb/.gltf")
+    p.add_argument("input", help="input scene, told by content: a graphdeco 3DGS PLY (SH degree 0-3; also "
+                                 "its nerfstudio rgb and 2DGS variants and PlayCanvas's compressed PLY), a "
+                                 "KHR_gaussian_splatting .glb/.gltf, an .spz, .splat, .ksplat or PlayCanvas "
+                                 "SOG (.sog or meta.json)")
     out = p.add_argument_group("output")
     out.add_argument("-o", "--output", required=True,
                      help="output .gsz file, or OUT.glb: the .gsz inside a glTF binary "
@@ -40,7 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
                   verbose_help="every stage with its time and memory, and the search's detail")
     budget = p.add_argument_group("size target (the encoder searches the configuration; give one)")
     budget.add_argument("--size", default=None, help="byte budget, e.g. 5MB, 4.5MiB, 800kB, 1200000")
-    budget.add_argument("--ratio", default=None, help="compression ratio vs the input PLY, e.g. 30 or 30x")
+    budget.add_argument("--ratio", default=None, help="compression ratio vs the input PLY, e.g. 30 or 30x "
+                                                      "(for any other input: vs the graphdeco PLY of its scene)")
     budget.add_argument("--profile", default=None, help="large (8x), medium (12x), small (18x), very-small (27x), tiny (40x)")
     budget.add_argument("--solver", default="fast", choices=["fast", "cbc"],
                         help="bit-allocation solver of the size search")
@@ -91,7 +94,10 @@ def _read_inputs(a, prog):
     from ..decoder.errors import PlyFormatError
     from ..decoder.formats import load
     with prog.stage("read", a.input):
-        cloud = load(a.input)                 # PLY, .glb or .gltf by content
+        cloud = load(a.input)                 # any scene format, told by content
+    if getattr(a, "ratio_bytes", 0) is None:
+        from ..decoder.ply import graphdeco_ply_bytes
+        a.ratio_bytes = graphdeco_ply_bytes(len(cloud), cloud.sh_degree)
     if len(cloud) == 0:
         raise PlyFormatError("has 0 vertices (Gaussians): nothing to encode", a.input)
     zero = ~(np.abs(cloud.rotations).sum(axis=1) > 0)    # the importance renderer needs a rotation
@@ -135,10 +141,14 @@ def _run_search(a, prog) -> dict:
         raise GszUsageError("--size/--ratio/--profile choose the reserve, depth, bit-widths and kept SH "
                             f"themselves; drop {'/'.join(fixed_only)}")
     _check_paths(a)
-    target = budget_from_args(size=a.size, ratio=a.ratio, profile=a.profile, ply_bytes=a.input_bytes)
+    cloud = cameras = None
+    if a.size is None and a.ratio_bytes is None:   # a ratio of a non-PLY input: of its scene's PLY
+        cloud, cameras = _read_inputs(a, prog)
+    target = budget_from_args(size=a.size, ratio=a.ratio, profile=a.profile, ply_bytes=a.ratio_bytes)
     style = size_style(a.size) if a.size is not None else "auto"
     prog.log(f"target size {format_size(target, style)} ({target:,} bytes)")
-    cloud, cameras = _read_inputs(a, prog)
+    if cloud is None:
+        cloud, cameras = _read_inputs(a, prog)
     payload_target = target
     if _glb_output(a):                        # the budget is the .glb's: leave room for its JSON
         from ..decoder.gltf import glb_overhead
@@ -189,7 +199,8 @@ def _finish(a, result, extra: dict) -> dict:
     r["bytes"] = len(data)
     write_output(a.output, data)              # a GszError naming a.output when it fails
     in_bytes = a.input_bytes
-    r.update(input=a.input, output=a.output, input_bytes=in_bytes, ratio=in_bytes / r["bytes"], **extra)
+    base = getattr(a, "ratio_bytes", None) or in_bytes
+    r.update(input=a.input, output=a.output, input_bytes=in_bytes, ratio=base / r["bytes"], **extra)
     return r
 
 
@@ -203,6 +214,10 @@ def _check_paths(a) -> None:
     if a.output == STDOUT and a.json:
         raise GszUsageError("-o - writes the .gsz to stdout: --json cannot share it (use --report DIR)")
     a.input_bytes = check_input_file(a.input, PlyFormatError)
+    # what --ratio divides and the report's ratio measures: a graphdeco PLY's own size; for any
+    # other input (already compressed, or laid out otherwise) the size of its scene's PLY, known
+    # once the scene is read (None until then)
+    a.ratio_bytes = a.input_bytes if _plain_ply(a.input) else None
     check_output(a.output, inputs=[a.input, a.cameras], overwrite=a.overwrite, stdout=True)
     if a.output.lower().endswith(".gltf"):
         raise GszUsageError("gsz-encode writes .gsz or .glb (the .gsz needs a glTF binary's BIN chunk); "
@@ -217,6 +232,21 @@ def _check_paths(a) -> None:
         require_matplotlib()
         for name in ("report.json", "bits.png"):
             check_output(os.path.join(a.report, name), inputs=[a.input, a.cameras], overwrite=a.overwrite)
+
+
+def _plain_ply(path) -> bool:
+    """True for a PLY input that is not PlayCanvas's compressed PLY (its header, read alone)."""
+    from ..decoder.errors import GszError as _E
+    from ..decoder.formats import PLY, sniff_file
+    try:
+        if sniff_file(path) != PLY:
+            return False
+        with open(path, "rb") as f:
+            head = f.read(1 << 16)
+    except (_E, OSError):
+        return True                           # the reader gives the real error
+    end = head.find(b"end_header")
+    return b"element chunk" not in (head[:end] if end >= 0 else head)
 
 
 def _run(a):

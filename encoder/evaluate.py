@@ -43,14 +43,16 @@ ERROR_MAP_FULL_SCALE = 0.1
 
 def load_cloud(path, *, max_gaussians: int | None = None) -> GaussianCloud:
     """A scene from a 3DGS ``.ply``, a ``.gsz``, a ``.glb`` (plain ``KHR_gaussian_splatting`` or
-    carrying a .gsz) or a ``.gltf``, told by content (:func:`gsz.load`; a .gsz within
+    carrying a .gsz), a ``.gltf`` or another format :func:`gsz.load` reads (.spz, .sog, .ksplat,
+    .splat, compressed PLY), told by content (:func:`gsz.load`; a .gsz within
     ``max_gaussians``, see :func:`gsz.decoder.decode`).  Raises a
     :class:`GszError` naming the file."""
     path = os.fspath(path)
     if not os.path.exists(path):
         raise GszError("file not found", path)
     if os.path.isdir(path):
-        raise GszError("is a directory, expected a .ply, .gsz, .glb or .gltf file", path)
+        raise GszError("is a directory, expected a scene file (.ply, .gsz, .glb, .gltf, .spz, .sog or "
+                       "meta.json, .ksplat, .splat)", path)
     from ..decoder.formats import load
     return load(path, max_gaussians=max_gaussians)
 
@@ -259,9 +261,10 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Exit status: 0 ok, 1 error (bad input, unreachable sizes, outputs exist), 2 bad "
                "options, 130 interrupted.")
     add_version_flag(p)
-    p.add_argument("original", nargs="?", help="original scene (.ply, .gsz, .glb or .gltf, told by content)")
+    p.add_argument("original", nargs="?", help="original scene, told by content (.ply, .gsz, .glb, .gltf, .spz, "
+                                               ".sog or its meta.json, .ksplat, .splat)")
     p.add_argument("compressed", nargs="?",
-                   help="compressed / decoded scene (.gsz, a .glb carrying one, .ply, .gltf)")
+                   help="compressed / decoded scene (.gsz, a .glb carrying one, or any format the original can be)")
     p.add_argument("--cameras", metavar="FILE_OR_DIR",
                    help="graphdeco cameras.json or COLMAP model (test = every 8th by name); "
                         "default: deterministic views around the original")

@@ -319,7 +319,7 @@ def test_bad_files_are_one_line_errors(sample_sh0, tmp_path):
     (tmp_path / "x.bin").write_bytes(b"\x00" * 100)
     with pytest.raises(GszError, match="not a 3DGS PLY, .gsz, .glb or .gltf"):
         gsz.load(tmp_path / "x.bin")
-    with pytest.raises(GszError, match="writes .ply, .glb or .gltf"):
+    with pytest.raises(GszError, match="writes .ply, .spz, .glb or .gltf"):
         gsz.save(sample_sh0, tmp_path / "x.gsz")
 
 

@@ -94,7 +94,7 @@ def _components_of(src) -> dict:
 
 
 def scene_from_file(path, name: str | None = None, *, max_gaussians: int | None = None) -> Scene:
-    """Load a .ply, .gsz, .glb or .gltf (told by content; GszError naming the file on failure;
+    """Load any scene :func:`gsz.load` reads (told by content; GszError naming the file on failure;
     a .gsz within ``max_gaussians``, see :func:`gsz.decoder.decode`) with its size and, for a
     .gsz or a .glb carrying one, its per-component bytes."""
     from ..decoder.formats import is_compressed

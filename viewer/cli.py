@@ -1,6 +1,6 @@
 """``gsz-view``: look at a .gsz / .ply / .glb / .gltf, or compare a decoded scene with its original.
 
-    gsz-view FILE                                   # one scene (.gsz, .ply, .glb or .gltf)
+    gsz-view FILE                                   # one scene (.gsz, .ply, .glb, .gltf, .spz, .sog, ...)
     gsz-view DECODED.gsz --compare ORIGINAL.ply     # A/B compare: split, side by side, flip
     gsz-view ORIGINAL.ply --budgets 2MB,5MB,10MB    # encode at each budget in the background,
                                                     # then compare the one picked in the panel
@@ -40,9 +40,10 @@ def build_parser() -> argparse.ArgumentParser:
                "needs a display; --screenshot does not.  Exit status: 0 ok, 1 error (bad input, "
                "no display or OpenGL, output exists), 2 bad options, 130 interrupted.")
     add_version_flag(p)
-    p.add_argument("file", help="scene to show (.gsz, .ply, .glb or .gltf, told by content); with --budgets, the original")
+    p.add_argument("file", help="scene to show, told by content (.gsz, .ply, .glb, .gltf, .spz, .sog or its "
+                                 "meta.json, .ksplat, .splat); with --budgets, the original")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--compare", metavar="ORIGINAL", help="original scene (.ply/.gsz/.glb/.gltf) to compare FILE with")
+    g.add_argument("--compare", metavar="ORIGINAL", help="original scene (any format FILE can be) to compare FILE with")
     g.add_argument("--budgets", metavar="LIST",
                    help="comma-separated sizes (e.g. 2MB,5MB,10MB): encode FILE at each in the "
                         "background and compare")

@@ -31,7 +31,8 @@ class Encoded:
     attributes_saturated: bool = False   # every attribute group at its best width, bytes left
     sh_keep: int | None = None    # exact SH vectors kept; None without SH
     codebook_size: int = 0
-    sh_path: str | None = None    # "vq" (codebook + kept exact vectors) or "scalar"; None without SH
+    sh_path: str | None = None    # "vq" (codebook + kept vectors at 8 bits), "classes" (the same, kept vectors in
+    #                               importance classes, widths allocated) or "scalar"; None without SH
     depth: int = 0
     num_points: int = 0           # Gaussians (voxels) in the file
     layer0_points: int = 0
