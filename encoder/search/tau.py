@@ -50,13 +50,18 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
     if saturated and sh_plan is not None:
         res = spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fixed,
                               sh_model, sh_plan, res, weights)
+    keep = sh_plan.keep if sh_plan is not None else 0
     if res is not None:
+        keep = res.sh_plan.keep if res.sh_plan is not None else keep
         yield _finish(stage, res, saturated, "vq", log)
-    hybrid = (sh_plan is not None and sopts.sh_classes and SH_CLASS_MIN_SIZE * SH_CLASSES <= sh_plan.keep < sh_model.m
-              and not saturated)
-    if hybrid:
+    # the codebook path again with its kept vectors in importance classes, their widths
+    # allocated (1-16 bits or constant): at the chosen keep-count, or once spend_saturated keeps
+    # every vector (its 8-16-bit widths would otherwise cap the SH where classes pay most)
+    m = sh_model.m if sh_model is not None else 0
+    if (sh_plan is not None and sopts.sh_classes and keep >= SH_CLASS_MIN_SIZE * SH_CLASSES
+            and not (saturated and keep < m)):
         with progress.stage("sh-plan", "kept SH vectors in importance classes, widths allocated"):
-            plan = sh_model.encode(sh_plan.keep, code=False, classes=SH_CLASSES)
+            plan = sh_model.encode(keep, code=False, classes=SH_CLASSES)
             kept = kept_tables(plan, 1.0 if weights is None else weights["sh"], min_bits=1)
         res = calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, plan, kept=kept)
         if res is not None:
