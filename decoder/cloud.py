@@ -46,6 +46,15 @@ class GaussianCloud:
     sh_degree: int
     extra: dict = field(default_factory=dict, compare=False, repr=False)
 
+    def __repr__(self) -> str:
+        # short: a cloud's arrays would print millions of numbers
+        n = len(self.positions)
+        box = ""
+        if n:
+            lo, hi = self.positions.min(0), self.positions.max(0)
+            box = f", bbox [{lo[0]:.3g} {lo[1]:.3g} {lo[2]:.3g}] .. [{hi[0]:.3g} {hi[1]:.3g} {hi[2]:.3g}]"
+        return f"GaussianCloud({n:,} Gaussians, SH degree {self.sh_degree}{box})"
+
     def __post_init__(self):
         self.positions = np.ascontiguousarray(self.positions, dtype=np.float32)
         self.scales = np.ascontiguousarray(self.scales, dtype=np.float32)

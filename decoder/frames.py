@@ -54,3 +54,12 @@ def to_rdf(cloud: GaussianCloud, frame: str) -> GaussianCloud:
 def from_rdf(cloud: GaussianCloud, frame: str) -> GaussianCloud:
     """``cloud`` (RDF) converted to ``frame``: axis negations are their own inverse."""
     return flip_axes(cloud, FRAME_SIGNS[frame.upper()])
+
+
+def convert_frame(cloud: GaussianCloud, src: str, dst: str) -> GaussianCloud:
+    """``cloud`` held in frame ``src`` re-expressed in frame ``dst`` (names of
+    :data:`FRAME_SIGNS`, e.g. "RDF" for graphdeco PLY / COLMAP, "RUB" for OpenGL / three.js)."""
+    for f in (src, dst):
+        if str(f).upper() not in FRAME_SIGNS:
+            raise ValueError(f"unknown frame {f!r}; one of {', '.join(FRAME_SIGNS)}")
+    return from_rdf(to_rdf(cloud, src), dst)
