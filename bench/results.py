@@ -565,6 +565,21 @@ def page_sh_paths(entries: list) -> str:
     return "\n".join(lines)
 
 
+def page_attribution(entries: list) -> str:
+    lines = header("Which attribute group costs the fidelity",
+                   "The original with exactly one attribute group replaced by a decoded file's values "
+                   "(Gaussians matched by position), rendered against the original with gsz-eval's protocol: "
+                   "the lowest row is the group to work on next (`bench/bench_attribution.py`).",
+                   [dict(json=x, command=d.get("command"), commit=d.get("commit")) for x, d in entries])
+    for x, d in entries:
+        lines += [f"## {x[len('attribution_'):-len('.json')]}: whole file {f2(d.get('whole_file_psnr'))} dB, "
+                  f"{n(d.get('matched'))} of {n(d.get('original_gaussians'))} Gaussians matched", ""]
+        lines += table(["group replaced", "PSNR dB", "SSIM"],
+                       [[r["group"] + (" (weakest)" if r["group"] == d.get("weakest") else ""), f2(r["psnr"]),
+                         f"{r['ssim']:.4f}"] for r in d.get("rows", [])])
+    return "\n".join(lines)
+
+
 def build(json_dir: Path = JSON_DIR) -> dict:
     """{file name: markdown} for every page the JSON in ``json_dir`` supports, and README.md."""
     pages, used, index = {}, set(), []
@@ -601,6 +616,9 @@ def build(json_dir: Path = JSON_DIR) -> dict:
         d = load(jsn, json_dir)
         if d:
             add(name, title, [jsn], fn(d))
+    at = [(p.name, load(p.name, json_dir)) for p in sorted(json_dir.glob("attribution_*.json"))]
+    if at:
+        add("attribution.md", "which attribute group costs the fidelity", [x for x, _ in at], page_attribution(at))
     sc = [(p.name, load(p.name, json_dir))
           for p in sorted(json_dir.glob("scale*.json"), key=lambda p: (len(p.name), p.name))]
     if sc:
