@@ -58,6 +58,10 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
     # allocated (1-16 bits or constant): at the chosen keep-count, or once spend_saturated keeps
     # every vector (its 8-16-bit widths would otherwise cap the SH where classes pay most)
     m = sh_model.m if sh_model is not None else 0
+    if not saturated:
+        # in classes a kept vector costs far less than at 8 bits, which the keep-count estimate
+        # assumes: at low rates keeping the most important few pays even where that says none
+        keep = min(m, max(keep, int(round(CLASSES_MIN_KEEP * m))))
     if (sh_plan is not None and sopts.sh_classes and keep >= SH_CLASS_MIN_SIZE * SH_CLASSES
             and not (saturated and keep < m)):
         with progress.stage("sh-plan", "kept SH vectors in importance classes, widths allocated"):
@@ -89,6 +93,10 @@ def _finish(stage: Stage, res: Calibrated, saturated: bool, path: str, log: list
                                depth=stage.depth, num_points=stage.num_points,
                                layer0_points=stage.layer0_points,
                                geometry_bytes=stage.geometry_bytes)
+
+
+#: The classes candidate keeps at least this share of the vectors exact (docs/design/sh-classes.md).
+CLASSES_MIN_KEEP = 0.04
 
 
 #: The scalar SH path is weighed only when the codebook path keeps at least this share of the
