@@ -62,7 +62,7 @@ def file_bits(data: bytes) -> dict:
             r.bytes(8 * r.u8())     # the RAHT DC values
             raht.append(channel_set(r))
             scales.append(channel_set(r))
-            parts.append({"layer": (ch.flags >> 8) & 0xFF, "tile": ch.flags >> 16,
+            parts.append({"layer": ch.layer, "tile": ch.tile,
                           "blocks": int(raht[-1].shape[1])})
             kept.append(None)
         elif ch.type == CHUNK_SHVQ:
