@@ -116,8 +116,9 @@ def _run_fixed(a, prog) -> EncodeReport:
     from .pipeline import EncodeOptions, encode
     opts = EncodeOptions(reserve=EncodeOptions.reserve if a.reserve is None else a.reserve,
                          bits=EncodeOptions.bits if a.bits is None else a.bits,
-                         codebook=EncodeOptions.codebook if a.codebook is None else a.codebook, keep=a.keep, blocks=a.blocks, depth=a.depth,
-                         rel_error=a.rel_error, beta=a.beta, sh_bits=a.sh_bits, sh_classes=a.sh_classes or 1,
+                         codebook=EncodeOptions.codebook if a.codebook is None else a.codebook,
+                         keep=a.keep, blocks=a.blocks, depth=a.depth, rel_error=a.rel_error, beta=a.beta,
+                         sh_bits=a.sh_bits, sh_classes=a.sh_classes or EncodeOptions.sh_classes,
                          train_views=a.train_views, importance_width=a.importance_width,
                          layers=a.layers, first_layer=a.first_layer, seed=a.seed,
                          tile_gaussians=a.tile_gaussians or None, executor=a.executor,
@@ -284,7 +285,7 @@ def _input_warnings_as_lines(verbosity: int):
 
 
 def main(argv=None) -> int:
-    from ..decoder.cli_common import EXIT_INTERRUPTED, fail, missing_extra
+    from ..decoder.cli_common import EXIT_INTERRUPTED, STDOUT, fail, missing_extra
     try:
         a = build_parser().parse_args(argv)
         from ..decoder.io_util import sigterm_as_interrupt
@@ -303,7 +304,7 @@ def main(argv=None) -> int:
     if a.json:
         print(json.dumps(r.to_json(), indent=1, default=float))
     else:
-        where = "stdout" if a.output == "-" else a.output
+        where = "stdout" if a.output == STDOUT else a.output
         prog.log(f"wrote {where}: {r.bytes:,} bytes ({r.written.ratio:.1f}x smaller than the PLY, "
                  f"{r.bytes_per_gaussian:.2f} B/Gaussian, {r.voxels:,} Gaussians)")
         prog.log("  " + ", ".join(f"{k} {v:,}" for k, v in r.components.items()))
