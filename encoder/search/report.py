@@ -40,8 +40,9 @@ def search_report(search, chosen: Candidate) -> EncodeReport:
         bits={"raht": enc.raht_bits.tolist(), "scales": enc.scale_bits.tolist(),
               "raht_channels": list(RAHT_CHANNELS), "scale_channels": list(DIRECT_CHANNELS),
               "sh": SH_BITS if sh else None,
-              # per layer: the kept exact SH vectors' group widths [D][B_l] where they were
-              # allocated (budgets above the SH_BITS quality ceiling), else None (SH_BITS)
+              # per part: the kept SH vectors' group widths [D][B_l] where they were allocated
+              # (sh_path "scalar" or "classes": one block per importance class, 0 = a constant
+              # group; or above the SH_BITS ceiling), else None (SH_BITS)
               "sh_kept": [None if b is None else b.tolist() for b in enc.kept_bits]},
         components={"geometry": enc.geometry_bytes, "attributes": enc.attr_bytes,
                     **enc.attr_stats, "sh": enc.sh_bytes, "metadata": enc.meta_bytes},
