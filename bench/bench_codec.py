@@ -90,22 +90,22 @@ def main(argv=None):
                 assert dec.equals(res.cloud)
                 ev = evaluate(refs, dec, cams)
                 r = res.report
-                row = {"scene": scene, "variant": variant, "bits": bits, "blocks": r["options"]["blocks"],
+                row = {"scene": scene, "variant": variant, "bits": bits, "blocks": r.fixed.options["blocks"],
                        "reserve": a.reserve,
-                       "gaussians": len(cloud), "voxels": r["voxels"], "depth": r["depth"],
-                       "bytes": r["bytes"], "bytes_per_gaussian": r["bytes"] / len(cloud),
-                       "ratio_vs_ply": ply_bytes / r["bytes"], "components": r["components"],
+                       "gaussians": len(cloud), "voxels": r.voxels, "depth": r.depth,
+                       "bytes": r.bytes, "bytes_per_gaussian": r.bytes / len(cloud),
+                       "ratio_vs_ply": ply_bytes / r.bytes, "components": r.components,
                        "psnr": ev["psnr"], "ssim": ev["ssim"],
-                       "encode_seconds": {"importance": t_imp, **r["seconds"]},
-                       "decode_seconds": t_dec, "decode_gaussians_per_s": r["voxels"] / t_dec,
+                       "encode_seconds": {"importance": t_imp, **r.seconds},
+                       "decode_seconds": t_dec, "decode_gaussians_per_s": r.voxels / t_dec,
                        "reference_render_seconds": t_ref}
                 rows.append(row)
-                c = r["components"]
-                print(f"{scene:30s} {variant:6s} {bits:2d} bit {row['blocks']:2d} blk: {r['bytes']:>10,} B  "
+                c = r.components
+                print(f"{scene:30s} {variant:6s} {bits:2d} bit {row['blocks']:2d} blk: {r.bytes:>10,} B  "
                       f"{row['bytes_per_gaussian']:6.2f} B/G  {row['ratio_vs_ply']:5.1f}x  "
                       f"PSNR {ev['psnr']:6.2f}  SSIM {ev['ssim']:.4f}  geom {c['geometry']:,} "
                       f"attr {c['attributes']:,} sh {c.get('sh', 0):,}  "
-                      f"enc {t_imp + r['total_seconds']:.1f}s dec {t_dec:.2f}s "
+                      f"enc {t_imp + r.total_seconds:.1f}s dec {t_dec:.2f}s "
                       f"({row['decode_gaussians_per_s'] / 1e6:.2f} MG/s)", flush=True)
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(rows, indent=1))

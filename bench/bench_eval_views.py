@@ -105,7 +105,7 @@ def main(argv=None) -> int:
                 pick = max(rows, key=lambda r: r[k])
                 picks[k] = {"test_psnr": pick["test 8@800"], "regret": best_test - pick["test 8@800"]}
         print(f"== {scene} {variant} {ratio}x: {len(rows)} candidates, search {seconds:.1f} s "
-              f"(eval_width {sopts.eval_width}, importance_width {sopts.importance_width}); chosen: tau {res.report['reserve']} depth {res.report['depth']}",
+              f"(eval_width {sopts.eval_width}, importance_width {sopts.importance_width}); chosen: tau {res.report.reserve} depth {res.report.depth}",
               flush=True)
         for r in rows:
             print("   " + "  ".join(f"{k} {v:.2f}" for k, v in r.items()))

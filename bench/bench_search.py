@@ -124,23 +124,23 @@ def main(argv=None):
                 ev = _evaluate(refs, res.cloud, cams)
                 r = res.report
                 row = {"scene": scene, "variant": variant, "ratio_target": ratio, "target": target,
-                       "bytes": r["bytes"], "deviation": r["deviation"], "psnr": ev["psnr"], "ssim": ev["ssim"],
-                       "reserve": r["reserve"], "depth": r["depth"], "sh_keep": r["sh_keep"],
-                       "codebook_size": r["codebook_size"], "rounds": len(r["calibration"]),
-                       "candidates": len(r["candidates"]), "screened": sum(s["skipped"] for s in r["screened"]),
-                       "note": r.get("note"),
-                       "search_seconds": t_search, "cpu_seconds": r["cpu_seconds"] + c_imp,
-                       "stage_seconds": {"importance": t_imp, **r["seconds"]},
+                       "bytes": r.bytes, "deviation": r.search.deviation, "psnr": ev["psnr"], "ssim": ev["ssim"],
+                       "reserve": r.reserve, "depth": r.depth, "sh_keep": r.sh_keep,
+                       "codebook_size": r.codebook_size, "rounds": len(r.search.calibration),
+                       "candidates": len(r.search.candidates), "screened": sum(s["skipped"] for s in r.search.screened),
+                       "note": r.search.note,
+                       "search_seconds": t_search, "cpu_seconds": r.cpu_seconds + c_imp,
+                       "stage_seconds": {"importance": t_imp, **r.seconds},
                        "load_before": load0, "load_after": load1, "native": _native(),
                        "gaussians": len(cloud)}
                 rows.append(row)
                 scene_rows.append(row)
-                print(f"{scene:30s} {variant:6s} {ratio:4.0f}x: target {target:>11,} actual {r['bytes']:>11,} "
-                      f"({100 * r['deviation']:+.3f} %)  PSNR {ev['psnr']:6.2f} SSIM {ev['ssim']:.4f}  "
-                      f"tau {r['reserve']} d {r['depth']} K {r['codebook_size']} keep {r['sh_keep']} "
+                print(f"{scene:30s} {variant:6s} {ratio:4.0f}x: target {target:>11,} actual {r.bytes:>11,} "
+                      f"({100 * r.search.deviation:+.3f} %)  PSNR {ev['psnr']:6.2f} SSIM {ev['ssim']:.4f}  "
+                      f"tau {r.reserve} d {r.depth} K {r.codebook_size} keep {r.sh_keep} "
                       f"rounds {row['rounds']} cand {row['candidates']}+{row['screened']} screened  "
                       f"{t_search:.1f} s ({row['cpu_seconds']:.1f} s CPU, load {load0:.1f}-{load1:.1f})"
-                      + (f"  [{r['note']}]" if r.get("note") else ""), flush=True)
+                      + (f"  [{r.search.note}]" if r.search.note else ""), flush=True)
         if scene_rows:
             plot(scene, scene_rows, out_dir / f"rd_{scene}.png")
     if a.scaling:
@@ -155,12 +155,12 @@ def main(argv=None):
             res = encode_to_budget(sub, target, progress=prog)     # importance included
             dt = time.perf_counter() - t0
             r = res.report
-            print(f"scaling flowers x{frac}: N={len(sub):,} target {target:,} -> {r['bytes']:,} "
-                  f"in {dt:.1f} s ({r['cpu_seconds']:.1f} s CPU, load {load0:.1f}), {len(r['candidates'])} candidates, "
+            print(f"scaling flowers x{frac}: N={len(sub):,} target {target:,} -> {r.bytes:,} "
+                  f"in {dt:.1f} s ({r.cpu_seconds:.1f} s CPU, load {load0:.1f}), {len(r.search.candidates)} candidates, "
                   f"stages " + ", ".join(f"{k} {v:.1f}" for k, v in prog.seconds.items()), flush=True)
-            rows.append({"scaling": frac, "n": len(sub), "target": target, "bytes": r["bytes"], "seconds": dt,
-                         "cpu_seconds": r["cpu_seconds"], "candidates": len(r["candidates"]),
-                         "screened": sum(s["skipped"] for s in r["screened"]), "reserve": r["reserve"],
+            rows.append({"scaling": frac, "n": len(sub), "target": target, "bytes": r.bytes, "seconds": dt,
+                         "cpu_seconds": r.cpu_seconds, "candidates": len(r.search.candidates),
+                         "screened": sum(s["skipped"] for s in r.search.screened), "reserve": r.reserve,
                          "load_before": load0, "native": _native(), "stage_seconds": prog.seconds})
     Path(a.out).write_text(json.dumps(rows, indent=1, default=float))
     print(f"wrote {a.out}")

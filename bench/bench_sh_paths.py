@@ -47,9 +47,9 @@ def main(argv=None) -> int:
             t0 = time.perf_counter()
             r = encode_to_budget(cloud, target, options=SearchOptions(sh_scalar=scalar))
             ev = evaluate(refs, decode(r.data), cams)
-            row = {"target": target, "sh_scalar": scalar, "bytes": len(r.data), "sh_path": r.report.get("sh_path"),
-                   "sh_keep": r.report.get("sh_keep"), "codebook_size": r.report.get("codebook_size"),
-                   "train_psnr": round(r.report["train_psnr"], 2), "test_psnr": round(ev["psnr"], 2),
+            row = {"target": target, "sh_scalar": scalar, "bytes": len(r.data), "sh_path": r.report.search.sh_path,
+                   "sh_keep": r.report.sh_keep, "codebook_size": r.report.codebook_size,
+                   "train_psnr": round(r.report.search.train_psnr, 2), "test_psnr": round(ev["psnr"], 2),
                    "seconds": round(time.perf_counter() - t0, 1)}
             rows.append(row)
             print(json.dumps(row), flush=True)

@@ -109,10 +109,10 @@ def fixed_configuration(a) -> int:
         for layers in (1, 2, 3, 4):
             r = encode(cloud, EncodeOptions(bits=a.fixed_bits, layers=layers, first_layer=a.first_layer),
                        importance=imp)
-            c = r.report["components"]
+            c = r.report.components
             base = base or len(r.data)
             rel = "—" if layers == 1 else f"{100 * (len(r.data) / base - 1):+.2f} %"
-            ends = ", ".join(f"{x['decodable_fraction']:.3f}" for x in r.report["layers"])
+            ends = ", ".join(f"{x['decodable_fraction']:.3f}" for x in r.report.layers)
             print(f"| {scene} | {layers} | {len(r.data):,} | {rel} | {c['geometry']:,} | {c['raht_bytes']:,} | "
                   f"{c['scale_bytes']:,} | {ends} |", flush=True)
     return 0
@@ -190,13 +190,13 @@ def main(argv=None):
                 print(f"   {key}: {len(r.data):,} B, test PSNR {ev['psnr']:.2f} dB, {secs:.0f} s", file=sys.stderr)
             lay, ev_l, secs_l = runs["layered"]
             layer_psnr = []
-            for u, row in zip(iter_layers(lay.data), lay.report["layers"]):
+            for u, row in zip(iter_layers(lay.data), lay.report.layers):
                 e = evaluate(refs, u.cloud, cams)
                 layer_psnr.append({"layer": u.layer, "gaussians": len(u.cloud), "decodable_at": row["decodable_at"],
                                    "fraction": row["decodable_at"] / len(lay.data), "psnr": e["psnr"], "ssim": e["ssim"]})
             if prior is None:
                 single = {"single_bytes": len(runs["single"][0].data), "single_psnr": runs["single"][1]["psnr"],
-                          "single_ssim": runs["single"][1]["ssim"], "single_reserve": runs["single"][0].report["reserve"],
+                          "single_ssim": runs["single"][1]["ssim"], "single_reserve": runs["single"][0].report.reserve,
                           "single95_bytes": len(runs["single95"][0].data), "single95_psnr": runs["single95"][1]["psnr"]}
             else:
                 single = {k: prior[k] for k in ("single_bytes", "single_psnr", "single_ssim", "single_reserve",
@@ -207,7 +207,7 @@ def main(argv=None):
             row = {"scene": scene, "variant": variant, "ratio": a.ratio, "layers": a.layers,
                    "first_layer": a.first_layer, "target": target, "gaussians": len(lay.cloud),
                    "layered_bytes": len(lay.data), "layered_psnr": ev_l["psnr"], "layered_ssim": ev_l["ssim"],
-                   "layered_reserve": lay.report["reserve"], **single, "overhead": ovh, "overhead_how": how,
+                   "layered_reserve": lay.report.reserve, **single, "overhead": ovh, "overhead_how": how,
                    "layer0_fraction": layer_psnr[0]["fraction"], "layer_psnr": layer_psnr,
                    "decode_s": t_whole, "stream_decode_s": t_stream,
                    "stream_vs_whole": t_stream / t_whole, "search_s": secs_l}

@@ -70,7 +70,7 @@ def run_case(ply: Path, noised: bool, mode: str, args) -> dict:
         target, kw = args
         target = int(ply.stat().st_size / target) if target < 1000 else int(target)
         res = encode_to_budget(cloud, target, options=SearchOptions(**kw))
-    report = {k: v for k, v in res.report.items() if k not in _TIMINGS}
+    report = {k: v for k, v in res.report.to_json().items() if k not in _TIMINGS}
     return {"bytes": len(res.data), "sha256": hashlib.sha256(res.data).hexdigest()[:16],
             "report": _digest(report)}
 

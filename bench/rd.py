@@ -580,12 +580,12 @@ def main(argv=None):
                 add_row({"codec": "gsz", "budget": label, "target": target, "bytes": len(res.data),
                          "psnr": ev["psnr"], "ssim": ev["ssim"], "views": [v["psnr"] for v in ev["views"]],
                          "encode_s": t_imp + t_search, "decode_s": t_dec, "importance_s": t_imp,
-                         "search_s": t_search, "reserve": rep.get("reserve"), "sh_keep": rep.get("sh_keep"),
-                         "depth": rep.get("depth"), "codebook_size": rep.get("codebook_size"),
-                         "candidates": len(rep.get("candidates", [])), "screened": len(rep.get("screened", [])),
-                         "rounds": len(rep.get("calibration", [])), "cpu_s": rep.get("cpu_seconds"),
-                         "load": [load0, os.getloadavg()[0]], "note": rep.get("note"),
-                         "stage_seconds": rep.get("seconds")})
+                         "search_s": t_search, "reserve": rep.reserve, "sh_keep": rep.sh_keep,
+                         "depth": rep.depth, "codebook_size": rep.codebook_size,
+                         "candidates": len(rep.search.candidates), "screened": len(rep.search.screened),
+                         "rounds": len(rep.search.calibration), "cpu_s": rep.cpu_seconds,
+                         "load": [load0, os.getloadavg()[0]], "note": rep.search.note,
+                         "stage_seconds": rep.seconds})
 
     state["meta"]["finished"] = time.strftime("%Y-%m-%d %H:%M:%S")
     save(state, out)

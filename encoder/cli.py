@@ -8,6 +8,7 @@ import os
 import sys
 
 from ..decoder.errors import GszError, GszUsageError
+from .encode_report import EncodeReport, WrittenFile
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -111,12 +112,13 @@ def _read_inputs(a, prog):
     return cloud, cameras
 
 
-def _run_fixed(a, prog) -> dict:
+def _run_fixed(a, prog) -> EncodeReport:
     from .pipeline import EncodeOptions, encode
     opts = EncodeOptions(reserve=EncodeOptions.reserve if a.reserve is None else a.reserve,
                          bits=EncodeOptions.bits if a.bits is None else a.bits,
-                         codebook=EncodeOptions.codebook if a.codebook is None else a.codebook, keep=a.keep, blocks=a.blocks, depth=a.depth,
-                         rel_error=a.rel_error, beta=a.beta, sh_bits=a.sh_bits, sh_classes=a.sh_classes or 1,
+                         codebook=EncodeOptions.codebook if a.codebook is None else a.codebook,
+                         keep=a.keep, blocks=a.blocks, depth=a.depth, rel_error=a.rel_error, beta=a.beta,
+                         sh_bits=a.sh_bits, sh_classes=a.sh_classes or EncodeOptions.sh_classes,
                          train_views=a.train_views, importance_width=a.importance_width,
                          layers=a.layers, first_layer=a.first_layer, seed=a.seed,
                          tile_gaussians=a.tile_gaussians or None, executor=a.executor,
@@ -124,12 +126,12 @@ def _run_fixed(a, prog) -> dict:
     _check_paths(a)                           # after the options: their errors come first
     cloud, cameras = _read_inputs(a, prog)
     result = encode(cloud, opts, cameras=cameras, progress=prog, source=a.input)
-    r = _finish(a, result, {})
+    r = _finish(a, result)
     _write_report(a, r, result.data)
     return r
 
 
-def _run_search(a, prog) -> dict:
+def _run_search(a, prog) -> EncodeReport:
     from .search import SearchOptions, encode_to_budget
     from .sizes import budget_from_args, format_size, size_style
 
@@ -164,43 +166,44 @@ def _run_search(a, prog) -> dict:
                           codebook=a.codebook)
     result = encode_to_budget(cloud, payload_target, options=sopts, cameras=cameras, progress=prog,
                               source=a.input)
-    r = _finish(a, result, {"target": format_size(target, style)})
-    if payload_target != target:
-        r.update(target_bytes=target, gsz_target_bytes=payload_target)
+    r = _finish(a, result, target=format_size(target, style))
+    if payload_target != target:              # the budget the user gave is the .glb's
+        r.target_bytes, r.written.gsz_target_bytes = target, payload_target
     _write_report(a, r, result.data)
-    prog.log(f"{100 * r['bytes'] / target:.2f} % of the {r['target']} target; reserve {r['reserve']}, "
-             f"codebook {r['codebook_size']}, keep {r['sh_keep']}, train PSNR {r['train_psnr']:.2f} dB")
+    prog.log(f"{100 * r.bytes / target:.2f} % of the {r.written.target} target; reserve {r.reserve}, "
+             f"codebook {r.codebook_size}, keep {r.sh_keep}, train PSNR {r.search.train_psnr:.2f} dB")
     return r
 
 
-def _write_report(a, r: dict, data: bytes) -> None:
+def _write_report(a, r: EncodeReport, data: bytes) -> None:
     if a.report:
         from .report import write_report
         files = write_report(r, a.report, data)
-        r["report_files"] = files            # in the printed JSON; report.json holds the rest
+        r.written.report_files = files       # in the printed JSON; report.json holds the rest
 
 
 def _glb_output(a) -> bool:
     return a.output.lower().endswith(".glb")
 
 
-def _finish(a, result, extra: dict) -> dict:
+def _finish(a, result, target: str | None = None) -> EncodeReport:
     """Write the file atomically, or to stdout for ``-o -`` (a .glb around the .gsz for OUT.glb),
-    and complete the report; ``bytes`` is the written file's size, ``gsz_bytes`` the .gsz
-    payload's."""
+    and complete the report (``target``: the size target as the user's units show it);
+    ``bytes`` becomes the written file's size, ``written.gsz_bytes`` is the .gsz payload's."""
     from ..decoder.cli_common import write_output
     data = result.data
     r = result.report
-    r["gsz_bytes"] = len(data)
+    gsz_bytes, container = len(data), None
     if _glb_output(a):
         from ..decoder.gltf import gsz_glb_bytes
         data = gsz_glb_bytes(data)
-        r["container"] = "glb"
-    r["bytes"] = len(data)
+        container = "glb"
+    r.bytes = len(data)
     write_output(a.output, data)              # a GszError naming a.output when it fails
     in_bytes = a.input_bytes
     base = getattr(a, "ratio_bytes", None) or in_bytes
-    r.update(input=a.input, output=a.output, input_bytes=in_bytes, ratio=base / r["bytes"], **extra)
+    r.written = WrittenFile(input=a.input, output=a.output, input_bytes=in_bytes, ratio=base / r.bytes,
+                            gsz_bytes=gsz_bytes, container=container, target=target)
     return r
 
 
@@ -282,7 +285,7 @@ def _input_warnings_as_lines(verbosity: int):
 
 
 def main(argv=None) -> int:
-    from ..decoder.cli_common import EXIT_INTERRUPTED, fail, missing_extra
+    from ..decoder.cli_common import EXIT_INTERRUPTED, STDOUT, fail, missing_extra
     try:
         a = build_parser().parse_args(argv)
         from ..decoder.io_util import sigterm_as_interrupt
@@ -299,18 +302,18 @@ def main(argv=None) -> int:
         print("gsz-encode: interrupted; no output written", file=sys.stderr)
         return EXIT_INTERRUPTED
     if a.json:
-        print(json.dumps(r, indent=1, default=float))
+        print(json.dumps(r.to_json(), indent=1, default=float))
     else:
-        where = "stdout" if a.output == "-" else a.output
-        prog.log(f"wrote {where}: {r['bytes']:,} bytes ({r['ratio']:.1f}x smaller than the PLY, "
-                 f"{r['bytes_per_gaussian']:.2f} B/Gaussian, {r['voxels']:,} Gaussians)")
-        prog.log("  " + ", ".join(f"{k} {v:,}" for k, v in r["components"].items()))
-        if len(r.get("layers", [])) > 1:
+        where = "stdout" if a.output == STDOUT else a.output
+        prog.log(f"wrote {where}: {r.bytes:,} bytes ({r.written.ratio:.1f}x smaller than the PLY, "
+                 f"{r.bytes_per_gaussian:.2f} B/Gaussian, {r.voxels:,} Gaussians)")
+        prog.log("  " + ", ".join(f"{k} {v:,}" for k, v in r.components.items()))
+        if len(r.layers) > 1:
             prog.log("  layers: " + ", ".join(
                 f"{x['layer']}: {x['cumulative_gaussians']:,} Gaussians after {100 * x['decodable_fraction']:.1f} %"
-                for x in r["layers"]))
-        if r.get("report_files"):
-            prog.log(f"  report: {', '.join(r['report_files'])}")
+                for x in r.layers))
+        if r.written.report_files:
+            prog.log(f"  report: {', '.join(r.written.report_files)}")
     return 0
 
 

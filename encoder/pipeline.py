@@ -1,6 +1,6 @@
 """The MesonGS++ encode pipeline at an explicit configuration.
 
-    encode(cloud, EncodeOptions(reserve=0.8, bits=12)) -> EncodeResult(data=b"...", report={...})
+    encode(cloud, EncodeOptions(reserve=0.8, bits=12)) -> EncodeResult(data=b"...", report=EncodeReport)
 
 Stages (each timed, progress on stderr):
  1. importance   I = I_d * (V / V_ref)^beta over the train views (reference renderer)
@@ -34,6 +34,7 @@ from ..decoder.rotation import quaternion_to_euler
 from ..decoder.sh import MAX_CODEBOOK, MAX_SH_CLASSES, class_order
 
 from .cameras import DEFAULT_VIEW_WIDTH
+from .encode_report import MODE_FIXED, EncodeReport, FixedDetails
 from .geometry import write_geometry
 from .groups import write_channel_set
 from .progress import Progress
@@ -228,7 +229,7 @@ class EncodeOptions(SceneOptions):
 class EncodeResult:
     data: bytes
     cloud: GaussianCloud          # what the decoder will reconstruct (for reports / evaluation)
-    report: dict = field(default_factory=dict)
+    report: EncodeReport          # sizes, choices and costs (the same shape for both modes)
 
 
 def _top_k_mask(importance: np.ndarray, k: int) -> np.ndarray:
@@ -938,7 +939,7 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
     progress = progress or Progress(quiet=True)
     cloud.validate()
     n_in = len(cloud)
-    t_start = time.perf_counter()
+    t_start, c_start = time.perf_counter(), time.process_time()
     if importance is not None:
         importance = np.asarray(importance, np.float64)
         if importance.shape != (n_in,) or not np.all(np.isfinite(importance)):
@@ -951,15 +952,16 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
     from .executor import make_executor
     executor = make_executor(opts.executor, opts.workers)
     try:
-        result = _encode_stage(cloud, opts, importance, executor, progress, t_start)
+        result = _encode_stage(cloud, opts, importance, executor, progress, (t_start, c_start))
     finally:
         executor.close()
     if fixes:                  # only then: the reports of clean scenes stay as they were
-        result.report["input_fixes"] = fixes_report(fixes)
+        result.report.input_fixes = fixes_report(fixes)
     return result
 
 
-def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, t_start) -> EncodeResult:
+def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, starts) -> EncodeResult:
+    """The encode after importance; ``starts``: (perf_counter, process_time) at its beginning."""
     n_in = len(cloud)
     stage = prepare_stage(cloud, importance, opts.reserve, depth=opts.depth,
                           rel_error=opts.rel_error, layers=opts.layers, first_layer=opts.first_layer,
@@ -1000,15 +1002,14 @@ def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, t_
         sizes.update({f"sh_{k}": v for k, v in sh_stats.items() if k.endswith("bytes")})
     sizes["container_overhead"] = len(data) - sum(sizes[k] for k in ("geometry", "attributes", "metadata")) \
         - sizes.get("sh", 0)
-    report = {
-        "bytes": len(data), "input_gaussians": n_in, "kept_after_prune": len(stage.vox.index_of_point),
-        "voxels": m, "bytes_per_gaussian": len(data) / m, "depth": stage.depth,
-        "merged_fraction": stage.vox.merged_fraction, "sh_degree": cloud.sh_degree, "components": sizes,
-        "sh": {k: v for k, v in sh_stats.items() if not k.endswith("bytes")},
-        "seconds": dict(progress.seconds), "total_seconds": time.perf_counter() - t_start,
-        "memory": progress.memory_report(),
-        "options": options_json, "layers": layer_report(data),
-    }
+    report = EncodeReport(
+        mode=MODE_FIXED, bytes=len(data), input_gaussians=n_in, voxels=m, bytes_per_gaussian=len(data) / m,
+        depth=stage.depth, sh_degree=cloud.sh_degree, reserve=opts.reserve,
+        codebook_size=sh_stats.get("codebook_size", 0), sh_keep=sh_stats.get("kept", 0), components=sizes,
+        layers=layer_report(data), seconds=dict(progress.seconds), total_seconds=time.perf_counter() - starts[0],
+        memory=progress.memory_report(), cpu_seconds=time.process_time() - starts[1],
+        fixed=FixedDetails(kept_after_prune=len(stage.vox.index_of_point),
+                           merged_fraction=stage.vox.merged_fraction, options=options_json))
     return EncodeResult(data=data, cloud=out_cloud, report=report)
 
 

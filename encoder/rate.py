@@ -45,11 +45,12 @@ from ..decoder import native
 from ..decoder.errors import GszError
 from ..decoder.quant import MAX_BITS, MIN_BITS
 from ..decoder.rans import MAX_PRECISION
+from .rans import COARSE_BINSHIFTS
 
 __all__ = ["rate_matrix", "rate_from_stats", "group_stats", "channel_set_overhead_bits",
            "RateModelError", "TABLE_COEFFS"]
 
-MAX_BINSHIFT = 5             # gsz.encoder.rans.COARSE_BINSHIFTS
+MAX_BINSHIFT = max(COARSE_BINSHIFTS)   # the coder's largest bin shift (csrc/stages.h RATE_SHIFTS mirrors it)
 # Table bits of one group's model, linear in its serialised content: COARSE = coarse + values * K
 # + gap_bits * sum log2(1 + value step) + long_gaps * #(steps > 128) (+ level_bits * level
 # steps, fitted to 0); SINGLE and LAPLACE a constant.  Fitted (non-negative least squares on the

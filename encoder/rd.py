@@ -53,7 +53,7 @@ def rd_points(cloud, targets: list, cameras, *, background=(0.0, 0.0, 0.0), opti
         ev = evaluate(refs, res.cloud, cameras, background=background)
         points.append({"target": label, "target_bytes": int(target), "bytes": len(res.data),
                        "data": res.data, "psnr": ev["psnr"], "ssim": ev["ssim"], "views": ev["views"],
-                       "reserve": res.report.get("reserve"), "voxels": res.report.get("voxels"),
+                       "reserve": res.report.reserve, "voxels": res.report.voxels,
                        "encode_seconds": round(secs, 2)})
         if report:
             report(f"{label}: {len(res.data):,} bytes, PSNR {ev['psnr']:.2f} dB, SSIM {ev['ssim']:.4f} "

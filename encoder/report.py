@@ -18,6 +18,7 @@ import os
 import numpy as np
 
 from ..decoder.errors import GszError
+from .encode_report import EncodeReport
 
 #: colour map of the chart: perceptually ordered, readable in grey
 CMAP = "viridis"
@@ -35,7 +36,7 @@ def require_matplotlib(what: str = "--report") -> None:
 
 def file_bits(data: bytes) -> dict:
     """The group bit-widths stored in a .gsz file, in the form of the size search's report
-    (``report["bits"]``): ``raht`` [7, sum B] and ``scales`` [3, sum B] with every part's blocks
+    (``EncodeReport.bits``): ``raht`` [7, sum B] and ``scales`` [3, sum B] with every part's blocks
     side by side, ``sh_kept`` per part [D, B] (None where a part keeps no exact vector), ``sh``
     the codebook's width (None without SH), plus ``parts`` (layer, tile, blocks) per part."""
     from ..decoder.bytesio import Reader
@@ -61,7 +62,7 @@ def file_bits(data: bytes) -> dict:
             r.bytes(8 * r.u8())     # the RAHT DC values
             raht.append(channel_set(r))
             scales.append(channel_set(r))
-            parts.append({"layer": (ch.flags >> 8) & 0xFF, "tile": ch.flags >> 16,
+            parts.append({"layer": ch.layer, "tile": ch.tile,
                           "blocks": int(raht[-1].shape[1])})
             kept.append(None)
         elif ch.type == CHUNK_SHVQ:
@@ -78,8 +79,8 @@ def file_bits(data: bytes) -> dict:
 
 
 def bit_matrix(bits: dict) -> tuple[np.ndarray, list[str]]:
-    """(widths [rows, blocks] float with NaN where a row has no group, row labels) of a
-    ``report["bits"]`` dict: the attribute channels, then one row per kept SH component."""
+    """(widths [rows, blocks] float with NaN where a row has no group, row labels) of an
+    ``EncodeReport.bits`` dict: the attribute channels, then one row per kept SH component."""
     rows = [np.asarray(b, float) for b in bits["raht"]] + [np.asarray(b, float) for b in bits["scales"]]
     labels = list(bits["raht_channels"]) + [f"scale_{i}" if not str(n).startswith("scale") else str(n)
                                             for i, n in enumerate(bits["scale_channels"])]
@@ -121,51 +122,46 @@ def bits_figure(bits: dict, title: str):
     return fig
 
 
-def _title(report: dict, data: bytes | None) -> str:
-    name = os.path.basename(str(report.get("output") or "")) or "file"
-    size = report.get("bytes", len(data) if data is not None else 0)
+def _title(report: EncodeReport) -> str:
+    written = report.written
+    name = os.path.basename(written.output if written else "") or "file"
+    size = report.bytes
     line = f"{name}: {size:,} bytes"
-    if report.get("target_bytes") or report.get("target"):
-        target = report.get("target_bytes") or report.get("target")
-        line += f" (budget {report.get('target') or f'{target:,} bytes'}"
-        if report.get("target_bytes"):
-            line += f", {100 * size / report['target_bytes']:.2f} %"
-        line += ")"
+    if report.target_bytes:
+        label = (written.target if written else None) or f"{report.target_bytes:,} bytes"
+        line += f" (budget {label}, {100 * size / report.target_bytes:.2f} %)"
     else:
         line += " (fixed configuration)"
-    extra = []
-    if "reserve" in report or "options" in report:
-        opts = report.get("options", {})
-        extra.append(f"reserve {report.get('reserve', opts.get('reserve'))}")
-    if report.get("voxels"):
-        extra.append(f"{report['voxels']:,} Gaussians")
-    sh = (report.get("bits") or {}).get("sh")
+    extra = [f"reserve {report.reserve}"]
+    if report.voxels:
+        extra.append(f"{report.voxels:,} Gaussians")
+    sh = (report.bits or {}).get("sh")
     if sh:
         extra.append(f"SH codebook at {sh} bits")
-    return line + ("\n" + ", ".join(extra) if extra else "")
+    return line + "\n" + ", ".join(extra)
 
 
-def write_report(report: dict, folder, data: bytes | None = None) -> list[str]:
-    """Write ``bits.png`` (the bit-width chart) and ``report.json`` into ``folder``; the widths
-    come from ``report["bits"]`` (a size search's) or else from the file ``data``.  Returns the
-    two paths."""
+def write_report(report: EncodeReport, folder, data: bytes | None = None) -> list[str]:
+    """Write ``bits.png`` (the bit-width chart) and ``report.json`` (``report.to_json()``) into
+    ``folder``; the widths come from ``report.bits`` (a size search's) or else from the file
+    ``data`` (then kept in ``report.bits``).  Returns the two paths."""
     from ..decoder.io_util import atomic_write
     require_matplotlib()
-    if "bits" not in report:
+    if report.bits is None:
         if data is None:
             raise GszError("write_report: the report has no bit-widths and no file was given")
-        report["bits"] = file_bits(data)
+        report.bits = file_bits(data)
     os.makedirs(folder, exist_ok=True)
     buf = io.BytesIO()
     # no Software/date metadata: the same encode draws the same bytes
-    bits_figure(report["bits"], _title(report, data)).savefig(buf, format="png", metadata={"Software": None})
+    bits_figure(report.bits, _title(report)).savefig(buf, format="png", metadata={"Software": None})
     png = os.path.join(folder, "bits.png")
     atomic_write(png, buf.getvalue())
     js = os.path.join(folder, "report.json")
-    atomic_write(js, json.dumps(report, indent=1, default=float).encode())
+    atomic_write(js, json.dumps(report.to_json(), indent=1, default=float).encode())
     return [png, js]
 
 
-def write_search_report(report: dict, folder) -> list[str]:
-    """:func:`write_report` of a size search's report (its ``bits`` entry)."""
+def write_search_report(report: EncodeReport, folder) -> list[str]:
+    """:func:`write_report` of a size search's report (its ``bits``)."""
     return write_report(report, folder)

@@ -19,7 +19,7 @@ bounds what a renderer cannot show differently anyway and drops centres far outs
   depth <= 21 (one Gaussian at 1e6 collapsed 600 others into 2 voxels).
 
 Each fix is reported (one :class:`GszInputWarning` naming the source, the property, the count and
-the extreme value; ``report["input_fixes"]``, present only when something was fixed).  No real scene measured comes near a bound (the
+the extreme value; ``EncodeReport.input_fixes``, present only when something was fixed).  No real scene measured comes near a bound (the
 six scenes of ../shared/data and both test samples: opacity logits within ±6.3, f_dc -3.1..11.2,
 f_rest ±1.1, log-scales 13.7 to 1.6 below ln D, every centre within 0.7 diagonals of the robust
 box), so their encodes do not change.

@@ -31,8 +31,8 @@ def test_12_bit_attribute_errors_are_small(name):
     res = encoded(name, None, bits=12)
     out = res.cloud
     rep = res.report
-    assert rep["voxels"] == len(out) <= len(src)
-    assert rep["merged_fraction"] < 0.02
+    assert rep.voxels == len(out) <= len(src)
+    assert rep.fixed.merged_fraction < 0.02
     # nearest input Gaussian of each output one (brute force is fine at this size)
     from scipy.spatial import cKDTree
     dist, nn = cKDTree(src.positions).query(out.positions)
@@ -77,7 +77,7 @@ def test_file_is_much_smaller_than_ply():
 
 def test_sh_keep_reproduces_kept_vectors_closely():
     res = encoded("sh3", 4000, bits=12, keep=400)
-    assert res.report["sh"]["kept"] == 400
+    assert res.report.sh_keep == 400
     out = decode(res.data)
     assert out.sh_rest.shape == (len(out), 15, 3)
     assert out.equals(res.cloud)
@@ -100,7 +100,7 @@ def test_default_blocks_follow_the_bit_width(name):
 
     def run(bits, blocks=None):
         r = encoded(name, 6000, bits=bits, blocks=blocks)
-        return len(r.data), evaluate(refs, decode(r.data), cams)["psnr"], r.report["options"]["blocks"]
+        return len(r.data), evaluate(refs, decode(r.data), cams)["psnr"], r.report.fixed.options["blocks"]
     s10, p10, k10 = run(10)
     s10_80, _, _ = run(10, 80)
     s8, p8, k8 = run(8)

@@ -23,7 +23,7 @@ def clean():
     with warnings.catch_warnings():
         warnings.simplefilter("error", GszInputWarning)      # a real sample needs no fix
         res = encode(c, EncodeOptions(**OPTS), source="plant.ply")
-    assert "input_fixes" not in res.report
+    assert res.report.input_fixes is None
     return c, decode(res.data)
 
 
@@ -54,7 +54,7 @@ def test_one_absurd_attribute_is_clamped_and_the_rest_keep_their_errors(clean, f
     # one warning line naming the file, the property, the count and the value
     assert len(said) == 1 and said[0].startswith("plant.ply: 1 Gaussian(s) with property ") and f"'{prop}'" in said[0]
     assert f"{value:.4g}" in said[0] and f"first at vertex {k}" in said[0]
-    fix, = res.report["input_fixes"]
+    fix, = res.report.input_fixes
     assert (fix["prop"], fix["count"], fix["action"], fix["first"]) == (prop, 1, "clamped", k)
     # the grid and order are unchanged (no position moved): compare Gaussian by Gaussian
     np.testing.assert_array_equal(got.positions, want.positions)
@@ -89,7 +89,7 @@ def test_one_gaussian_a_million_units_away_is_dropped_not_the_scene(clean):
     res, got, said = _encode(_with(c, "positions", k, [1e6, 0.0, 0.0]))
     assert len(said) == 1 and said[0].startswith("plant.ply: 1 Gaussian(s) more than ") and "dropped" in said[0]
     assert f"first at vertex {k}" in said[0]
-    fix, = res.report["input_fixes"]
+    fix, = res.report.input_fixes
     assert (fix["action"], fix["count"], fix["first"]) == ("dropped", 1, k)
     # before: the cube spanned 1e6 and 600 Gaussians collapsed into 2 voxels
     assert len(got) >= len(want) - 2

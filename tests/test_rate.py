@@ -210,3 +210,13 @@ def test_native_group_stats_rejects_inconsistent_arguments():
         fn(srt, 3, tab, 1, 16, 0.03125, 0.99, *outs[:6], np.zeros((2, 16, 4)))
     with pytest.raises(TypeError):
         fn(srt.astype(np.float64), 3, tab, 1, 16, 0.03125, 0.99, *outs)
+
+
+def test_native_rate_shifts_mirror_the_coders_bin_shifts():
+    # C cannot import the Python constant: the header's copy must follow the coder's shifts
+    import re
+    from conftest import ROOT
+    from gsz.encoder.rans import COARSE_BINSHIFTS
+    from gsz.encoder.rate import MAX_BINSHIFT
+    header = (ROOT / "decoder" / "csrc" / "stages.h").read_text()
+    assert int(re.search(r"#define RATE_SHIFTS (\d+)", header).group(1)) == MAX_BINSHIFT == max(COARSE_BINSHIFTS)

@@ -35,14 +35,14 @@ def _search(name, n, target, imp_cache):
 def test_budget_is_hit_from_below(name, n, target, imp_cache):
     c, res = _search(name, n, target, imp_cache)
     assert len(res.data) <= target
-    assert len(res.data) >= 0.995 * target, res.report["calibration"]
+    assert len(res.data) >= 0.995 * target, res.report.search.calibration
     out = decode(res.data)
     assert out.equals(res.cloud)
     r = res.report
-    assert r["bytes"] == len(res.data) and r["target_bytes"] == target
-    assert len(r["bits"]["raht"]) == 7 and len(r["bits"]["scales"]) == 3
-    assert all(1 <= b <= 16 for row in r["bits"]["raht"] + r["bits"]["scales"] for b in row)
-    assert r["calibration"] and all("predicted_bytes" in x and "actual_bytes" in x for x in r["calibration"])
+    assert r.bytes == len(res.data) and r.target_bytes == target
+    assert len(r.bits["raht"]) == 7 and len(r.bits["scales"]) == 3
+    assert all(1 <= b <= 16 for row in r.bits["raht"] + r.bits["scales"] for b in row)
+    assert r.search.calibration and all("predicted_bytes" in x and "actual_bytes" in x for x in r.search.calibration)
 
 
 def test_candidates_are_compared_on_the_callers_train_cameras(imp_cache):
@@ -54,11 +54,11 @@ def test_candidates_are_compared_on_the_callers_train_cameras(imp_cache):
             for i, cam in enumerate(load_cameras(None, c, n_train=12, n_test=1, width=160).train)]
     res = encode_to_budget(c, 60_000, options=FAST, cameras=mine)
     r = res.report
-    assert r["eval_views"] == ["mine_00", "mine_06", "mine_11"]
-    assert r["eval_size"] == [96, 72]
+    assert r.search.eval_views == ["mine_00", "mine_06", "mine_11"]
+    assert r.search.eval_size == [96, 72]
     assert len(res.data) <= 60_000
     gen = _search("sh0", 6000, 60_000, imp_cache)[1].report
-    assert gen["eval_size"] == [96, 72] and not any(n.startswith("mine") for n in gen["eval_views"])
+    assert gen.search.eval_size == [96, 72] and not any(n.startswith("mine") for n in gen.search.eval_views)
 
 
 def test_unreachable_budget_names_the_minimum(imp_cache):
@@ -130,10 +130,10 @@ def test_budget_above_full_quality_buys_a_deeper_octree(imp_cache):
     c, res = _search("sh3", 3000, 2_000_000, imp_cache)
     r = res.report
     assert len(res.data) <= 2_000_000
-    depths = {cand["depth"] for cand in r["candidates"]}
+    depths = {cand["depth"] for cand in r.search.candidates}
     assert d0 in depths and max(depths) > d0
-    at_d0 = max(cand["train_psnr"] for cand in r["candidates"] if cand["depth"] == d0)
-    assert r["depth"] > d0 and r["train_psnr"] > at_d0
+    at_d0 = max(cand["train_psnr"] for cand in r.search.candidates if cand["depth"] == d0)
+    assert r.depth > d0 and r.search.train_psnr > at_d0
     assert decode(res.data).equals(res.cloud)
 
 
@@ -151,9 +151,9 @@ def test_budget_above_the_8_bit_sh_ceiling_is_filled(tmp_path):
     target = 250_000                  # the 16-bit ceiling of this sample is ~345 kB
     res = encode_to_budget(c, target, options=FAST, importance=imp)
     r = res.report
-    assert 0.995 * target <= len(res.data) <= target, r["calibration"]
-    assert r["sh_keep"] == r["voxels"]
-    kept = [np.asarray(b) for b in r["bits"]["sh_kept"] if b is not None]
+    assert 0.995 * target <= len(res.data) <= target, r.search.calibration
+    assert r.sh_keep == r.voxels
+    kept = [np.asarray(b) for b in r.bits["sh_kept"] if b is not None]
     assert kept and all(b.min() >= SH_BITS and b.max() <= 16 for b in kept)
     assert np.mean(np.concatenate([b.ravel() for b in kept])) > SH_BITS
     assert decode(res.data).equals(res.cloud)
@@ -178,11 +178,11 @@ def test_screening_and_overlap_never_change_the_file(imp_cache):
     b = encode_to_budget(c, 60_000, options=replace(opts, screen=False, overlap=False),
                          importance=imp_cache[key])
     assert a.data == b.data
-    assert b.report["screened"] == []
+    assert b.report.search.screened == []
     # a skipped tau's bound is no better than the best candidate then, hence than the winner
-    for s in a.report["screened"]:
+    for s in a.report.search.screened:
         if s["skipped"]:
-            assert s["bound_psnr"] <= s["best_psnr"] <= a.report["train_psnr"]
+            assert s["bound_psnr"] <= s["best_psnr"] <= a.report.search.train_psnr
 
 
 def test_dc_colour_channels_render_independently():

@@ -25,8 +25,8 @@ def test_high_rate_uses_the_scalar_path_and_beats_the_codebook():
     target = 240_000
     scalar = _search(target)
     codebook = _search(target, sh_scalar=False, sh_classes=False)
-    assert scalar.report["sh_path"] == "scalar" and codebook.report["sh_path"] == "vq"
-    assert scalar.report["sh_keep"] == scalar.report["voxels"]          # every vector coded
+    assert scalar.report.search.sh_path == "scalar" and codebook.report.search.sh_path == "vq"
+    assert scalar.report.sh_keep == scalar.report.voxels          # every vector coded
     assert len(scalar.data) <= target and decode(scalar.data).equals(scalar.cloud)
     assert _test_psnr(scalar.cloud) > _test_psnr(codebook.cloud) + 1.0
 
@@ -38,8 +38,8 @@ def test_kept_vectors_in_importance_classes_beat_fixed_width_kept_vectors():
     target = 240_000
     classes = _search(target, sh_scalar=False)
     fixed = _search(target, sh_scalar=False, sh_classes=False)
-    assert classes.report["sh_path"] == "classes" and fixed.report["sh_path"] == "vq"
-    assert 0 < classes.report["sh_keep"] < classes.report["voxels"]
+    assert classes.report.search.sh_path == "classes" and fixed.report.search.sh_path == "vq"
+    assert 0 < classes.report.sh_keep < classes.report.voxels
     c = read_container(classes.data)
     assert c.header.version == (1, 3) and any(ch.type == b"SHCL" for ch in c.chunks)
     assert len(classes.data) <= target and decode(classes.data).equals(classes.cloud)
@@ -49,7 +49,7 @@ def test_kept_vectors_in_importance_classes_beat_fixed_width_kept_vectors():
 @pytest.mark.parametrize("target", [120_000])
 def test_low_rate_keeps_the_codebook(target):
     res = _search(target)
-    assert res.report["sh_path"] == "vq" and res.report["codebook_size"] > 1
+    assert res.report.search.sh_path == "vq" and res.report.codebook_size > 1
 
 
 def test_tiny_budget_drops_the_sh_rest_when_the_views_say_so():
@@ -58,8 +58,8 @@ def test_tiny_budget_drops_the_sh_rest_when_the_views_say_so():
     target = 40_000
     flat = _search(target)
     with_sh = _search(target, sh_drop=False)
-    assert flat.report["sh_degree"] == 0 and flat.cloud.sh_degree == 0
-    assert with_sh.report["sh_degree"] == 3 and with_sh.report["sh_keep"] == 0
+    assert flat.report.sh_degree == 0 and flat.cloud.sh_degree == 0
+    assert with_sh.report.sh_degree == 3 and with_sh.report.sh_keep == 0
     assert len(flat.data) <= target and decode(flat.data).equals(flat.cloud)
-    assert flat.report["train_psnr"] > with_sh.report["train_psnr"]
+    assert flat.report.search.train_psnr > with_sh.report.search.train_psnr
     assert _test_psnr(flat.cloud) > _test_psnr(with_sh.cloud) + 1.0

@@ -56,7 +56,7 @@ def test_layers_stream_in_order_and_match_single_shot(which, request):
     full = decode(data)
     same(full, res.cloud)                       # the encoder's prediction is what decoders produce
     table = inspect(data)["layers"]
-    n_layers = res.report["options"]["layers"]
+    n_layers = res.report.fixed.options["layers"]
     assert len(table) == n_layers
     for piece in (65536, 4096, 777):
         dec, ups = feed_in_pieces(data, piece)
@@ -75,7 +75,7 @@ def test_layers_stream_in_order_and_match_single_shot(which, request):
 
 
 def test_layer_shares_grow_geometrically(sh0_layered):
-    table = sh0_layered.report["layers"]
+    table = sh0_layered.report.layers
     counts = [r["gaussians"] for r in table]
     m = sum(counts)
     # cumulative shares 0.15 ** (3/3, 2/3, 1/3, 0): every layer multiplies the count by ~1.9
@@ -230,8 +230,8 @@ def test_size_search_over_all_layers_hits_the_budget():
         layers=3, train_views=4, importance_width=120, eval_views=2, eval_width=120, codebook=64,
         vq_iters=10, max_candidates=1, refine_steps=0))
     assert target * 0.995 <= len(r.data) <= target
-    assert len(r.report["layers"]) == 3
-    assert sum(r.report["layer_blocks"]) == len(r.report["bits"]["raht"][0])
+    assert len(r.report.layers) == 3
+    assert sum(r.report.search.layer_blocks) == len(r.report.bits["raht"][0])
     same(decode(r.data), r.cloud)
 
 
@@ -269,11 +269,11 @@ def test_search_resplits_layers_when_layer_zero_arrives_too_late():
     r = encode_to_budget(cloud, target, options=SearchOptions(
         layers=3, layer0_share=0.04, train_views=4, importance_width=120, eval_views=2, eval_width=120,
         codebook=64, vq_iters=10, max_candidates=1, refine_steps=0, max_extra_depth=0))
-    cands = r.report["candidates"]
+    cands = r.report.search.candidates
     late = [c for c in cands if c["layer0_too_late"]]
     assert late and late[0]["first_layer"] == 0.1
-    assert r.report["first_layer"] < 0.1
+    assert r.report.search.first_layer < 0.1
     assert target * 0.995 <= len(r.data) <= target
-    share = r.report["layers"][0]["decodable_fraction"]
+    share = r.report.layers[0]["decodable_fraction"]
     assert share < 0.07
     same(decode(r.data), r.cloud)

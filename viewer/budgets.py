@@ -47,7 +47,7 @@ class BudgetResult:
     target_bytes: int
     data: bytes = field(repr=False)     # the .gsz file
     cloud: object = field(repr=False)   # decoded GaussianCloud
-    report: dict = field(default_factory=dict, repr=False)
+    report: object = field(default=None, repr=False)   # the encode's EncodeReport (None: none given)
     seconds: float = 0.0
 
 
@@ -97,7 +97,7 @@ class BudgetJobs:
     """Background encodes of ``cloud`` at each ``(label, bytes)`` budget, in order.
 
     encode_fn   ``fn(cloud, target_bytes, *, progress=None, importance=None) -> result`` with
-                ``.data`` (bytes), ``.cloud`` (GaussianCloud), ``.report`` (dict); default
+                ``.data`` (bytes), ``.cloud`` (GaussianCloud), ``.report`` (EncodeReport); default
                 ``gsz.encoder.search.encode_to_budget``
     importance_fn ``fn(cloud) -> [N] float64`` computed once before the first budget
                 (default: the pipeline's train-view importance); None-returning or
@@ -189,7 +189,7 @@ class BudgetJobs:
                     kwargs["importance"] = importance
                 res = fn(self.cloud, nbytes, **kwargs)
                 item = BudgetResult(label, nbytes, bytes(res.data), res.cloud,
-                                    dict(getattr(res, "report", {}) or {}),
+                                    getattr(res, "report", None),
                                     time.perf_counter() - t0)
                 with self._lock:
                     self._results.append(item)

@@ -35,7 +35,7 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
                      progress: Progress | None = None, source: str | None = None) -> EncodeResult:
     """Encode ``cloud`` into at most ``target_bytes`` bytes with the best train-view fidelity.
 
-    Returns EncodeResult(data, cloud, report); report has target, actual bytes, the chosen
+    Returns EncodeResult(data, cloud, report); the EncodeReport has target, actual bytes, the chosen
     reserve/codebook/keep, the bit-width of every group, predicted vs actual size per calibration
     round, candidates with their train PSNR, and seconds per stage.  Raises BudgetError with the
     smallest reachable size when the budget cannot be met.  Absurd input values are bounded and
@@ -68,7 +68,7 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     finally:
         executor.close()
     if fixes:                  # only then: the reports of clean scenes stay as they were
-        result.report["input_fixes"] = fixes_report(fixes)
+        result.report.input_fixes = fixes_report(fixes)
     return result
 
 
@@ -375,8 +375,8 @@ class BudgetSearch:
         chosen.sort(key=lambda c: (-c.train_psnr, -c.reserve))
         from ...decoder import decode
         report = search_report(self, chosen[0])
-        if "note" in report:
-            self.progress.log(report["note"])
+        if report.search.note is not None:
+            self.progress.log(report.search.note)
         # the decoder is the truth of what the file holds (candidates released their scenes)
         return EncodeResult(data=chosen[0].data, cloud=decode(chosen[0].data), report=report)
 
