@@ -61,13 +61,11 @@ def read_sh_classes(data, num_kept: int) -> np.ndarray:
     return classes
 
 
-def _in_morton_order(kept: np.ndarray, classes: np.ndarray | None) -> np.ndarray:
-    """Kept vectors [D, P] as stored (class order when ``classes``) -> Morton order."""
-    if classes is None:
-        return kept
-    out = np.empty_like(kept)
-    out[:, class_order(classes)] = kept
-    return out
+def _stored_column(classes: np.ndarray | None, p: int) -> np.ndarray:
+    """[P] the stored column of each kept vector, in point order (class order when ``classes``)."""
+    col = np.empty(p, np.int64)
+    col[class_order(classes) if classes is not None else slice(None)] = np.arange(p)
+    return col
 
 
 def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None,
@@ -105,7 +103,7 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
     # the float32 output applies anyway): one contiguous gather, not two masked scatters
     rows = np.zeros((0, d), np.float32)
     if p:
-        kept = _in_morton_order(read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set"), classes)
+        kept = read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set")
         flags = decode_stream_single(r.blob(), m)
         r.check(bool(np.all((flags == 0) | (flags == 1))), "kept flag outside 0/1")
         kept_mask = flags.astype(bool)
@@ -116,12 +114,13 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
     r.expect_end()
     if idx.size:
         rows = np.concatenate([rows, codebook.T.astype(np.float32)])
+    # the row of [kept vectors as stored; codebook] each Gaussian takes (kept ones in point order)
     if p and idx.size:
         which = np.empty(m, np.int64)
-        which[kept_mask] = np.arange(p)
+        which[kept_mask] = _stored_column(classes, p)
         which[~kept_mask] = idx + p
     else:
-        which = idx + p if idx.size else np.arange(m)
+        which = idx + p if idx.size else _stored_column(classes, m)
     # rows as single 4*D-byte items: a 1-D take copies each row in one piece
     item = np.dtype((np.void, 4 * d))
     out = np.ascontiguousarray(rows).view(item)[:, 0].take(which).view(np.float32)
@@ -133,12 +132,13 @@ def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebo
     flags = None
     kept = np.zeros((d, 0), np.float64)
     if p:
-        kept = _in_morton_order(read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set"), classes)
+        kept = read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set")
         flags = decode_stream_single(r.blob(), m)
     idx = decode_stream_single(r.blob(), m - p)
     r.expect_end()
     cb = np.zeros((d, 0), np.float64) if codebook is None else codebook
     out = np.empty((m, d), np.float32)
     native.module().sh_assemble(flags, np.ascontiguousarray(kept, dtype=np.float64), idx,
-                                np.ascontiguousarray(cb, dtype=np.float64), out)
+                                np.ascontiguousarray(cb, dtype=np.float64), out,
+                                None if classes is None else class_order(classes).astype(np.int64))
     return out.reshape(m, k, 3)

@@ -302,7 +302,7 @@ def test_gsz_info_into_a_closed_pipe_exits_quietly(monkeypatch, tmp_path):
 @pytest.mark.parametrize("tool,module,fn", [("gsz-encode", "gsz.encoder.cli", "main"),
                                             ("gsz-decode", "gsz.decoder.cli", "decode_main"),
                                             ("gsz-info", "gsz.decoder.cli", "info_main"),
-                                            ("gsz-eval", "gsz.encoder.evaluate", "main"),
+                                            ("gsz-eval", "gsz.encoder.eval_cli", "main"),
                                             ("gsz-view", "gsz.viewer.cli", "main")])
 def test_every_tool_has_version_and_help_without_torch(tool, module, fn):
     """`--version` prints the package version; `--help` answers without importing torch (seconds)."""
@@ -446,7 +446,7 @@ def test_report_works_with_a_fixed_configuration(small_pair, tmp_path):
     assert len(np.unique(px.reshape(-1, 3), axis=0)) > 50     # a plot: axes, text, colour bar
 
 
-@pytest.mark.parametrize("tool,module", [("gsz-encode", "gsz.encoder.cli"), ("gsz-eval", "gsz.encoder.evaluate")])
+@pytest.mark.parametrize("tool,module", [("gsz-encode", "gsz.encoder.cli"), ("gsz-eval", "gsz.encoder.eval_cli")])
 def test_core_only_install_names_the_extra(small_pair, tmp_path, tool, module):
     """Without torch (a core-only install, simulated by an import blocker) the encoder tools
     say which extra to install, in one line, instead of a traceback."""

@@ -18,7 +18,7 @@ FAST = ["--width", "160", "--views", "2"]
 
 
 def run_eval(*args, check_rc=None):
-    proc = subprocess.run([sys.executable, "-m", "gsz.encoder.evaluate", *map(str, args)],
+    proc = subprocess.run([sys.executable, "-m", "gsz.encoder.eval_cli", *map(str, args)],
                           capture_output=True, text=True, cwd=ROOT, timeout=300)
     if check_rc is not None:
         assert proc.returncode == check_rc, proc.stderr

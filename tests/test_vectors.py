@@ -64,12 +64,18 @@ def test_halving_vector_needs_the_count_halving(monkeypatch):
 def test_sh_classes_vector_needs_the_class_order(monkeypatch):
     # the SHCL vector is only worth its bytes if a decoder that ignores the class order fails
     import gsz.decoder.sh as sh
-    from gsz.decoder import native
+    from gsz.decoder import GszFormatError, native
     data = (VEC / "sh1_jug_2k_shclasses.gsz").read_bytes()
     right = decode(data)
     with native.numpy_only():
         assert decode(data).equals(right)
-        monkeypatch.setattr(sh, "_in_morton_order", lambda kept, classes: kept)
+        monkeypatch.setattr(sh, "class_order", lambda classes: np.arange(len(classes)))
         wrong = decode(data)
     assert not np.array_equal(wrong.sh_rest, right.sh_rest)
     np.testing.assert_array_equal(wrong.positions, right.positions)
+    monkeypatch.undo()
+    if native.enabled():                        # the native path reads the same order, checked
+        assert decode(data).equals(right)
+        with pytest.raises(GszFormatError, match="order outside"):
+            native.module().sh_assemble(np.ones(2, np.int64), np.zeros((9, 2)), np.zeros(0, np.int64),
+                                        np.zeros((9, 0)), np.empty((2, 9), np.float32), np.array([0, 2]))

@@ -85,9 +85,9 @@ int all_finite_run(const uint32_t *p, int64_t n)
  * column by column, so one step reads D runs of SH_TILE values and writes SH_TILE rows. */
 #define SH_TILE 256
 
-int sh_assemble_run(const int64_t *flags, const double *kept, int64_t P, const int64_t *idx,
-                    int64_t nidx, const double *cb, int64_t K, int64_t M, int64_t D, float *out,
-                    Err *e)
+int sh_assemble_run(const int64_t *flags, const double *kept, const int64_t *order, int64_t P,
+                    const int64_t *idx, int64_t nidx, const double *cb, int64_t K, int64_t M,
+                    int64_t D, float *out, Err *e)
 {
     /* the codebook as rows (a codeword is one contiguous copy) and the output row of every kept
      * vector; the [D, P] kept set is then copied tile by tile (reading it row by row, one
@@ -114,6 +114,18 @@ int sh_assemble_run(const int64_t *flags, const double *kept, int64_t P, const i
         }
     }
     if (!rc && (kp != P || ip != nidx)) rc = fail(e, "SHVQ chunk: kept flags do not match the kept count");
+    if (!rc && order) {
+        /* stored vector t is the kept vector of point-order rank order[t] (SHCL, GSZ.md §8.1):
+         * its output row is at[order[t]], so the copy below stays one sequential read */
+        int64_t *by = malloc((size_t)(P ? P : 1) * sizeof *by);
+        if (!by) rc = fail_nomem(e);
+        for (int64_t t = 0; t < P && !rc; t++) {
+            if (order[t] < 0 || order[t] >= P) rc = fail(e, "sh_assemble: order outside 0..P-1");
+            else by[t] = at[order[t]];
+        }
+        if (!rc) memcpy(at, by, (size_t)P * sizeof *at);
+        free(by);
+    }
     if (!rc) {
         for (int64_t t0 = 0; t0 < P; t0 += SH_TILE) {
             const int64_t t1 = t0 + SH_TILE < P ? t0 + SH_TILE : P;

@@ -828,27 +828,30 @@ static PyObject *py_voxel_positions(PyObject *self, PyObject *args)
 }
 
 PyDoc_STRVAR(sh_assemble_doc,
-"sh_assemble(flags, kept, idx, codebook, out)\n\n"
+"sh_assemble(flags, kept, idx, codebook, out, order=None)\n\n"
 "SH rest vectors (GSZ.md §8) as float32 out [M, D]: Gaussian i takes the next kept vector\n"
 "(kept: float64 [D, P], channel-major) when flags[i] == 1 (flags: int64 [M], or None when\n"
-"P = 0), else codeword idx[next] of codebook (float64 [D, K]).  A flag other than 0/1, a\n"
+"P = 0), else codeword idx[next] of codebook (float64 [D, K]).  order (int64 [P], SHCL):\n"
+"stored kept vector t is the one of point-order rank order[t].  A flag other than 0/1, a\n"
 "kept count other than P or an index >= K raises GszFormatError.");
 
 static PyObject *py_sh_assemble(PyObject *self, PyObject *args)
 {
-    PyObject *o[5];
-    if (!PyArg_ParseTuple(args, "OOOOO", &o[0], &o[1], &o[2], &o[3], &o[4])) return NULL;
-    const int has_flags = o[0] != Py_None;
-    const Py_ssize_t isz[5] = {8, 8, 8, 8, 4};
-    const char kind[5] = {'i', 'f', 'i', 'f', 'f'};
-    Py_buffer v[5];
-    int nv = 0;
-    for (; nv < 5; nv++) {
-        if (nv == 0 && !has_flags) { memset(&v[0], 0, sizeof v[0]); continue; }
-        if (getbuf(o[nv], &v[nv], isz[nv], kind[nv], nv == 4, "sh_assemble argument") < 0) {
-            for (int i = has_flags ? 0 : 1; i < nv; i++) PyBuffer_Release(&v[i]);
-            return NULL;
-        }
+    PyObject *o[6] = {NULL, NULL, NULL, NULL, NULL, Py_None};
+    if (!PyArg_ParseTuple(args, "OOOOO|O", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5])) return NULL;
+    const int has_flags = o[0] != Py_None, has_order = o[5] != Py_None;
+    const Py_ssize_t isz[6] = {8, 8, 8, 8, 4, 8};
+    const char kind[6] = {'i', 'f', 'i', 'f', 'f', 'i'};
+    Py_buffer v[6];
+    memset(v, 0, sizeof v);
+    int nv = 0, ok = 1;
+    for (; nv < 6; nv++) {
+        if ((nv == 0 && !has_flags) || (nv == 5 && !has_order)) continue;
+        if (getbuf(o[nv], &v[nv], isz[nv], kind[nv], nv == 4, "sh_assemble argument") < 0) { ok = 0; break; }
+    }
+    if (!ok) {
+        for (int i = 0; i < nv; i++) if (v[i].obj) PyBuffer_Release(&v[i]);
+        return NULL;
     }
     const int64_t nidx = v[2].len / 8;
     const int64_t M = has_flags ? v[0].len / 8 : nidx;
@@ -856,14 +859,16 @@ static PyObject *py_sh_assemble(PyObject *self, PyObject *args)
     int64_t D = M ? (v[4].len / 4) / M : 0;
     if (M == 0 || v[4].len / 4 != D * M || D < 1 || v[1].len / 8 % D || v[3].len / 8 % D)
         fail(&e, "sh_assemble: inconsistent shapes");
+    if (!e.failed && has_order && v[5].len / 8 != v[1].len / 8 / D)
+        fail(&e, "sh_assemble: order length is not the kept count");
     if (!e.failed) {
         const int64_t P = v[1].len / 8 / D, K = v[3].len / 8 / D;
         Py_BEGIN_ALLOW_THREADS
-        sh_assemble_run(has_flags ? v[0].buf : NULL, v[1].buf, P, v[2].buf, nidx, v[3].buf, K, M,
-                        D, v[4].buf, &e);
+        sh_assemble_run(has_flags ? v[0].buf : NULL, v[1].buf, has_order ? v[5].buf : NULL, P, v[2].buf,
+                        nidx, v[3].buf, K, M, D, v[4].buf, &e);
         Py_END_ALLOW_THREADS
     }
-    for (int i = has_flags ? 0 : 1; i < 5; i++) PyBuffer_Release(&v[i]);
+    for (int i = 0; i < 6; i++) if (v[i].obj) PyBuffer_Release(&v[i]);
     if (e.failed) return raise_err(&e);
     Py_RETURN_NONE;
 }

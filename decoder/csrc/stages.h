@@ -35,9 +35,9 @@ int voxel_positions_run(const uint64_t *codes, int64_t M, int depth, const doubl
                         double side, float *out);
 int all_finite_run(const uint32_t *p, int64_t n);
 /* SH rest vectors (flags NULL when no vector is kept); GszFormatError on a bad flag / index. */
-int sh_assemble_run(const int64_t *flags, const double *kept, int64_t P, const int64_t *idx,
-                    int64_t nidx, const double *cb, int64_t K, int64_t M, int64_t D, float *out,
-                    Err *e);
+int sh_assemble_run(const int64_t *flags, const double *kept, const int64_t *order, int64_t P,
+                    const int64_t *idx, int64_t nidx, const double *cb, int64_t K, int64_t M,
+                    int64_t D, float *out, Err *e);
 
 /* ------------------------------------------------------------------ rate.c (encoder) */
 #define RATE_BITS 16                 /* gsz.decoder.quant.MAX_BITS: the out arrays' q axis */
