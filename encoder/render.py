@@ -59,6 +59,7 @@ import contextlib
 import math
 import os
 import threading
+import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -412,6 +413,25 @@ def _kernel_built(name: str) -> bool:
     return any(Path(folder).glob(f"{name}*.so")) or any(Path(folder).glob(f"{name}*.pyd"))
 
 
+#: A build lock older than this is left by a compile that was killed (a real one takes
+#: minutes): torch would wait on it forever, so every later encode would hang.
+STALE_LOCK_S = 900
+
+
+def _clear_stale_lock(name: str) -> None:
+    """Remove the build folder's ``lock`` when it is older than STALE_LOCK_S (with a warning)."""
+    try:
+        from torch.utils.cpp_extension import _get_build_directory
+        lock = Path(_get_build_directory(name, verbose=False)) / "lock"
+        age = time.time() - lock.stat().st_mtime
+    except Exception:                  # no lock (the usual case), or a torch without the helper
+        return
+    if age > STALE_LOCK_S:
+        warnings.warn(f"gsz.encoder.render: removing a stale rasteriser build lock ({age / 60:.0f} min "
+                      f"old, left by a killed compile): {lock}", RuntimeWarning, stacklevel=3)
+        lock.unlink(missing_ok=True)
+
+
 def _load_kernel():
     """The compiled rasteriser module, or None (with a warning) when it cannot be built."""
     global _KERNEL, _KERNEL_TRIED
@@ -423,6 +443,7 @@ def _load_kernel():
             from torch.utils.cpp_extension import load
             src = _kernel_source()
             name = kernel_build_name(src)
+            _clear_stale_lock(name)
             if not _kernel_built(name):
                 import sys
                 print(COMPILE_MESSAGE, file=sys.stderr, flush=True)

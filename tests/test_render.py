@@ -437,3 +437,22 @@ def test_kernel_cache_is_keyed_and_a_compile_is_announced_once(tmp_path, monkeyp
         folder = tmp_path / "ext" / calls[-1]
         (folder / f"{calls[-1]}.so").write_bytes(b"")           # what a finished build leaves
     assert calls == [R.kernel_build_name()] * 2
+
+
+def test_a_stale_build_lock_is_removed_not_waited_on(tmp_path, monkeypatch):
+    """A compile killed while holding torch's build lock left the lock file behind, and every
+    later encode waited on it forever; an old lock is removed (with a warning), a fresh one kept."""
+    import os
+    import time
+    import torch.utils.cpp_extension as ext
+    from gsz.encoder import render
+    monkeypatch.setattr(ext, "_get_build_directory", lambda name, verbose=False: str(tmp_path))
+    lock = tmp_path / "lock"
+    lock.touch()
+    render._clear_stale_lock("x")                      # fresh: another process may be compiling
+    assert lock.exists()
+    old = time.time() - render.STALE_LOCK_S - 60
+    os.utime(lock, (old, old))
+    with pytest.warns(RuntimeWarning, match="stale rasteriser build lock"):
+        render._clear_stale_lock("x")
+    assert not lock.exists()
