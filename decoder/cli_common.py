@@ -68,6 +68,23 @@ def missing_extra(e: ImportError, what: str) -> GszError | None:
                     f'pip install "gsz[{extra}]"')
 
 
+def run_guarded(prog: str, fn, interrupted: str = "interrupted"):
+    """(None, fn()) or, when it fails, (exit code, None) after one error line: a GszError, a
+    missing optional dependency (the extra to install), Ctrl-C.  Other errors propagate."""
+    try:
+        return None, fn()
+    except GszError as e:
+        return fail(prog, e), None
+    except ImportError as e:                  # a core-only install: name the extra, no traceback
+        err = missing_extra(e, prog)
+        if err is None:
+            raise
+        return fail(prog, err), None
+    except KeyboardInterrupt:
+        print(f"{prog}: {interrupted}", file=sys.stderr)
+        return EXIT_INTERRUPTED, None
+
+
 class HelpFormatter(argparse.HelpFormatter):
     """argparse's help with " (default: X)" added only where the help text does not say its
     default itself and there is one worth saying (not None, not a flag's: -q, --json)."""

@@ -7,29 +7,15 @@ pre-activation form here, one way for all of them.
 """
 from __future__ import annotations
 
-import os
 
 import numpy as np
 
-from .io_util import check_input_file
 
 #: graphdeco's degree-0 SH constant: colour = 0.5 + SH_C0 * dc
 SH_C0 = 0.28209479177387814
 #: alpha bytes 0 and 255 have no finite logit: they read as half a step inside the grid
 #: (logit +-6.23), as the corpus decoders of shared/data do
 ALPHA_EDGE = 0.5 / 255.0
-
-
-def read_all(path, error) -> bytes:
-    """The whole of the input file ``path`` (a regular file of bounded size, checked before it
-    is opened); ``error(message, path)`` when it cannot be read."""
-    path = os.fspath(path)
-    check_input_file(path, error)
-    try:
-        with open(path, "rb") as f:
-            return f.read()
-    except OSError as e:
-        raise error(f"cannot read: {e.strerror or e}", path) from None
 
 
 def logit_of_alpha(alpha) -> np.ndarray:

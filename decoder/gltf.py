@@ -23,7 +23,7 @@ from .cloud import GaussianCloud
 from .container import DEFAULT_MAX_GAUSSIANS, FRAME_RDF, FRAME_UNSPECIFIED, read_container
 from .errors import GltfFormatError, GszError, GszFormatError
 from .glb import EXT_GSZ, KHR_GAUSSIAN_SPLATTING, gsz_primitives, is_glb, parse_glb
-from .io_util import atomic_write, check_input_file
+from .io_util import atomic_write, check_input_file, read_all
 from .khr import KhrSplats, color0, dc_from_color, from_khr, to_khr, transform
 
 #: the extension object gsz writes: the ratified defaults, spelled out (colorSpace is required)
@@ -433,13 +433,7 @@ def read_gltf(path) -> GaussianCloud:
     """Read the splats of a ``KHR_gaussian_splatting`` .glb or .gltf file (see
     :func:`read_gltf_bytes`); GltfFormatError naming the file when it is not one."""
     path = os.fspath(path)
-    check_input_file(path, GltfFormatError)
-    try:
-        with open(path, "rb") as f:
-            data = f.read()
-    except OSError as e:
-        raise GltfFormatError(f"cannot read: {e.strerror or e}", path) from None
-    return read_gltf_bytes(data, path)
+    return read_gltf_bytes(read_all(path, GltfFormatError), path)
 
 
 def glb_overhead(num_gaussians: int, sh_degree: int) -> int:

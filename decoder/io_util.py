@@ -49,6 +49,18 @@ def check_input_file(path, error=GszError, max_bytes: int = MAX_INPUT_BYTES) -> 
     return st.st_size
 
 
+def read_all(path, error) -> bytes:
+    """The whole of the input file ``path`` (a regular file of bounded size, checked before it
+    is opened); ``error(message, path)`` when it cannot be read."""
+    path = os.fspath(path)
+    check_input_file(path, error)
+    try:
+        with open(path, "rb") as f:
+            return f.read()
+    except OSError as e:
+        raise error(f"cannot read: {e.strerror or e}", path) from None
+
+
 def same_file(a, b) -> bool:
     """True when paths ``a`` and ``b`` name one file (hard links and symlinks included)."""
     try:

@@ -19,7 +19,8 @@ import struct
 import numpy as np
 
 from .cloud import GaussianCloud
-from .delivery import dc_of_colour_bytes, logit_of_alpha_bytes, read_all, unit_quaternions
+from .delivery import dc_of_colour_bytes, logit_of_alpha_bytes, unit_quaternions
+from .io_util import read_all
 from .errors import KsplatFormatError
 
 HEADER, SECTION_HEADER = 4096, 1024

@@ -23,7 +23,8 @@ import zipfile
 import numpy as np
 
 from .cloud import GaussianCloud
-from .delivery import logit_of_alpha_bytes, read_all, smallest_three, unit_quaternions
+from .delivery import logit_of_alpha_bytes, smallest_three, unit_quaternions
+from .io_util import read_all
 from .errors import MissingExtraError, SogFormatError
 from .io_util import check_input_file
 

@@ -13,7 +13,8 @@ import os
 import numpy as np
 
 from .cloud import GaussianCloud
-from .delivery import dc_of_colour_bytes, logit_of_alpha_bytes, read_all, unit_quaternions
+from .delivery import dc_of_colour_bytes, logit_of_alpha_bytes, unit_quaternions
+from .io_util import read_all
 from .errors import SplatFormatError
 
 ROW = 32

@@ -31,7 +31,7 @@ from .container import DEFAULT_MAX_GAUSSIANS
 from .delivery import logit_of_alpha_bytes, sigmoid, unit_quaternions
 from .errors import GszError, GszInputWarning, SpzFormatError
 from .frames import FRAME_SIGNS, flip_axes
-from .io_util import atomic_write, check_input_file
+from .io_util import atomic_write, read_all
 
 MAGIC = b"NGSP"
 HEADER_BYTES = 16
@@ -73,13 +73,7 @@ def read_spz(path, *, frame: str | None = None, max_gaussians: int | None = None
     1024 per byte of the file).  Raises :class:`SpzFormatError` naming the file and the problem.
     """
     path = os.fspath(path)
-    check_input_file(path, SpzFormatError)
-    try:
-        with open(path, "rb") as f:
-            data = f.read()
-    except OSError as e:
-        raise SpzFormatError(f"cannot read: {e.strerror or e}", path) from None
-    return spz_from_bytes(data, path, frame=frame, max_gaussians=max_gaussians)
+    return spz_from_bytes(read_all(path, SpzFormatError), path, frame=frame, max_gaussians=max_gaussians)
 
 
 def spz_from_bytes(data: bytes, name=None, *, frame: str | None = None,

@@ -285,22 +285,18 @@ def _input_warnings_as_lines(verbosity: int):
 
 
 def main(argv=None) -> int:
-    from ..decoder.cli_common import EXIT_INTERRUPTED, STDOUT, fail, missing_extra
-    try:
-        a = build_parser().parse_args(argv)
-        from ..decoder.io_util import sigterm_as_interrupt
+    from ..decoder.cli_common import STDOUT, run_guarded
+    from ..decoder.io_util import sigterm_as_interrupt
+    args = {}
+
+    def work():                               # parsing too: Ctrl-C may land in the start-up
+        a = args["a"] = build_parser().parse_args(argv)
         with sigterm_as_interrupt(), _input_warnings_as_lines(a.verbosity):
-            r, prog = _run(a)                 # imports torch: Ctrl-C may land there too
-    except GszError as e:
-        return fail("gsz-encode", e)
-    except ImportError as e:                  # a core-only install: name the extra, no traceback
-        err = missing_extra(e, "gsz-encode")
-        if err is None:
-            raise
-        return fail("gsz-encode", err)
-    except KeyboardInterrupt:
-        print("gsz-encode: interrupted; no output written", file=sys.stderr)
-        return EXIT_INTERRUPTED
+            return _run(a)                    # imports torch: Ctrl-C may land there too
+    code, out = run_guarded("gsz-encode", work, "interrupted; no output written")
+    if code is not None:
+        return code
+    a, (r, prog) = args["a"], out
     if a.json:
         print(json.dumps(r.to_json(), indent=1, default=float))
     else:

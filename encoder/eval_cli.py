@@ -247,24 +247,18 @@ def _print_rd(rd: dict) -> None:
 
 
 def main(argv=None) -> int:
-    from ..decoder.cli_common import EXIT_INTERRUPTED, fail, missing_extra, warn
+    from ..decoder.cli_common import run_guarded, warn
     args = build_parser().parse_args(argv)
-    try:
+
+    def work():
         with warnings.catch_warnings():
             # Warnings (extra PLY properties, lens distortion dropped) go to stderr as one line.
             warnings.simplefilter("always")
             warnings.showwarning = lambda msg, *a, **k: warn("gsz-eval", msg, args.verbosity)
-            res = _run(args)
-    except GszError as e:
-        return fail("gsz-eval", e)
-    except ImportError as e:                  # a core-only install: name the extra, no traceback
-        err = missing_extra(e, "gsz-eval")
-        if err is None:
-            raise
-        return fail("gsz-eval", err)
-    except KeyboardInterrupt:
-        print("gsz-eval: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+            return _run(args)
+    code, res = run_guarded("gsz-eval", work)
+    if code is not None:
+        return code
     if args.json:
         print(json.dumps(res, allow_nan=False))
     elif args.rd is not None:
