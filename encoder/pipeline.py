@@ -740,6 +740,7 @@ class ShPayloads:
         self.class_chunks = [None] * len(stage.layers)
         self.block_weights = [None] * len(stage.layers)
         self.classes = int(classes)
+        self._weight = None
         for t in range(stage.num_tiles):
             # every tile carries the codewords its Gaussians use (a tile decodes on its own)
             parts = [(pi, l) for pi, l in enumerate(stage.layers) if l.tile == t]
@@ -773,9 +774,8 @@ class ShPayloads:
             sel = sel[class_order(cls)]
             self.class_chunks[pi] = (Writer().u8(q).blob(encode_stream(cls, np.zeros(p, np.int64), 1))
                                      .getvalue())
-            w = self.stage.importance ** SH_CLASS_WEIGHT_EXP
-            mean = float(w.mean()) or 1.0
-            self.block_weights[pi] = np.array([w[sel[s:e]].mean() / mean for s, e in _block_bounds(p, q)])
+            w = self._class_weight()
+            self.block_weights[pi] = np.array([w[sel[s:e]].mean() for s, e in _block_bounds(p, q)])
         self.kept_sets[pi] = (sel, q if q > 1 else sh_set_blocks(p, blocks))
         w = Writer()
         w.u32(cb_size if cb_bytes is not None else 0).u32(p).u16(d)
@@ -792,6 +792,13 @@ class ShPayloads:
         w.blob(idx_blob)
         self.stats["index_bytes"] += len(idx_blob) + 8
         self._tails[pi] = w.getvalue()
+
+    def _class_weight(self) -> np.ndarray:
+        """[M] each voxel's importance^SH_CLASS_WEIGHT_EXP over the stage's mean (once per stage)."""
+        if self._weight is None:
+            w = self.stage.importance ** SH_CLASS_WEIGHT_EXP
+            self._weight = w / (float(w.mean()) or 1.0)
+        return self._weight
 
     @property
     def fixed_bytes(self) -> int:
@@ -830,9 +837,10 @@ class ShPayloads:
         return payloads, out.reshape(self.m, k, 3), stats
 
 
-#: importance classes of the kept SH vectors in the size search's scalar path
-#: (docs/design/sh-classes.md); a part with fewer than SH_CLASS_MIN_SIZE kept vectors per
-#: class keeps them in Morton order
+#: importance classes of the kept SH vectors wherever the size search allocates their widths
+#: (the scalar path, the classes candidate; docs/design/sh-classes.md); a part with fewer than
+#: SH_CLASS_MIN_SIZE kept vectors per class keeps them in Morton order; the class weight is
+#: importance^SH_CLASS_WEIGHT_EXP (1 measured best of 0.5, 1, 1.5)
 SH_CLASSES = 8
 SH_CLASS_MIN_SIZE = 256
 SH_CLASS_WEIGHT_EXP = 1.0
@@ -850,9 +858,11 @@ def importance_classes(importance: np.ndarray, q: int) -> np.ndarray:
 
 
 def _block_bounds(length: int, blocks: int):
+    """(start, end) of each block of a channel of ``length`` cut into ``blocks``."""
     from ..decoder.quant import split_lengths
-    ends = np.cumsum(split_lengths(length, blocks))
-    return zip(ends - split_lengths(length, blocks), ends)
+    lens = split_lengths(length, blocks)
+    ends = np.cumsum(lens)
+    return zip(ends - lens, ends)
 
 
 def _code_channel_set(job):
