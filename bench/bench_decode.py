@@ -53,7 +53,7 @@ def encoded_file(ply: Path) -> Path:
     if not out.exists():
         CACHE.mkdir(parents=True, exist_ok=True)
         exe = Path(sys.executable).with_name("gsz-encode")
-        cmd = [str(exe), str(ply), "-o", str(out) + ".tmp", *ENCODE_ARGS]
+        cmd = [str(exe), str(ply), "-o", str(out) + ".tmp", *ENCODE_ARGS, "-w"]
         print("encoding:", " ".join(cmd[1:]), file=sys.stderr, flush=True)
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         os.replace(str(out) + ".tmp", out)

@@ -59,7 +59,7 @@ def run_variant(name: str, scene: Path, args, out_dir: Path) -> dict:
     extra = {"single": ["--tile-gaussians", "0"],
              "tiled": ["--tile-gaussians", str(args.tile_gaussians)],
              "ray": ["--tile-gaussians", str(args.tile_gaussians), "--executor", "ray"]}[name]
-    cmd = [str(BIN / "gsz-encode"), str(scene), "-o", str(out), "--ratio", str(args.ratio), "--json", *extra]
+    cmd = [str(BIN / "gsz-encode"), str(scene), "-o", str(out), "--ratio", str(args.ratio), "--json", "-w", *extra]
     print(f"[{name}] {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
     p, t = timed(cmd)
     if p.returncode != 0:
