@@ -222,3 +222,22 @@ def test_assigner_gives_nearest_codewords():
         d_got = ((st.sh - cb[idx]) ** 2).sum(1)
         d_best = ((st.sh - cb[assign(st.sh, cb)]) ** 2).sum(1)
         assert np.allclose(d_got, d_best, rtol=1e-5, atol=1e-7)
+
+
+def test_search_starts_deeper_where_a_large_extent_merges_gaussians():
+    """Copies of a scene side by side (as a city capture's blocks) merge Gaussians into shared
+    voxels at the position-error default depth: the search starts a level deeper where that
+    level separates more Gaussians than its bits would buy, and not at a low rate."""
+    from gsz.encoder.search.depth_walk import start_depth
+    from gsz.encoder.voxelize import DEFAULT_REL_ERROR, bounding_cube, choose_depth, merge_fraction
+    x = sample("sh3").positions
+    d0 = choose_depth(x, rel_error=DEFAULT_REL_ERROR)
+    assert start_depth(x, 20 * len(x)) == d0                 # one object: the default stands
+    ext = x.max(0) - x.min(0)
+    big = np.concatenate([x + np.array([i, j, 0]) * ext * 1.2 for i in range(8) for j in range(8)])
+    d0 = choose_depth(big, rel_error=DEFAULT_REL_ERROR)
+    cube = bounding_cube(big)
+    assert merge_fraction(big, d0, cube) > 0.02
+    d = start_depth(big, 20 * len(big))                      # 20 bytes per Gaussian
+    assert d > d0 and merge_fraction(big, d, cube) < merge_fraction(big, d0, cube) / 4
+    assert start_depth(big, 6 * len(big)) == d0              # 6: the level's bits cost more

@@ -63,3 +63,37 @@ def test_tiny_budget_drops_the_sh_rest_when_the_views_say_so():
     assert len(flat.data) <= target and decode(flat.data).equals(flat.cloud)
     assert flat.report.search.train_psnr > with_sh.report.search.train_psnr
     assert _test_psnr(flat.cloud) > _test_psnr(with_sh.cloud) + 1.0
+
+
+def test_a_stage_without_the_codebook_path_still_yields_a_file():
+    """Once another SH path rendered clearly better, the search stops encoding the codebook
+    path; a stage where no other path fits still gets the codebook path's file."""
+    import dataclasses
+    from concurrent.futures import ThreadPoolExecutor
+
+    from gsz.encoder.pipeline import compute_train_importance
+    from gsz.encoder.progress import Progress
+    from gsz.encoder.search import SearchOptions
+    from gsz.encoder.search.driver import BudgetSearch
+    from gsz.encoder.search.tau import encode_tau
+    from gsz.encoder.voxelize import DEFAULT_REL_ERROR, choose_depth
+
+    cloud, target = sample("sh3"), 240_000
+    sopts = SearchOptions(**FAST_SEARCH)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        search = BudgetSearch(cloud, target, sopts, None, pool)
+        search.importance = compute_train_importance(cloud, sopts)
+        search.depth = choose_depth(cloud.positions, rel_error=DEFAULT_REL_ERROR) + 2
+        search._set_up(None)
+        stage = search.stage_for(1.0)
+
+        def paths(opts, codebook):
+            encs = list(encode_tau(stage, target, opts, search.sh_models(stage), Progress(quiet=True),
+                                   [], search.judge.weights, codebook=codebook))
+            assert all(len(e.data) <= target and decode(e.data).equals(e.cloud) for e in encs)
+            return [e.sh_path for e in encs]
+
+        assert "vq" in paths(sopts, True)
+        others = paths(sopts, False)
+        assert others and "vq" not in others
+        assert paths(dataclasses.replace(sopts, sh_scalar=False, sh_classes=False), False) == ["vq"]

@@ -28,6 +28,27 @@ MERGED_FRACTION_EXTRA_DEPTH = 0.01
 #: gained 0.02 dB, and depth 9 was the better side).
 DEPTH_STEP_MIN_GAIN_DB = 0.05
 MAX_DEPTH = 21
+#: About what one octree level costs, in bits per voxel (docs/design/depth-walk.md).
+LEVEL_BITS_PER_VOXEL = 3.0
+
+
+def start_depth(positions, target_bytes: int) -> int:
+    """The depth the search starts at: the position-error default, deepened while one more level
+    separates a larger share of the Gaussians (merged into one voxel before) than its bits would
+    buy at the file's bytes per Gaussian.  A scene whose extent dwarfs its detail (objects side
+    by side, a city capture) merges a tenth of its Gaussians at the default, and the walk from
+    there cost one candidate per level."""
+    from ..voxelize import DEFAULT_REL_ERROR, bounding_cube, choose_depth, merge_fraction
+    d = choose_depth(positions, rel_error=DEFAULT_REL_ERROR)
+    pays = LEVEL_BITS_PER_VOXEL / 8 / (max(1, target_bytes) / len(positions))
+    cube = bounding_cube(positions)
+    merged = merge_fraction(positions, d, cube)
+    while d < MAX_DEPTH and merged > pays:
+        deeper = merge_fraction(positions, d + 1, cube)
+        if merged - deeper < pays:
+            break
+        d, merged = d + 1, deeper
+    return d
 
 
 def walk_depth(search) -> None:

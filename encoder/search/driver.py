@@ -20,7 +20,7 @@ from ..pipeline import (EncodeOptionsError, EncodeResult, Stage, assemble, attri
 from ..progress import Progress
 from .candidate import Candidate, best_of
 from .codebooks import Codebooks
-from .depth_walk import walk_depth
+from .depth_walk import start_depth, walk_depth
 from .judge import EVAL_DROP_MARGIN_DB, Judge
 from .layers import finalists, resplit_layer0
 from .options import SH_BITS, BudgetError, SearchOptions
@@ -92,6 +92,11 @@ def _search_threads():
         torch.set_num_threads(old)
 
 
+#: How much better (train PSNR) another SH path must render than the codebook path for the
+#: search to stop encoding the codebook path (a tie says nothing: at a too-shallow depth every
+#: path renders the same).
+CODEBOOK_LOST_MARGIN_DB = 0.1
+
 #: Prepared stages and voxel grids the search keeps: the one being encoded and, for voxels, the
 #: one screened just before it (both are recomputed, identically, if asked for again).
 STAGES_KEPT = 1
@@ -151,6 +156,10 @@ class BudgetSearch:
         self.scalar_lost = False
         # ... and the same for the kept vectors in importance classes (docs/design/sh-classes.md)
         self.classes_lost = False
+        # ... and the codebook path, once another path renders clearly better (it is then
+        # encoded only where no other path fits): at high rates on large scenes it was one
+        # calibration and one render per stage for nothing
+        self.codebook_lost = False
         self.t0 = self.c0 = None
 
     # --- stages -------------------------------------------------------------------------------
@@ -185,13 +194,12 @@ class BudgetSearch:
 
     # --- the run ------------------------------------------------------------------------------
     def run(self, importance=None, cameras=None) -> EncodeResult:
-        from ..voxelize import DEFAULT_REL_ERROR, choose_depth
         self.t0, self.c0 = time.perf_counter(), time.process_time()
         if importance is None:
             importance = compute_train_importance(self.cloud, self.sopts, cameras=cameras,
                                                   progress=self.progress)
         self.importance = importance
-        self.depth = choose_depth(self.cloud.positions, rel_error=DEFAULT_REL_ERROR)
+        self.depth = start_depth(self.cloud.positions, self.target)
         lo1, hi1 = self._set_up(cameras)
         for tau in self._feasible(lo1, hi1):
             self.try_tau(tau)
@@ -294,7 +302,8 @@ class BudgetSearch:
         encs = encode_tau(stage, self.target,
                           dataclasses.replace(sopts, sh_scalar=sopts.sh_scalar and not self.scalar_lost,
                                               sh_classes=sopts.sh_classes and not self.classes_lost),
-                          self.sh_models(stage), progress, self.log, self.judge.weights, min_keep=min_keep)
+                          self.sh_models(stage), progress, self.log, self.judge.weights, min_keep=min_keep,
+                          codebook=not self.codebook_lost)
         # re-split / kept-layer-0 variants may be chosen despite a lower PSNR: render them fully
         rival = self.best().view_psnr if self.candidates and regular else None
         scored, paths = [], []
@@ -317,12 +326,18 @@ class BudgetSearch:
             return
         if "scalar" in paths and scored and best_of(scored).encoded.sh_path != "scalar":
             self.scalar_lost = True
-            progress.log("the codebook SH path renders better than the scalar path: the scalar path "
+            progress.log("another SH path renders better than the scalar path: the scalar path "
                          "is not weighed again in this search")
         if "classes" in paths and scored and best_of(scored).encoded.sh_path != "classes":
             self.classes_lost = True
             progress.log("kept SH vectors in importance classes render worse than another SH path: "
                          "not weighed again in this search")
+        by_path = {c.encoded.sh_path: c.train_psnr for c in scored}
+        if ("vq" in by_path and scored and best_of(scored).encoded.sh_path != "vq"
+                and best_of(scored).train_psnr >= by_path["vq"] + CODEBOOK_LOST_MARGIN_DB):
+            self.codebook_lost = True
+            progress.log(f"another SH path renders {CODEBOOK_LOST_MARGIN_DB:g}+ dB better than the "
+                         f"codebook path: the codebook path is encoded again only where no other fits")
         if scored:
             # one candidate per (tau, depth, split): the better SH path as rendered
             self.candidates.append(best_of(scored))

@@ -17,73 +17,112 @@ from .tables import attribute_tables, container_overhead, group_meta_bytes, num_
 
 
 def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list, progress,
-               log: list, weights: dict | None = None, min_keep: int = 0) -> Iterator[Encoded]:
+               log: list, weights: dict | None = None, min_keep: int = 0,
+               codebook: bool = True) -> Iterator[Encoded]:
     """Allocate + calibrate one tau.  Yields its encodes at or below target, none when the
     budget is unreachable at this tau (one at a time: the caller scores and releases each scene
     before the next is made): the codebook path's, and the scalar SH path's too when
     its estimate beats the codebook's -- the caller renders both and keeps the better (the two
     estimates are not the same kind of number; docs/design/sh-scalar.md).  ``min_keep``: keep at least
-    this many exact SH vectors (the most important ones)."""
+    this many exact SH vectors (the most important ones).  ``codebook`` False: the codebook path
+    lost to another SH path as rendered earlier in the search, so it is encoded only when no
+    other path fits (and the scalar path is weighed without its estimate)."""
     with progress.stage("tables", f"tau {stage.reserve}: loss + rate matrices"):
         loss, rate, shapes = attribute_tables(stage, sopts.blocks, weights)
     meta_guess = 400
     base_fixed = (container_overhead(num_chunks(stage)) + stage.geometry_bytes + meta_guess
                   + (2 + 8 * 7) * len(stage.layers) + group_meta_bytes(shapes))
-    sh_plan = sh_model = scalar = None
-    if sh_models:
-        with progress.stage("sh-plan", "codebook size and keep-count vs bit allocation"):
-            sh_model, keep, vq_total = choose_sh(sh_models, loss, rate, target - base_fixed, weights, min_keep)
-            sh_plan = sh_model.encode(keep)
-            progress.log(f"tau {stage.reserve}: keep {sh_plan.keep} exact SH vectors "
-                         f"(SH chunks {sum(map(len, sh_plan.chunk)):,} B)")
-        if sopts.sh_scalar and SCALAR_MIN_KEEP * sh_model.m <= keep < sh_model.m:
-            with progress.stage("sh-plan", "scalar SH: every vector quantised group-wise"):
-                scalar = scalar_sh(sh_model, loss, rate, target - base_fixed, weights, vq_total)
-            if scalar is not None:
-                progress.log(f"tau {stage.reserve}: the scalar SH path (every vector quantised "
-                             f"group-wise, 1-16 bits in the allocation) is estimated better than the "
-                             f"codebook: both are encoded and rendered")
-    res = calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_plan)
-    # every attribute group at its best width and the file still short of the budget (the depth
-    # walk reads this, whether or not the SH then spend the rest)
-    saturated = res is not None and res.left_over(target, sopts.tolerance)
-    if saturated and sh_plan is not None:
-        res = spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fixed,
-                              sh_model, sh_plan, res, weights)
-    keep = sh_plan.keep if sh_plan is not None else 0
-    if res is not None:
-        keep = res.sh_plan.keep if res.sh_plan is not None else keep
-        yield _finish(stage, res, saturated, "vq", log)
+    args = (stage, target, sopts, progress, loss, rate, shapes, base_fixed)
+    if not sh_models:
+        res = calibrate(*args, None)
+        if res is not None:
+            yield _finish(stage, res, res.left_over(target, sopts.tolerance), "vq", log)
+        return
+    with progress.stage("sh-plan", "codebook size and keep-count vs bit allocation"):
+        sh_model, keep, vq_total = choose_sh(sh_models, loss, rate, target - base_fixed, weights, min_keep)
+    m, w_sh = sh_model.m, 1.0 if weights is None else weights["sh"]
+    scalar = None
+    if sopts.sh_scalar and SCALAR_MIN_KEEP * m <= keep and (keep < m or not codebook):
+        with progress.stage("sh-plan", "scalar SH: every vector quantised group-wise"):
+            scalar = scalar_sh(sh_model, loss, rate, target - base_fixed, weights,
+                               vq_total if codebook else None)
+        if scalar is not None and codebook:
+            progress.log(f"tau {stage.reserve}: the scalar SH path (every vector quantised "
+                         f"group-wise, 1-16 bits in the allocation) is estimated better than the "
+                         f"codebook: both are encoded and rendered")
+    saturated, found = False, False
+    if codebook:
+        res, saturated = _codebook_path(args, sh_model, keep, weights)
+        if res is not None:
+            keep = res.sh_plan.keep
+            found = True
+            yield _finish(stage, res, saturated, "vq", log)
     # the codebook path again with its kept vectors in importance classes, their widths
     # allocated (1-16 bits or constant): at the chosen keep-count, or once spend_saturated keeps
     # every vector (its 8-16-bit widths would otherwise cap the SH where classes pay most)
-    m = sh_model.m if sh_model is not None else 0
     if not saturated:
         # in classes a kept vector costs far less than at 8 bits, which the keep-count estimate
         # assumes: at low rates keeping the most important few pays even where that says none
         keep = min(m, max(keep, int(round(CLASSES_MIN_KEEP * m))))
-    if (sh_plan is not None and sopts.sh_classes and keep >= SH_CLASS_MIN_SIZE * SH_CLASSES
+    if (sopts.sh_classes and keep >= SH_CLASS_MIN_SIZE * SH_CLASSES
             and not (saturated and keep < m)):
-        with progress.stage("sh-plan", "kept SH vectors in importance classes, widths allocated"):
-            plan = sh_model.encode(keep, code=False, classes=SH_CLASSES)
-            kept = kept_tables(plan, 1.0 if weights is None else weights["sh"], min_bits=1)
-        res = calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, plan, kept=kept)
+        res = _classes(args, sh_model, keep, w_sh, progress)
+        if res is not None and not codebook and keep < m and res.left_over(target, sopts.tolerance):
+            # without the codebook path's spend_saturated: every group at its best width and
+            # bytes left, so every vector kept (the allocation then trades their widths)
+            keep = m
+            res = _classes(args, sh_model, m, w_sh, progress) or res
+        if keep >= m:
+            scalar = None           # every vector kept in classes is the scalar path's file
         if res is not None:
-            saturated = bool(np.array_equal(res.best.pick[:loss.shape[0]], solve_max(loss, rate)))
-            yield _finish(stage, res, saturated, "classes", log)
+            found = True
+            yield _finish(stage, res, _attributes_at_max(res, loss, rate), "classes", log)
     if scalar is not None:
-        res = calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, scalar[0],
-                        kept=scalar[1])
+        res = calibrate(*args, scalar[0], kept=scalar[1])
         if res is not None:
+            found = True
             # the SH take every byte the attributes leave: what the depth walk reads is whether
             # every attribute group sits at its best width (as the codebook path's saturation)
-            saturated = bool(np.array_equal(res.best.pick[:loss.shape[0]], solve_max(loss, rate)))
-            yield _finish(stage, res, saturated, "scalar", log)
+            yield _finish(stage, res, _attributes_at_max(res, loss, rate), "scalar", log)
+    if not codebook and not found:
+        res, saturated = _codebook_path(args, sh_model, keep, weights)
+        if res is not None:
+            yield _finish(stage, res, saturated, "vq", log)
+
+
+def _codebook_path(args, sh_model: ShModel, keep: int, weights) -> tuple[Calibrated | None, bool]:
+    """(calibrated, saturated) of the codebook path: a codebook for the SH and ``keep`` vectors
+    exact at SH_BITS, the rest spent on more exact vectors when the attributes saturate."""
+    stage, target, sopts, progress, loss, rate, shapes, base_fixed = args
+    with progress.stage("sh-plan", "codebook path: codebook indices and kept vectors"):
+        sh_plan = sh_model.encode(keep)
+        progress.log(f"tau {stage.reserve}: keep {sh_plan.keep} exact SH vectors "
+                     f"(SH chunks {sum(map(len, sh_plan.chunk)):,} B)")
+    res = calibrate(*args, sh_plan)
+    # every attribute group at its best width and the file still short of the budget (the depth
+    # walk reads this, whether or not the SH then spend the rest)
+    saturated = res is not None and res.left_over(target, sopts.tolerance)
+    if saturated:
+        res = spend_saturated(*args, sh_model, sh_plan, res, weights)
+    return res, saturated
+
+
+def _classes(args, sh_model: ShModel, keep: int, w_sh: float, progress) -> Calibrated | None:
+    """The classes path calibrated at ``keep`` exact vectors (docs/design/sh-classes.md)."""
+    with progress.stage("sh-plan", "kept SH vectors in importance classes, widths allocated"):
+        plan = sh_model.encode(keep, code=False, classes=SH_CLASSES)
+        kept = kept_tables(plan, w_sh, min_bits=1)
+    return calibrate(*args, plan, kept=kept)
+
+
+def _attributes_at_max(res: Calibrated, loss, rate) -> bool:
+    """Every attribute group at its best width (what the depth walk reads as saturated)."""
+    return bool(np.array_equal(res.best.pick[:loss.shape[0]], solve_max(loss, rate)))
 
 
 def _finish(stage: Stage, res: Calibrated, saturated: bool, path: str, log: list) -> Encoded:
     """The calibrated encode with what the search reads about it."""
-    log.append({"reserve": stage.reserve, "bytes": len(res.best.data), "rounds": res.history,
+    log.append({"reserve": stage.reserve, "depth": stage.depth, "bytes": len(res.best.data), "rounds": res.history,
                 **({"sh_path": path} if res.sh_plan is not None else {})})
     plan = res.sh_plan
     return dataclasses.replace(res.best, rounds=res.history, attributes_saturated=saturated,
