@@ -24,7 +24,7 @@ def encode_result(cloud: GaussianCloud, *, size=None, ratio=None, profile=None, 
     from .sizes import budget_from_args
     progress = progress or Progress(quiet=True)
     if isinstance(cameras, str):
-        from .cameras import load_cameras
+        from ..evaluation.cameras import load_cameras
         cameras = load_cameras(cameras, cloud).train
     if size is None and ratio is None and profile is None:
         from .pipeline import EncodeOptions, encode as encode_fixed

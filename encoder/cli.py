@@ -107,7 +107,7 @@ def _read_inputs(a, prog):
                              f"(rot_0..rot_3), first at vertex {int(np.argmax(zero))}", a.input)
     cameras = None
     if a.cameras:
-        from .cameras import load_cameras
+        from ..evaluation.cameras import load_cameras
         cameras = load_cameras(a.cameras, cloud).train
     return cloud, cameras
 
