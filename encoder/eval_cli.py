@@ -172,7 +172,7 @@ def _run_rd(args) -> dict:
     if not args.sizes or not args.out:
         raise _UsageError("--rd SCENE needs --sizes LIST and -o DIR")
     bg = _check_common(args)
-    from .sizes import parse_size
+    from ..decoder.sizes import parse_size
     items = [x.strip() for x in args.sizes.split(",") if x.strip()]
     if not items:
         raise _UsageError(f"--sizes: expected budgets like 1MB,2MB,4MB, got {args.sizes!r}")

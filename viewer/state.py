@@ -45,7 +45,7 @@ def format_bytes(n) -> str:
     if n is None:
         return "?"
     try:
-        from ..encoder.sizes import format_size
+        from ..decoder.sizes import format_size
         return format_size(int(n))
     except Exception:
         return f"{n / 1e6:.2f} MB" if n >= 1e5 else f"{n / 1e3:.1f} kB"
