@@ -13,7 +13,8 @@ The top-level namespace re-exports the numpy-only core (no torch import here):
     rub = gsz.convert_frame(cloud, "RDF", "RUB")   # axis conventions (graphdeco PLY <-> OpenGL)
 
 Sub-packages: ``gsz.decoder`` (numpy-only bitstream reader), ``gsz.encoder`` (torch CPU
-encoder, renderer, metrics), ``gsz.kernels`` (CUDA/CPU quantisation kernels), ``gsz.viewer``.
+encoder), ``gsz.evaluation`` (cameras, CPU renderer, metrics), ``gsz.kernels`` (CUDA/CPU
+quantisation kernels), ``gsz.viewer``.
 """
 from .decoder.cloud import GaussianCloud
 from .decoder.errors import GltfFormatError, GszError, PlyFormatError

@@ -56,8 +56,8 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, default=None)
     a = p.parse_args(argv)
     from gsz.decoder import decode, read_ply
-    from gsz.encoder.cameras import load_cameras
-    from gsz.encoder.evaluate import evaluate, render_views
+    from gsz.evaluation.cameras import load_cameras
+    from gsz.evaluation.evaluate import evaluate, render_views
 
     original, decoded = read_ply(a.original), decode(a.compressed)
     if decoded.sh_degree < original.sh_degree:

@@ -57,8 +57,8 @@ def main(argv=None):
         print(f"SKIP: {SHARED} not present")
         return 0
     import gsz
-    from gsz.encoder.cameras import load_cameras
-    from gsz.encoder.evaluate import evaluate, render_views
+    from gsz.evaluation.cameras import load_cameras
+    from gsz.evaluation.evaluate import evaluate, render_views
     from gsz.encoder.pipeline import EncodeOptions, compute_train_importance, encode
     from gsz.decoder import decode
 

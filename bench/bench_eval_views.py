@@ -51,9 +51,9 @@ def main(argv=None) -> int:
         return 0
     import gsz
     from gsz.encoder import search as S
-    from gsz.encoder.cameras import load_cameras
-    from gsz.encoder.evaluate import render_views
-    from gsz.encoder.metrics import psnr
+    from gsz.evaluation.cameras import load_cameras
+    from gsz.evaluation.evaluate import render_views
+    from gsz.evaluation.metrics import psnr
     from gsz.encoder.pipeline import EncodeOptions, compute_train_importance
     from gsz.encoder.progress import Progress
 

@@ -59,8 +59,8 @@ def main(argv=None):
     from gsz.decoder.cloud import GaussianCloud
     from gsz.decoder.geometry import voxel_centres
     from gsz.encoder.bit_allocation import allocate
-    from gsz.encoder.cameras import load_cameras
-    from gsz.encoder.evaluate import evaluate, render_views
+    from gsz.evaluation.cameras import load_cameras
+    from gsz.evaluation.evaluate import evaluate, render_views
     from gsz.encoder.pipeline import EncodeOptions, attribute_chunks, compute_train_importance, prepare_stage
     from gsz.encoder.search import channel_weights
     from gsz.encoder.search.tables import attribute_tables, group_meta_bytes, split_bits

@@ -1,4 +1,4 @@
-"""Benchmark of the CPU renderer (gsz.encoder.render): seconds per view.
+"""Benchmark of the CPU renderer (gsz.evaluation.render): seconds per view.
 
     .venv/bin/python bench/bench_render.py [--scene flowers_daffodils_sh2.ply] [--width 800]
         [--height 600] [--repeat 3] [--distance 2.0] [--backend auto|cpp|torch]
@@ -40,7 +40,7 @@ def main(argv=None) -> int:
     import torch
 
     import gsz
-    from gsz.encoder import render as R
+    from gsz.evaluation import render as R
 
     t0 = time.perf_counter()
     kernel = args.backend != "torch" and R.kernel_available()

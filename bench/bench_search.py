@@ -48,8 +48,8 @@ def _evaluate(refs, cloud, cams):
     """Test-view PSNR/SSIM with torch single-threaded (SSIM's convolutions stall with two
     OpenMP threads on the shared machine; the values do not depend on it)."""
     import torch
-    from gsz.encoder.evaluate import evaluate
-    from gsz.encoder.render import render_threads
+    from gsz.evaluation.evaluate import evaluate
+    from gsz.evaluation.render import render_threads
     old = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
@@ -82,13 +82,13 @@ def main(argv=None):
         print(f"SKIP: {SHARED} not present")
         return 0
     import gsz
-    from gsz.encoder.cameras import load_cameras
-    from gsz.encoder.evaluate import render_views
+    from gsz.evaluation.cameras import load_cameras
+    from gsz.evaluation.evaluate import render_views
     from gsz.encoder.pipeline import EncodeOptions, compute_train_importance
     from gsz.encoder.progress import Progress
     from gsz.encoder.search import BudgetError, encode_to_budget
 
-    from gsz.encoder.render import kernel_available
+    from gsz.evaluation.render import kernel_available
     kernel_available()      # build/load the C++ rasteriser before anything is timed
     rows = []
     print(f"uptime: {os.popen('uptime').read().strip()}; native accelerator: {_native()}", flush=True)

@@ -32,8 +32,8 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     from bench_codec import add_noise
     from gsz.decoder import decode, read_ply
-    from gsz.encoder.cameras import load_cameras
-    from gsz.encoder.evaluate import evaluate, render_views
+    from gsz.evaluation.cameras import load_cameras
+    from gsz.evaluation.evaluate import evaluate, render_views
     from gsz.encoder.search import SearchOptions, encode_to_budget
 
     cloud = read_ply(a.scene)

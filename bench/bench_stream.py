@@ -141,8 +141,8 @@ def main(argv=None):
         return fixed_configuration(a)
     import gsz
     from gsz.decoder import iter_layers
-    from gsz.encoder.cameras import load_cameras
-    from gsz.encoder.evaluate import evaluate, render_views
+    from gsz.evaluation.cameras import load_cameras
+    from gsz.evaluation.evaluate import evaluate, render_views
     from gsz.encoder.pipeline import EncodeOptions, compute_train_importance
     from gsz.encoder.search import SearchOptions, encode_to_budget
 

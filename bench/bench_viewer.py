@@ -43,14 +43,14 @@ def _timed(fn, repeat):
 
 def bench_scene(ctx, path, width, height, repeat, camera):
     from gsz.decoder import read_ply
-    from gsz.encoder.cameras import load_cameras
+    from gsz.evaluation.cameras import load_cameras
     from gsz.viewer.app import Scene, Settings, ViewerApp
     from gsz.viewer.gl_renderer import FloatTarget, SplatRenderer, depth_order
 
     cloud = read_ply(path)
     cams = load_cameras(None, cloud, width=width)
     c = cams.test[camera]
-    from gsz.encoder.cameras import Camera
+    from gsz.evaluation.cameras import Camera
     cam = Camera(c.R, c.t, c.fx, c.fy, c.cx, c.cy + (height - c.height) / 2, width, height, c.name)
     r = SplatRenderer(ctx, cloud)
     target = FloatTarget(ctx, width, height)

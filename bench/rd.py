@@ -417,8 +417,8 @@ def main(argv=None):
         return 0
     import gsz
     from gsz.decoder import decode
-    from gsz.encoder.cameras import load_cameras
-    from gsz.encoder.evaluate import evaluate, render_views
+    from gsz.evaluation.cameras import load_cameras
+    from gsz.evaluation.evaluate import evaluate, render_views
     from gsz.encoder.pipeline import EncodeOptions, compute_train_importance
     from gsz.encoder.progress import Progress
     from gsz.encoder.search import BudgetError, SearchOptions, encode_to_budget

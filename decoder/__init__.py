@@ -1,4 +1,4 @@
-"""gsz.decoder: the numpy-only core (data model, PLY I/O, .gsz bitstream reader).
+"""gsz.decoder: the numpy-only core (data model, PLY I/O, .gsz bitstream reader, size budgets).
 
 Importing this package never imports torch.  ``native_available()`` says whether the optional C
 accelerator (``decoder/csrc/``, bit-identical output) is built and enabled; ``GSZ_NATIVE=0``

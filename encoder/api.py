@@ -21,10 +21,10 @@ def encode_result(cloud: GaussianCloud, *, size=None, ratio=None, profile=None, 
     or a cameras.json / COLMAP path), default generated ones."""
     from .progress import Progress
     from ..decoder.ply import graphdeco_ply_bytes
-    from .sizes import budget_from_args
+    from ..decoder.sizes import budget_from_args
     progress = progress or Progress(quiet=True)
     if isinstance(cameras, str):
-        from .cameras import load_cameras
+        from ..evaluation.cameras import load_cameras
         cameras = load_cameras(cameras, cloud).train
     if size is None and ratio is None and profile is None:
         from .pipeline import EncodeOptions, encode as encode_fixed
@@ -54,7 +54,7 @@ def encode_file(src, dst, *, size=None, ratio=None, profile=None, options=None, 
     cloud = load(src)
     ply_ratio = ratio is not None or profile is not None
     if ply_ratio and str(src).lower().endswith(".ply"):
-        from .sizes import budget_from_args
+        from ..decoder.sizes import budget_from_args
         size = budget_from_args(ratio=ratio, profile=profile, ply_bytes=os.path.getsize(src))
         ratio = profile = None
     res = encode_result(cloud, size=size, ratio=ratio, profile=profile, options=options,

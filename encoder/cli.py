@@ -107,7 +107,7 @@ def _read_inputs(a, prog):
                              f"(rot_0..rot_3), first at vertex {int(np.argmax(zero))}", a.input)
     cameras = None
     if a.cameras:
-        from .cameras import load_cameras
+        from ..evaluation.cameras import load_cameras
         cameras = load_cameras(a.cameras, cloud).train
     return cloud, cameras
 
@@ -133,7 +133,7 @@ def _run_fixed(a, prog) -> EncodeReport:
 
 def _run_search(a, prog) -> EncodeReport:
     from .search import SearchOptions, encode_to_budget
-    from .sizes import budget_from_args, format_size, size_style
+    from ..decoder.sizes import budget_from_args, format_size, size_style
 
     fixed_only = [flag for flag, v in (("--reserve", a.reserve), ("--bits", a.bits), ("--keep", a.keep),
                                        ("--depth", a.depth), ("--rel-error", a.rel_error),

@@ -1,5 +1,5 @@
 """``gsz-eval``, the command line: score a compressed scene against its original
-(:mod:`gsz.encoder.evaluate` does the rendering and the metrics), or with ``--rd`` encode one
+(:mod:`gsz.evaluation.evaluate` does the rendering and the metrics), or with ``--rd`` encode one
 scene at several budgets and plot PSNR/SSIM against size (:mod:`gsz.encoder.rd`).
 
     gsz-eval ORIGINAL COMPRESSED [--cameras FILE_OR_DIR] [--views N] [--width W] [--json]
@@ -7,7 +7,7 @@ scene at several budgets and plot PSNR/SSIM against size (:mod:`gsz.encoder.rd`)
     gsz-eval --rd SCENE --sizes 1MB,2MB,4MB -o DIR    # encode at each budget, score, plot
 
 Kept apart from the library so the size search (which scores candidates with
-:func:`~gsz.encoder.evaluate.evaluate`) and ``--rd`` (which runs the size search) do not import
+:func:`~gsz.evaluation.evaluate.evaluate`) and ``--rd`` (which runs the size search) do not import
 each other in a circle.
 """
 from __future__ import annotations
@@ -23,11 +23,10 @@ import warnings
 
 from ..decoder.errors import GszError, GszUsageError
 from ..decoder.io_util import atomic_write
-
-from .cameras import load_cameras
-from .evaluate import (ERROR_MAP_FULL_SCALE, NOTE, view_labels, evaluate, load_cloud, pick_evenly,
-                       view_png_names, write_view_pngs)
-from .metrics import PSNR_CAP_DB
+from ..evaluation.cameras import load_cameras
+from ..evaluation.evaluate import (ERROR_MAP_FULL_SCALE, NOTE, view_labels, evaluate, load_cloud, pick_evenly,
+                                   view_png_names, write_view_pngs)
+from ..evaluation.metrics import PSNR_CAP_DB
 
 
 class _UsageError(GszUsageError):
@@ -173,7 +172,7 @@ def _run_rd(args) -> dict:
     if not args.sizes or not args.out:
         raise _UsageError("--rd SCENE needs --sizes LIST and -o DIR")
     bg = _check_common(args)
-    from .sizes import parse_size
+    from ..decoder.sizes import parse_size
     items = [x.strip() for x in args.sizes.split(",") if x.strip()]
     if not items:
         raise _UsageError(f"--sizes: expected budgets like 1MB,2MB,4MB, got {args.sizes!r}")

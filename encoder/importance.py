@@ -4,7 +4,7 @@
 
 * ``I_d`` (view-dependent term): sum over every training view and pixel of alpha_i(p) * T_i(p),
   the Gaussian's contribution weight in front-to-back compositing.  It comes from the reference
-  renderer :func:`gsz.encoder.render.accumulate_importance` (deterministic accumulation, unlike
+  renderer :func:`gsz.evaluation.render.accumulate_importance` (deterministic accumulation, unlike
   the authors' racy ``+=`` kernel).
 * ``I_v`` (volume term): ``(V_i / V_ref) ** beta`` with ``V_i`` the product of the three
   *activated* scales ``exp(s_ik)`` (no 4/3 pi: it cancels in the ratio).  ``V_ref`` is a fixed
@@ -80,19 +80,19 @@ def compute_importance(cloud: GaussianCloud, cameras: Sequence, *, beta: float =
     """Global importance ``I = I_d * (V / V_ref) ** beta`` of every Gaussian.
 
     cloud    GaussianCloud, N Gaussians
-    cameras  the training views (``gsz.encoder.cameras.Camera``); at least one
+    cameras  the training views (``gsz.evaluation.cameras.Camera``); at least one
     progress optional callback forwarded to the renderer
     returns  [N] float64 >= 0 (0 for Gaussians no training pixel sees)
 
     The view term is rendered once over all cameras by
-    :func:`gsz.encoder.render.accumulate_importance`; the volume term is :func:`volume_term`.
+    :func:`gsz.evaluation.render.accumulate_importance`; the volume term is :func:`volume_term`.
     """
     _check_beta_quantile(beta, ref_quantile)
     cameras = list(cameras)
     if not cameras:
         raise ImportanceError("compute_importance needs at least one training camera")
     # Imported here: the renderer pulls in torch, which this module otherwise does not need.
-    from .render import accumulate_importance
+    from ..evaluation.render import accumulate_importance
 
     i_d = np.asarray(accumulate_importance(cloud, cameras, progress=progress), np.float64)
     if i_d.shape != (len(cloud),):

@@ -32,8 +32,8 @@ from ..decoder.morton import morton_encode
 from ..decoder.raht import build_raht_tree
 from ..decoder.rotation import quaternion_to_euler
 from ..decoder.sh import MAX_CODEBOOK, MAX_SH_CLASSES, class_order
+from ..evaluation.cameras import DEFAULT_VIEW_WIDTH
 
-from .cameras import DEFAULT_VIEW_WIDTH
 from .encode_report import MODE_FIXED, EncodeReport, FixedDetails
 from .geometry import write_geometry
 from .groups import write_channel_set
@@ -920,7 +920,7 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
 def compute_train_importance(cloud: GaussianCloud, opts: SceneOptions, *, cameras=None,
                              progress: Progress | None = None) -> np.ndarray:
     """Importance I = I_d * (V/V_ref)^beta over the train views (default camera set if None)."""
-    from .cameras import load_cameras
+    from ..evaluation.cameras import load_cameras
     from .importance import compute_importance
 
     progress = progress or Progress(quiet=True)

@@ -3,7 +3,7 @@ gsz-eval's protocol, draw the curve (``gsz-eval --rd SCENE --sizes 1MB,2MB,4MB -
 
 The importance pass runs once for every budget and the original's test views are rendered once;
 each budget is then a size search (:func:`gsz.encoder.search.encode_to_budget`) whose decoded
-scene is compared with the original by :func:`gsz.encoder.evaluate.evaluate` -- the numbers are
+scene is compared with the original by :func:`gsz.evaluation.evaluate.evaluate` -- the numbers are
 those ``gsz-eval SCENE FILE`` prints for the written files.
 """
 from __future__ import annotations
@@ -25,7 +25,7 @@ def rd_points(cloud, targets: list, cameras, *, background=(0.0, 0.0, 0.0), opti
     ``{"target", "target_bytes", "bytes", "data", "psnr", "ssim", "views", "reserve", "voxels",
     "encode_seconds"}`` (``data``: the file), each unreachable budget ``{"target",
     "target_bytes", "error"}``.  ``report(text)`` is told each budget's outcome."""
-    from .evaluate import evaluate, render_views
+    from ..evaluation.evaluate import evaluate, render_views
     from .pipeline import compute_train_importance
     from .sanitize import sanitize_cloud
     from .search import BudgetError, SearchOptions, encode_to_budget

@@ -1,6 +1,6 @@
-// CPU tile rasteriser for gsz.encoder.render (graphdeco 3DGS forward semantics).
+// CPU tile rasteriser for gsz.evaluation.render (graphdeco 3DGS forward semantics).
 //
-// Built at run time by torch.utils.cpp_extension.load() from gsz/encoder/render.py; the
+// Built at run time by torch.utils.cpp_extension.load() from gsz/evaluation/render.py; the
 // pure-torch rasteriser there is the reference this kernel is tested against.
 //
 // Two entry points, both mirroring the pure-torch reference in render.py step by step:

@@ -9,9 +9,9 @@ import pytest
 import gsz
 from conftest import SAMPLE_SH0, SAMPLE_SH3, shared_scene
 from gsz.decoder.errors import CameraFormatError
-from gsz.encoder.cameras import (Camera, default_cameras, detect_up, load_cameras, look_at, qvec_to_rotmat,
-                                 read_cameras_json, read_colmap, robust_bounds, rotmat_to_qvec,
-                                 write_cameras_json)
+from gsz.evaluation.cameras import (Camera, default_cameras, detect_up, load_cameras, look_at, qvec_to_rotmat,
+                                    read_cameras_json, read_colmap, robust_bounds, rotmat_to_qvec,
+                                    write_cameras_json)
 
 
 def _random_rotation(rng):

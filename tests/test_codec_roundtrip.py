@@ -90,8 +90,8 @@ def test_default_blocks_follow_the_bit_width(name):
     blocks at the same width and still no larger, at least as close to the original, than 80
     blocks at 2 bits fewer (held-out views of the committed sample); 80 blocks below 10 bits,
     where one block's coarse steps round the colour detail away."""
-    from gsz.encoder.cameras import load_cameras
-    from gsz.encoder.evaluate import evaluate, render_views
+    from gsz.evaluation.cameras import load_cameras
+    from gsz.evaluation.evaluate import evaluate, render_views
     from gsz.encoder.pipeline import default_blocks
     assert [default_blocks(b) for b in (4, 8, 9, 10, 12, 16)] == [80, 80, 80, 1, 1, 1]
     c = sample(name, 6000)

@@ -12,7 +12,7 @@ from conftest import ROOT, SAMPLE_SH0, SAMPLE_SH3
 from gsz.decoder.errors import GszError
 
 # The CLI renders, so these tests need the renderer; they skip (naming why) until it exists.
-render_mod = pytest.importorskip("gsz.encoder.render", reason="renderer gsz.encoder.render not available")
+render_mod = pytest.importorskip("gsz.evaluation.render", reason="renderer gsz.evaluation.render not available")
 
 FAST = ["--width", "160", "--views", "2"]
 
@@ -53,7 +53,7 @@ def test_identical_scene_gives_cap_and_writes_pngs(tmp_path):
     sbs = [f for f in files if f.endswith("_side_by_side.png")]
     err = [f for f in files if f.endswith("_error.png")]
     assert len(sbs) == len(err) == 2
-    from gsz.encoder.evaluate import CAPTION_PX, COLOUR_BAR_PX
+    from gsz.evaluation.evaluate import CAPTION_PX, COLOUR_BAR_PX
     with Image.open(out / sbs[0]) as im:
         assert im.size == (320, CAPTION_PX + 120)
         a = np.asarray(im)
@@ -84,7 +84,7 @@ def test_psnr_falls_as_opacity_perturbation_grows(tmp_path, sample_sh0):
 
 
 def test_cameras_file_and_text_output(tmp_path, sample_sh3):
-    from gsz.encoder.cameras import default_cameras, write_cameras_json
+    from gsz.evaluation.cameras import default_cameras, write_cameras_json
     cs = default_cameras(sample_sh3, n_train=7, n_test=2, width=320, height=240)
     cams = cs.train + cs.test                      # 9 cameras -> protocol test views #0 and #8
     for i, c in enumerate(cams):
@@ -120,8 +120,8 @@ def test_bad_input_exits_2_with_one_line(tmp_path, case):
 
 
 def test_evaluate_api_reuses_reference_images(sample_sh3):
-    from gsz.encoder.cameras import default_cameras
-    from gsz.encoder.evaluate import evaluate, render_views
+    from gsz.evaluation.cameras import default_cameras
+    from gsz.evaluation.evaluate import evaluate, render_views
     cams = default_cameras(sample_sh3, n_train=0, n_test=2, width=96, height=72).test
     b = _nudged(sample_sh3, -0.5)
     full = evaluate(sample_sh3, b, cams)

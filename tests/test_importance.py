@@ -118,13 +118,13 @@ def test_prune_real_scene_keeps_the_most_important(sample_sh0):
 
 # ---------------------------------------------------------------- with the reference renderer
 def _camera():
-    from gsz.encoder.cameras import Camera
+    from gsz.evaluation.cameras import Camera
     return Camera(R=np.eye(3), t=np.zeros(3), fx=60.0, fy=60.0, cx=32.0, cy=32.0,
                   width=64, height=64, name="front")
 
 
 def test_importance_hidden_gaussian_gets_almost_nothing():
-    pytest.importorskip("gsz.encoder.render")
+    pytest.importorskip("gsz.evaluation.render")
     # 0: big opaque Gaussian on the optical axis; 1: small one right behind it;
     # 2: small one off to the side, unoccluded; 3: behind the camera.
     pos = [[0, 0, 2.0], [0, 0, 4.0], [1.2, 0, 4.0], [0, 0, -3.0]]

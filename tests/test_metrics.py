@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from gsz.encoder.metrics import (PSNR_CAP_DB, gaussian_window_1d, mse, psnr, quantize_8bit, ssim,
-                                 ssim_map, to_uint8)
+from gsz.evaluation.metrics import (PSNR_CAP_DB, gaussian_window_1d, mse, psnr, quantize_8bit, ssim,
+                                    ssim_map, to_uint8)
 
 
 def _ssim_scipy(a, b):

@@ -1,7 +1,11 @@
 """Packaging contracts: one import name, and a decoder core that never needs torch."""
+import ast
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
+
+import pytest
 
 
 def test_decoder_imports_without_torch():
@@ -31,7 +35,39 @@ def test_decoder_imports_without_torch():
 def test_subpackages_live_in_gsz_namespace():
     import gsz.decoder
     import gsz.encoder
+    import gsz.evaluation
     import gsz.kernels
     import gsz.viewer
-    for m in (gsz.decoder, gsz.encoder, gsz.kernels, gsz.viewer):
+    for m in (gsz.decoder, gsz.encoder, gsz.evaluation, gsz.kernels, gsz.viewer):
         assert m.__name__.startswith("gsz.")
+
+
+def test_every_subpackage_ships():
+    """Each folder with an __init__.py is in pyproject's package list (one left out would be
+    missing from the wheel while an editable install still finds it)."""
+    tomllib = pytest.importorskip("tomllib")
+    root = Path(__file__).resolve().parent.parent
+    listed = set(tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    folders = [d for d in root.iterdir() if d.is_dir() and not d.name.startswith(".")
+               and d.name not in ("tests", "bench", "build", "dist")]
+    found = {".".join(("gsz",) + p.parent.relative_to(root).parts) for d in folders for p in d.rglob("__init__.py")}
+    assert found <= listed, found - listed
+
+
+def test_evaluation_never_imports_the_encoder():
+    """gsz.encoder and gsz.viewer import gsz.evaluation, so no evaluation module may import them,
+    not even inside a function (that would make the packages import each other in a circle)."""
+    root = Path(__file__).resolve().parent.parent
+    found = []
+    for path in (root / "evaluation").glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):    # relative: level 1 is gsz.evaluation, 2 is gsz
+                base = ".".join(["gsz", "evaluation"][:3 - node.level] if node.level else [])
+                base = ".".join(filter(None, [base, node.module]))
+                names = [f"{base}.{a.name}" for a in node.names]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            else:
+                continue
+            found += [f"{path.name}: {n}" for n in names if n.startswith(("gsz.encoder", "gsz.viewer"))]
+    assert not found

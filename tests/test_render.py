@@ -1,4 +1,4 @@
-"""Tests of gsz.encoder.render against hand-computed cases (graphdeco 3DGS semantics).
+"""Tests of gsz.evaluation.render against hand-computed cases (graphdeco 3DGS semantics).
 
 The expected values are computed here in float64 from the published formulas, with an
 independent quaternion convention (scipy's Rotation), not by calling the renderer's helpers.
@@ -14,8 +14,8 @@ from scipy.spatial.transform import Rotation
 
 from gsz.decoder.cloud import GaussianCloud
 from gsz.decoder.errors import GszError
-from gsz.encoder import render as R
-from gsz.encoder.cameras import Camera, look_at
+from gsz.evaluation import render as R
+from gsz.evaluation.cameras import Camera, look_at
 
 C0 = 0.28209479177387814
 C1 = 0.4886025119029199
@@ -405,7 +405,7 @@ def test_kernel_cache_is_keyed_and_a_compile_is_announced_once(tmp_path, monkeyp
     prints one line, finding the build prints nothing."""
     import gsz
     import torch.utils.cpp_extension as cpp
-    from gsz.encoder import render as R
+    from gsz.evaluation import render as R
     src = tmp_path / "k.cpp"
     src.write_text("// kernel v1\n")
     name = R.kernel_build_name(src)
@@ -445,7 +445,7 @@ def test_a_stale_build_lock_is_removed_not_waited_on(tmp_path, monkeypatch):
     import os
     import time
     import torch.utils.cpp_extension as ext
-    from gsz.encoder import render
+    from gsz.evaluation import render
     monkeypatch.setattr(ext, "_get_build_directory", lambda name, verbose=False: str(tmp_path))
     lock = tmp_path / "lock"
     lock.touch()

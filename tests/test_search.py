@@ -48,7 +48,7 @@ def test_budget_is_hit_from_below(name, n, target, imp_cache):
 def test_candidates_are_compared_on_the_callers_train_cameras(imp_cache):
     """With real train cameras (--cameras) the search judges candidates on them, spread over
     the set and downscaled to eval_width; without, on generated views at eval_width."""
-    from gsz.encoder.cameras import load_cameras
+    from gsz.evaluation.cameras import load_cameras
     c = sample("sh0", 6000)
     mine = [dataclasses.replace(cam, name=f"mine_{i:02d}")
             for i, cam in enumerate(load_cameras(None, c, n_train=12, n_test=1, width=160).train)]
@@ -70,8 +70,8 @@ def test_unreachable_budget_names_the_minimum(imp_cache):
 
 def test_more_bytes_never_lower_fidelity(imp_cache):
     """Monotone RD on held-out (test) views of a small sample."""
-    from gsz.encoder.cameras import load_cameras
-    from gsz.encoder.evaluate import evaluate, render_views
+    from gsz.evaluation.cameras import load_cameras
+    from gsz.evaluation.evaluate import evaluate, render_views
     c = sample("sh0", 6000)
     cams = load_cameras(None, c, n_test=3, width=128).test
     refs = render_views(c, cams)
@@ -107,7 +107,7 @@ def test_cli_size_units_json_and_report(tmp_path):
 
 
 def test_channel_weights_are_measured_sensitivities():
-    from gsz.encoder.cameras import load_cameras
+    from gsz.evaluation.cameras import load_cameras
     from gsz.encoder.search import channel_weights
     c = sample("sh3", 3000)
     cams = load_cameras(None, c, n_train=2, n_test=1, width=96).train
@@ -189,8 +189,8 @@ def test_dc_colour_channels_render_independently():
     """channel_weights measures the three DC colour channels with one render: image channel k
     must depend on DC channel k only (bit-exactly)."""
     from gsz.decoder.cloud import GaussianCloud
-    from gsz.encoder.cameras import load_cameras
-    from gsz.encoder.render import render
+    from gsz.evaluation.cameras import load_cameras
+    from gsz.evaluation.render import render
     c = sample("sh3", 2000)
     cam = load_cameras(None, c, n_train=1, n_test=1, width=96).train[0]
     rng = np.random.default_rng(1)

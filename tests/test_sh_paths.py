@@ -15,8 +15,8 @@ def _search(target, **kw):
 
 
 def _test_psnr(cloud):
-    from gsz.encoder.cameras import load_cameras
-    from gsz.encoder.evaluate import evaluate
+    from gsz.evaluation.cameras import load_cameras
+    from gsz.evaluation.evaluate import evaluate
     cams = load_cameras(None, sample("sh3"), n_test=3, width=320).test
     return evaluate(sample("sh3"), cloud, cams)["psnr"]
 

@@ -1,8 +1,8 @@
-"""Size budgets: parsing, echoing, profiles (gsz.encoder.sizes)."""
+"""Size budgets: parsing, echoing, profiles (gsz.decoder.sizes)."""
 import pytest
 
 from gsz.decoder.errors import GszError
-from gsz.encoder.sizes import (PROFILES, SizeSpecError, budget_from_args, format_size, parse_ratio,
+from gsz.decoder.sizes import (PROFILES, SizeSpecError, budget_from_args, format_size, parse_ratio,
                                parse_size, size_style)
 
 

@@ -87,8 +87,8 @@ def test_layer_shares_grow_geometrically(sh0_layered):
 
 
 def test_psnr_rises_with_every_layer(sh3_layered):
-    from gsz.encoder.cameras import load_cameras
-    from gsz.encoder.evaluate import evaluate, render_views
+    from gsz.evaluation.cameras import load_cameras
+    from gsz.evaluation.evaluate import evaluate, render_views
 
     original = sample("sh3", 2500)
     cams = load_cameras(None, original, n_train=4, n_test=3, width=160).test

@@ -8,8 +8,8 @@ import os
 import numpy as np
 import pytest
 
-from gsz.encoder.cameras import load_cameras
-from gsz.encoder.metrics import psnr, quantize_8bit
+from gsz.evaluation.cameras import load_cameras
+from gsz.evaluation.metrics import psnr, quantize_8bit
 
 from conftest import SAMPLE_SH0, SAMPLE_SH3
 
@@ -30,7 +30,7 @@ def ctx():
 
 
 def _cpu(cloud, cam, **kw):
-    from gsz.encoder.render import render
+    from gsz.evaluation.render import render
     return render(cloud, cam, **kw).image
 
 
@@ -87,7 +87,7 @@ def test_chunked_preprocess_is_identical(ctx, sample_sh3):
 
 
 def test_depth_order_back_to_front():
-    from gsz.encoder.cameras import Camera
+    from gsz.evaluation.cameras import Camera
     cam = Camera(np.eye(3), np.zeros(3), 100, 100, 50, 50, 100, 100)
     pos = np.array([[0, 0, 5], [0, 0, 1], [0, 0, 0.1], [0, 0, 5], [0, 0, 3], [0, 0, -2]], np.float32)
     order = gl.depth_order(pos, cam)

@@ -13,7 +13,7 @@ import time
 import numpy as np
 import pytest
 
-from gsz.encoder.cameras import load_cameras
+from gsz.evaluation.cameras import load_cameras
 
 pytest.importorskip("imgui_bundle")
 gl = pytest.importorskip("gsz.viewer.gl_renderer")
@@ -442,7 +442,7 @@ def test_panel_covers_neither_half(window, sample_sh3, decoded):
 def test_this_view_psnr_follows_the_gsz_eval_protocol(window, sample_sh3, decoded):
     """Snapped to test camera i, "this view" is exactly gsz-eval's number for view i (CPU
     renders at the camera's own size, same background, same metric), whatever the layout."""
-    from gsz.encoder.evaluate import evaluate
+    from gsz.evaluation.evaluate import evaluate
     b = va.scene_from_bytes("decoded", decoded.data, decoded.cloud)
     app = _app(window, sample_sh3, b)
     try:

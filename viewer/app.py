@@ -98,7 +98,7 @@ def scene_from_file(path, name: str | None = None, *, max_gaussians: int | None 
     a .gsz within ``max_gaussians``, see :func:`gsz.decoder.decode`) with its size and, for a
     .gsz or a .glb carrying one, its per-component bytes."""
     from ..decoder.formats import is_compressed
-    from ..encoder.evaluate import load_cloud
+    from ..evaluation.evaluate import load_cloud
     path = os.fspath(path)
     cloud = load_cloud(path, max_gaussians=max_gaussians)
     compressed = is_compressed(path)
@@ -214,7 +214,7 @@ class ViewerApp(ViewState):
     # -- helpers -------------------------------------------------------------------------------
     @staticmethod
     def _scene_radius(cloud) -> float:
-        from ..encoder.cameras import robust_bounds
+        from ..evaluation.cameras import robust_bounds
         if len(cloud) == 0:
             return 1.0
         lo, hi, _ = robust_bounds(cloud.positions)

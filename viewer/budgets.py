@@ -22,11 +22,11 @@ __all__ = ["BudgetResult", "BudgetJobs", "parse_budgets"]
 def parse_budgets(text: str, parse_size=None) -> list:
     """``"2MB,5MB,10MB"`` -> [(label, bytes), ...] in the given order (labels as typed).
 
-    ``parse_size(str) -> int`` defaults to :func:`gsz.encoder.sizes.parse_size`.
+    ``parse_size(str) -> int`` defaults to :func:`gsz.decoder.sizes.parse_size`.
     Raises GszError (from the parser) for a bad size, or for an empty list.
     """
     if parse_size is None:
-        from ..encoder.sizes import parse_size
+        from ..decoder.sizes import parse_size
     items = [s.strip() for s in str(text).split(",") if s.strip()]
     if not items:
         raise GszError(f"--budgets: expected sizes like 2MB,5MB, got {text!r}")

@@ -5,7 +5,7 @@ position, the distance to the orbit pivot (which lies ``distance`` ahead of the 
 vertical focal length relative to the image height (kept when the window is resized), and the
 scene's up vector (orbit yaws about it and pitch stops short of it, so the horizon never
 flips).  :meth:`CameraController.camera` turns the state into a
-:class:`~gsz.encoder.cameras.Camera` of any image size; :meth:`snap_to` adopts a dataset
+:class:`~gsz.evaluation.cameras.Camera` of any image size; :meth:`snap_to` adopts a dataset
 camera exactly (a snapped view renders the same pixels as gsz-eval's view of that camera when
 the window has the camera's size).
 """
@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from ..encoder.cameras import Camera
+from ..evaluation.cameras import Camera
 
 __all__ = ["CameraController", "rotation_about"]
 

@@ -107,7 +107,7 @@ def _parse_background(text: str):
 
 
 def _up_vector(up_arg, cloud, cameras_path, cams):
-    from ..encoder.cameras import _up_vector, detect_up
+    from ..evaluation.cameras import _up_vector, detect_up
     if up_arg != "auto":
         return _up_vector(up_arg)
     if cameras_path is not None:
@@ -120,7 +120,7 @@ def _up_vector(up_arg, cloud, cameras_path, cams):
 
 
 def _load_cameras(args, ref_cloud, width):
-    from ..encoder.cameras import load_cameras
+    from ..evaluation.cameras import load_cameras
     try:
         cams = load_cameras(args.cameras, ref_cloud, width=width, up=args.up)
     except ValueError as e:
@@ -131,7 +131,7 @@ def _load_cameras(args, ref_cloud, width):
 
 
 def _with_height(cam, height):
-    from ..encoder.cameras import Camera
+    from ..evaluation.cameras import Camera
     if height is None or height == cam.height:
         return cam
     # Keep the focal length and the optical centre's place: the frame grows or shrinks evenly.
@@ -200,7 +200,7 @@ def _screenshot(args, a, b, jobs) -> str:
     from .app import ViewerApp
     if args.simulate_network is not None:
         raise _UsageError("--simulate-network is for the window; --layers K renders a layer prefix headless")
-    from ..encoder.cameras import DEFAULT_VIEW_WIDTH
+    from ..evaluation.cameras import DEFAULT_VIEW_WIDTH
     from .gl_renderer import create_headless_context
     width = DEFAULT_VIEW_WIDTH if args.width is None else args.width
     if width < 1 or (args.height is not None and args.height < 1) or width > 16384 \

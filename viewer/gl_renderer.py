@@ -1,14 +1,14 @@
 """OpenGL (moderngl) splat renderer with the CPU reference renderer's semantics.
 
 Pipeline per frame, for one :class:`~gsz.decoder.cloud.GaussianCloud` and one
-:class:`~gsz.encoder.cameras.Camera`:
+:class:`~gsz.evaluation.cameras.Camera`:
 
 1. **Preprocess** (compute shader ``shaders/preprocess.comp.glsl``, one invocation per splat):
    near-plane cull (view depth <= 0.2), 3D covariance from the normalised quaternion and
    ``exp(log_scale) * scale_modifier``, EWA projection with graphdeco's clamped Jacobian and
    0.3 px dilation, conic, radius ``ceil(3 sqrt(lambda_max))`` and the graphdeco tile
    rectangle, view-dependent SH colour up to degree 3 (``max(SH + 0.5, 0)``).  The same maths
-   as :mod:`gsz.encoder.render`, so a GL frame matches the CPU reference (tests: >= 30 dB,
+   as :mod:`gsz.evaluation.render`, so a GL frame matches the CPU reference (tests: >= 30 dB,
    measured 83 to 100 dB after 8-bit rounding on tests/data and the 542k flowers scene).
 2. **Sort**: indices of the splats in front of the near plane, back to front by view-space
    depth ``z`` (the reference's key, formed like it: float64 then float32), on the CPU with
@@ -257,7 +257,7 @@ class SplatRenderer:
 def render_image(cloud: GaussianCloud, camera, *, ctx=None, background=(0.0, 0.0, 0.0),
                  sh_degree: int | None = None, scale_modifier: float = 1.0) -> np.ndarray:
     """[H, W, 3] float32 linear RGB (background composited, not clamped): one GL frame of
-    ``cloud`` from ``camera`` -- the GL counterpart of ``gsz.encoder.render.render(...).image``.
+    ``cloud`` from ``camera`` -- the GL counterpart of ``gsz.evaluation.render.render(...).image``.
     Creates a headless EGL context when ``ctx`` is None."""
     own = ctx is None
     ctx = ctx or create_headless_context()

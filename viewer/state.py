@@ -45,7 +45,7 @@ def format_bytes(n) -> str:
     if n is None:
         return "?"
     try:
-        from ..encoder.sizes import format_size
+        from ..decoder.sizes import format_size
         return format_size(int(n))
     except Exception:
         return f"{n / 1e6:.2f} MB" if n >= 1e5 else f"{n / 1e3:.1f} kB"
@@ -128,7 +128,7 @@ class ViewState:
     @staticmethod
     def pivot_distance(cloud, cam) -> float:
         """Distance from ``cam`` to the scene centre (the orbit pivot)."""
-        from ..encoder.cameras import robust_bounds
+        from ..evaluation.cameras import robust_bounds
         if len(cloud) == 0:
             return 1.0
         lo, hi, _ = robust_bounds(cloud.positions)
@@ -186,7 +186,7 @@ class ViewState:
         """The camera "this view" is scored at: the current pose at the snapped camera's own
         size and intrinsics (so a test view scores exactly as gsz-eval scores it), or, away
         from any snapped camera, at gsz-eval's default width with the shown aspect."""
-        from ..encoder.cameras import DEFAULT_VIEW_WIDTH
+        from ..evaluation.cameras import DEFAULT_VIEW_WIDTH
         snapped = getattr(self.control, "_snapped", None)
         if snapped is not None:
             return self.control.camera(snapped.width, snapped.height)
@@ -201,9 +201,9 @@ class ViewState:
 
     def request_metrics(self, wait: bool = False):
         """PSNR/SSIM of B against A for the current view with gsz-eval's protocol: both clouds
-        rendered by the CPU reference renderer (:mod:`gsz.encoder.render`) at
+        rendered by the CPU reference renderer (:mod:`gsz.evaluation.render`) at
         :meth:`metrics_camera` on the background shown, compared by
-        :func:`gsz.encoder.evaluate.evaluate` (8-bit rounding, 100 dB cap, reference SSIM).
+        :func:`gsz.evaluation.evaluate.evaluate` (8-bit rounding, 100 dB cap, reference SSIM).
         Runs on one worker thread (the newest request wins); ``wait`` blocks until this view's
         numbers are in :meth:`current_metrics` (or the worker failed: see :attr:`status`)."""
         if not self.comparing:
@@ -226,8 +226,8 @@ class ViewState:
                                             or (self._metrics_want is None and self._metrics_pending is None))
 
     def _metrics_worker(self) -> None:
-        from ..encoder.evaluate import evaluate
-        from ..encoder.render import render
+        from ..evaluation.evaluate import evaluate
+        from ..evaluation.render import render
         while True:
             with self._metrics_lock:
                 job, self._metrics_want = self._metrics_want, None

@@ -18,7 +18,7 @@ PIECE = 16384          # bytes per simulated network read
 
 def parse_rate(text: str) -> float:
     """'2MB/s', '500kB', '1.5MiB/s' -> bytes per second (> 0)."""
-    from ..encoder.sizes import parse_size
+    from ..decoder.sizes import parse_size
     t = str(text).strip()
     if t.lower().endswith("/s"):
         t = t[:-2]

@@ -82,7 +82,7 @@ def _search_threads():
     count."""
     import torch
 
-    from ..render import render_threads
+    from ...evaluation.render import render_threads
     old = torch.get_num_threads()
     torch.set_num_threads(1)
     try:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..cameras import load_cameras
+from ...evaluation.cameras import load_cameras
 from .options import SearchOptions
 from .sensitivity import channel_weights
 
@@ -12,7 +12,7 @@ def eval_cameras(cloud, sopts: SearchOptions, cameras=None) -> list:
     """The train views candidates are compared on: ``eval_views`` of the caller's train cameras
     spread evenly over them (downscaled to ``eval_width`` where wider), or generated views at
     ``eval_width`` when there are none."""
-    from ..evaluate import pick_evenly
+    from ...evaluation.evaluate import pick_evenly
     if cameras:
         return [c.scaled(sopts.eval_width) if c.width > sopts.eval_width else c
                 for c in pick_evenly(list(cameras), max(sopts.eval_views, 1))]
@@ -35,8 +35,8 @@ def train_psnr(refs, cloud, cameras, best_views=None) -> tuple[float, list, int]
     plain mean) -- all the search compares candidates by; SSIM would cost more than the renders.
     With ``best_views`` (the best candidate's per-view PSNRs) the candidate may be dropped early,
     see EVAL_DROP_MARGIN_DB."""
-    from ..evaluate import render_views
-    from ..metrics import psnr
+    from ...evaluation.evaluate import render_views
+    from ...evaluation.metrics import psnr
     if best_views is None:
         imgs = render_views(cloud, cameras)
         views = [psnr(r, i) for r, i in zip(refs, imgs)]
@@ -66,8 +66,8 @@ def screen_psnr(refs, cloud, cameras, best_views) -> tuple[float, int]:
     view by view and stops early when the tau clearly passes (see SCREEN_PASS_MARGIN_DB).
     The views go hardest first (lowest PSNR of the best candidate): there pruning error, which
     the bound keeps, dominates quantisation error, which it drops, so the bound is tightest."""
-    from ..evaluate import render_views
-    from ..metrics import psnr
+    from ...evaluation.evaluate import render_views
+    from ...evaluation.metrics import psnr
     order = np.argsort(np.asarray(best_views), kind="stable")
     vals, diffs = [], []
     for i in order:
@@ -82,8 +82,8 @@ class Judge:
     """The train views, their reference renders and the channel weights of one search."""
 
     def __init__(self, cloud, sopts: SearchOptions, progress, cameras=None):
-        from ..metrics import quantize_8bit
-        from ..render import render
+        from ...evaluation.metrics import quantize_8bit
+        from ...evaluation.render import render
         self.cameras = eval_cameras(cloud, sopts, cameras)
         with progress.stage("eval-reference", f"{len(self.cameras)} train views"):
             # float renders (the first two also serve as the sensitivity's base), 8-bit as

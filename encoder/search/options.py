@@ -4,8 +4,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ...decoder.errors import GszError
+from ...evaluation.cameras import DEFAULT_VIEW_WIDTH
 
-from ..cameras import DEFAULT_VIEW_WIDTH
 from ..pipeline import MANY_BLOCKS, SceneOptions
 
 #: bit-width of the SH codebook and the kept exact SH vectors (the paper's setting), except where

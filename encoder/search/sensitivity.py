@@ -21,7 +21,7 @@ def channel_weights(cloud, cameras, *, seed: int = 0, base_images=None) -> dict:
     from ...decoder.cloud import GaussianCloud
     from ...decoder.rotation import euler_to_quaternion, quaternion_to_euler
 
-    from ..render import render
+    from ...evaluation.render import render
     rng = np.random.default_rng(seed)
     base = [render(cloud, c).image.astype(np.float64) for c in cameras] if base_images is None \
         else [np.asarray(b, np.float64) for b in base_images]

@@ -4,7 +4,7 @@
 //   u_mode 1: vertical split at u_split pixels (left A, right B, or the heat map when u_heat)
 //   u_mode 2: side by side (each texture holds a half-width render of the same camera)
 // The heat map is max over RGB of |clamp(A) - clamp(B)| scaled by 1 / u_full_scale, on
-// gsz-eval's black -> red -> yellow -> white ramp (gsz.encoder.evaluate.error_map).
+// gsz-eval's black -> red -> yellow -> white ramp (gsz.evaluation.evaluate.error_map).
 uniform sampler2D u_a;
 uniform sampler2D u_b;
 uniform int u_mode;

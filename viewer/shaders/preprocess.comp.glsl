@@ -1,7 +1,7 @@
 #version 430
 // Per-splat preprocessing, one invocation per Gaussian: the EWA projection, SH colour and
 // screen rectangle of graphdeco's diff-gaussian-rasterization forward pass, step by step as
-// gsz.encoder.render (the CPU reference) does it.  Writes 4 vec4 per splat:
+// gsz.evaluation.render (the CPU reference) does it.  Writes 4 vec4 per splat:
 //   out0 = (mean_x, mean_y, opacity, ratio)      graphdeco pixel coordinates (centres at ints)
 //   out1 = (conic_a, conic_b, conic_c, colour_r) conic = inverse of the dilated 2D covariance
 //   out2 = (colour_g, colour_b, lo, hi)          pixel box (inclusive), 2 x 16-bit ints each

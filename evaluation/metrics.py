@@ -5,7 +5,7 @@ Protocol (reference notes §11, ``splatwizard/pipeline/evaluation.py``):
 * Images are [H, W, 3] float arrays; both are **clamped to [0, 1]** first (renders are linear
   and unclamped).  :func:`quantize_8bit` then rounds to 8 bits, ``round(255 x) / 255``: the
   reference rounds its render to 8 bits and compares it with 8-bit ground-truth images.  Here
-  both images are renders (original vs compressed), so :func:`gsz.encoder.evaluate.evaluate`
+  both images are renders (original vs compressed), so :func:`gsz.evaluation.evaluate.evaluate`
   rounds *both*, exactly as if the original render had been saved as the PNG ground truth.
   :func:`psnr` and :func:`ssim` themselves only clamp, so they also serve float comparisons.
 * **PSNR** per image: ``10 log10(max_val^2 / MSE)`` over all pixels and channels, capped at

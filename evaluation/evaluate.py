@@ -2,8 +2,8 @@
 ``gsz-eval``, whose command line is :mod:`gsz.encoder.eval_cli`).
 
 Both scenes are rendered from the same TEST views (a cameras.json / COLMAP model split like the
-3DGS protocol, or the ORIGINAL's :func:`~gsz.encoder.cameras.default_cameras`), on the same
-background, and compared with :mod:`gsz.encoder.metrics` (renders clamped and rounded to 8 bits,
+3DGS protocol, or the ORIGINAL's :func:`~gsz.evaluation.cameras.default_cameras`), on the same
+background, and compared with :mod:`gsz.evaluation.metrics` (renders clamped and rounded to 8 bits,
 PSNR capped at 100 dB for identical images, reference SSIM).
 
     gsz-eval ORIGINAL COMPRESSED [--cameras FILE_OR_DIR] [--views N] [--width W] [--json]
@@ -56,7 +56,7 @@ def _default_render_fn():
         from .render import render
     except ImportError as e:
         from ..decoder.cli_common import missing_extra
-        raise (missing_extra(e, "rendering") or GszError(f"the renderer (gsz.encoder.render) is "
+        raise (missing_extra(e, "rendering") or GszError(f"the renderer (gsz.evaluation.render) is "
                                                          f"unavailable: {e}")) from None
     return render
 
@@ -65,7 +65,7 @@ def render_views(cloud: GaussianCloud, cameras, *, background=(0.0, 0.0, 0.0), r
                  progress=None) -> list:
     """Render ``cloud`` from each camera: a list of [H, W, 3] float64 images in [0, 1] rounded
     to 8 bits (the evaluation protocol's form).  ``render_fn(cloud, camera, background=...)``
-    must return an object with ``.image``; default :func:`gsz.encoder.render.render`."""
+    must return an object with ``.image``; default :func:`gsz.evaluation.render.render`."""
     render_fn = render_fn or _default_render_fn()
     out = []
     for i, cam in enumerate(cameras):

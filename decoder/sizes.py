@@ -1,6 +1,7 @@
 """Size budgets: parsing "5MB" / "4.5MiB" / "123456", echoing them back, and named profiles.
 
-A budget is always an integer number of BYTES of the whole .gsz file.
+A budget is always an integer number of BYTES of the whole .gsz file.  Pure Python, in the core
+because the encoder's and the viewer's command lines both read budgets.
 
 Units (case-insensitive where unambiguous):
     B, (none)                     bytes
@@ -24,7 +25,7 @@ import math
 import re
 from fractions import Fraction
 
-from ..decoder.errors import GszUsageError
+from .errors import GszUsageError
 
 
 class SizeSpecError(GszUsageError):

@@ -28,7 +28,7 @@ CUDA rasteriser) step by step:
   float32 alpha and T and summed in a fixed order, so the result is deterministic; by
   construction ``importance.sum() == alpha_map.sum()`` up to float32 rounding of T.
 
-Pixel convention: :class:`~gsz.encoder.cameras.Camera` puts pixel centres at integer + 0.5, so
+Pixel convention: :class:`~gsz.evaluation.cameras.Camera` puts pixel centres at integer + 0.5, so
 a centre projects to ``fx x / z + cx - 0.5`` in graphdeco's integer-centred pixel coordinates.
 
 Remaining differences to graphdeco (all below ~1e-6 relative unless noted):
@@ -427,7 +427,7 @@ def _clear_stale_lock(name: str) -> None:
     except Exception:                  # no lock (the usual case), or a torch without the helper
         return
     if age > STALE_LOCK_S:
-        warnings.warn(f"gsz.encoder.render: removing a stale rasteriser build lock ({age / 60:.0f} min "
+        warnings.warn(f"gsz.evaluation.render: removing a stale rasteriser build lock ({age / 60:.0f} min "
                       f"old, left by a killed compile): {lock}", RuntimeWarning, stacklevel=3)
         lock.unlink(missing_ok=True)
 
@@ -449,7 +449,7 @@ def _load_kernel():
                 print(COMPILE_MESSAGE, file=sys.stderr, flush=True)
             _KERNEL = load(name=name, sources=[str(src)], extra_cflags=list(_KERNEL_CFLAGS), verbose=False)
         except Exception as exc:  # compiler missing, headers missing, ...
-            warnings.warn(f"gsz.encoder.render: C++ rasteriser unavailable ({exc!r}); "
+            warnings.warn(f"gsz.evaluation.render: C++ rasteriser unavailable ({exc!r}); "
                           f"falling back to the (much slower) pure-torch rasteriser",
                           RuntimeWarning, stacklevel=3)
             _KERNEL = None
