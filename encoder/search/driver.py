@@ -92,10 +92,11 @@ def _search_threads():
         torch.set_num_threads(old)
 
 
-#: How much better (train PSNR) another SH path must render than the codebook path for the
-#: search to stop encoding the codebook path (a tie says nothing: at a too-shallow depth every
-#: path renders the same).
-CODEBOOK_LOST_MARGIN_DB = 0.1
+#: How much better (train PSNR) another SH path must render for the search to stop weighing
+#: one (a tie says nothing: at a too-shallow depth every path renders the same).
+PATH_LOST_MARGIN_DB = 0.1
+#: The SH paths as the search's log names them (tau.encode_tau).
+SH_PATH_NAMES = {"vq": "codebook", "classes": "classes", "scalar": "scalar"}
 
 #: Prepared stages and voxel grids the search keeps: the one being encoded and, for voxels, the
 #: one screened just before it (both are recomputed, identically, if asked for again).
@@ -151,15 +152,7 @@ class BudgetSearch:
         self.log: list = []               # every tau's calibration
         self.screened: list = []          # exact-attribute bounds rendered or inferred
         self.dropped: list = []           # candidates dropped after their hardest views
-        # the scalar SH path lost to the codebook as rendered once: not weighed again (what
-        # decides it -- palette-like or continuous SH, the rate -- is the same at every tau)
-        self.scalar_lost = False
-        # ... and the same for the kept vectors in importance classes (docs/design/sh-classes.md)
-        self.classes_lost = False
-        # ... and the codebook path, once another path renders clearly better (it is then
-        # encoded only where no other path fits): at high rates on large scenes it was one
-        # calibration and one render per stage for nothing
-        self.codebook_lost = False
+        self.lost_paths: set = set()      # SH paths not weighed again (_note_lost_paths)
         self.t0 = self.c0 = None
 
     # --- stages -------------------------------------------------------------------------------
@@ -300,10 +293,10 @@ class BudgetSearch:
             return
         stage = self.stage_for(tau, d, fl)
         encs = encode_tau(stage, self.target,
-                          dataclasses.replace(sopts, sh_scalar=sopts.sh_scalar and not self.scalar_lost,
-                                              sh_classes=sopts.sh_classes and not self.classes_lost),
+                          dataclasses.replace(sopts, sh_scalar=sopts.sh_scalar and "scalar" not in self.lost_paths,
+                                              sh_classes=sopts.sh_classes and "classes" not in self.lost_paths),
                           self.sh_models(stage), progress, self.log, self.judge.weights, min_keep=min_keep,
-                          codebook=not self.codebook_lost)
+                          codebook="vq" not in self.lost_paths)
         # re-split / kept-layer-0 variants may be chosen despite a lower PSNR: render them fully
         rival = self.best().view_psnr if self.candidates and regular else None
         scored, paths = [], []
@@ -324,23 +317,28 @@ class BudgetSearch:
         if not paths:
             progress.log(f"tau {tau}: budget not reachable")
             return
-        if "scalar" in paths and scored and best_of(scored).encoded.sh_path != "scalar":
-            self.scalar_lost = True
-            progress.log("another SH path renders better than the scalar path: the scalar path "
-                         "is not weighed again in this search")
-        if "classes" in paths and scored and best_of(scored).encoded.sh_path != "classes":
-            self.classes_lost = True
-            progress.log("kept SH vectors in importance classes render worse than another SH path: "
-                         "not weighed again in this search")
-        by_path = {c.encoded.sh_path: c.train_psnr for c in scored}
-        if ("vq" in by_path and scored and best_of(scored).encoded.sh_path != "vq"
-                and best_of(scored).train_psnr >= by_path["vq"] + CODEBOOK_LOST_MARGIN_DB):
-            self.codebook_lost = True
-            progress.log(f"another SH path renders {CODEBOOK_LOST_MARGIN_DB:g}+ dB better than the "
-                         f"codebook path: the codebook path is encoded again only where no other fits")
+        self._note_lost_paths(paths, scored)
         if scored:
             # one candidate per (tau, depth, split): the better SH path as rendered
             self.candidates.append(best_of(scored))
+
+    def _note_lost_paths(self, paths: list, scored: list) -> None:
+        """An SH path that rendered PATH_LOST_MARGIN_DB or more below the best of a stage (or
+        was dropped after its hardest views) is not weighed again in this search: what decides
+        it -- palette-like or continuous SH, the rate -- is the same at every stage.  The
+        codebook path is then encoded only where no other path fits."""
+        if not scored:
+            return
+        best = best_of(scored)
+        psnr = {c.encoded.sh_path: c.train_psnr for c in scored}
+        for path in dict.fromkeys(paths):
+            if path not in SH_PATH_NAMES or path == best.encoded.sh_path or path in self.lost_paths:
+                continue
+            if path in psnr and best.train_psnr < psnr[path] + PATH_LOST_MARGIN_DB:
+                continue                      # a tie says nothing
+            self.lost_paths.add(path)
+            self.progress.log(f"the {SH_PATH_NAMES[path]} SH path renders {PATH_LOST_MARGIN_DB:g}+ dB below "
+                              f"the {SH_PATH_NAMES[best.encoded.sh_path]} path: not weighed again in this search")
 
     def refine_tau(self) -> None:
         """The grid neighbours of the best candidate's tau (at its depth), while they improve."""

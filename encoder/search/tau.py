@@ -41,11 +41,20 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
     with progress.stage("sh-plan", "codebook size and keep-count vs bit allocation"):
         sh_model, keep, vq_total = choose_sh(sh_models, loss, rate, target - base_fixed, weights, min_keep)
     m, w_sh = sh_model.m, 1.0 if weights is None else weights["sh"]
+    plans: dict = {}
+
+    def classes_plan(k: int) -> tuple:
+        """(plan, kept tables) of ``k`` kept vectors in importance classes, made once (every
+        vector kept in classes is the scalar path's plan too)."""
+        if k not in plans:
+            with progress.stage("sh-plan", f"{k:,} kept SH vectors in importance classes, widths allocated"):
+                plan = sh_model.encode(k, code=False, classes=SH_CLASSES)
+                plans[k] = (plan, kept_tables(plan, w_sh, min_bits=1))
+        return plans[k]
     scalar = None
     if sopts.sh_scalar and SCALAR_MIN_KEEP * m <= keep and (keep < m or not codebook):
-        with progress.stage("sh-plan", "scalar SH: every vector quantised group-wise"):
-            scalar = scalar_sh(sh_model, loss, rate, target - base_fixed, weights,
-                               vq_total if codebook else None)
+        scalar = scalar_sh(classes_plan(m), loss, rate, target - base_fixed,
+                           vq_total if codebook else None)
         if scalar is not None and codebook:
             progress.log(f"tau {stage.reserve}: the scalar SH path (every vector quantised "
                          f"group-wise, 1-16 bits in the allocation) is estimated better than the "
@@ -66,12 +75,12 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
         keep = min(m, max(keep, int(round(CLASSES_MIN_KEEP * m))))
     if (sopts.sh_classes and keep >= SH_CLASS_MIN_SIZE * SH_CLASSES
             and not (saturated and keep < m)):
-        res = _classes(args, sh_model, keep, w_sh, progress)
+        res = calibrate(*args, *classes_plan(keep))
         if res is not None and not codebook and keep < m and res.left_over(target, sopts.tolerance):
             # without the codebook path's spend_saturated: every group at its best width and
             # bytes left, so every vector kept (the allocation then trades their widths)
             keep = m
-            res = _classes(args, sh_model, m, w_sh, progress) or res
+            res = calibrate(*args, *classes_plan(m)) or res
         if keep >= m:
             scalar = None           # every vector kept in classes is the scalar path's file
         if res is not None:
@@ -107,14 +116,6 @@ def _codebook_path(args, sh_model: ShModel, keep: int, weights) -> tuple[Calibra
     return res, saturated
 
 
-def _classes(args, sh_model: ShModel, keep: int, w_sh: float, progress) -> Calibrated | None:
-    """The classes path calibrated at ``keep`` exact vectors (docs/design/sh-classes.md)."""
-    with progress.stage("sh-plan", "kept SH vectors in importance classes, widths allocated"):
-        plan = sh_model.encode(keep, code=False, classes=SH_CLASSES)
-        kept = kept_tables(plan, w_sh, min_bits=1)
-    return calibrate(*args, plan, kept=kept)
-
-
 def _attributes_at_max(res: Calibrated, loss, rate) -> bool:
     """Every attribute group at its best width (what the depth walk reads as saturated)."""
     return bool(np.array_equal(res.best.pick[:loss.shape[0]], solve_max(loss, rate)))
@@ -145,14 +146,14 @@ CLASSES_MIN_KEEP = 0.04
 SCALAR_MIN_KEEP = 0.08
 
 
-def scalar_sh(model: ShModel, loss, rate, room: float, weights, vq_total: float | None):
-    """(plan, kept tables) of the scalar SH path -- every vector kept, its (component, block)
-    groups in the allocation at 1..16 bits, no codebook -- when its estimated total loss (SH
-    plus attributes in ``room`` bytes) is below the codebook path's ``vq_total``; else None."""
+def scalar_sh(plan_kept: tuple, loss, rate, room: float, vq_total: float | None):
+    """``plan_kept`` -- (plan, kept tables) of the scalar SH path: every vector kept, its
+    (component, block) groups in the allocation at 1..16 bits, no codebook -- when its estimated
+    total loss (SH plus attributes in ``room`` bytes) is below the codebook path's ``vq_total``
+    (always when that is None); else None."""
     from ..bit_allocation import InfeasibleBudgetError
     from .tables import group_meta_bytes
-    plan = model.encode(model.m, code=False, classes=SH_CLASSES)
-    kept = kept_tables(plan, 1.0 if weights is None else weights["sh"], min_bits=1)
+    plan, kept = plan_kept
     if not kept:
         return None
     all_loss, all_rate, kept_shapes = with_kept(loss, rate, (), kept)
@@ -162,7 +163,7 @@ def scalar_sh(model: ShModel, loss, rate, room: float, weights, vq_total: float 
     except InfeasibleBudgetError:
         return None
     total = float(all_loss[np.arange(len(pick)), pick].sum())
-    return (plan, kept) if vq_total is None or total < vq_total else None
+    return plan_kept if vq_total is None or total < vq_total else None
 
 
 def choose_sh(sh_models: list, loss, rate, room: float, weights, min_keep: int) -> tuple[ShModel, int, float | None]:
