@@ -241,3 +241,28 @@ def test_search_starts_deeper_where_a_large_extent_merges_gaussians():
     d = start_depth(big, 20 * len(big))                      # 20 bytes per Gaussian
     assert d > d0 and merge_fraction(big, d, cube) < merge_fraction(big, d0, cube) / 4
     assert start_depth(big, 6 * len(big)) == d0              # 6: the level's bits cost more
+
+
+def test_sh_paths_stop_being_weighed_after_a_clear_or_a_second_narrow_loss():
+    """The search stops weighing an SH path that rendered 0.1+ dB below a stage's best, was
+    dropped after its hardest views, or lost narrowly twice; a single tie keeps it."""
+    from types import SimpleNamespace
+
+    from gsz.encoder.progress import Progress
+    from gsz.encoder.search.candidate import Candidate
+    from gsz.encoder.search.driver import PATH_LOST_MARGIN_DB, BudgetSearch
+
+    def stage(**psnr):
+        return [Candidate(p, 1.0, 12, 0.0, [], SimpleNamespace(sh_path=k)) for k, p in psnr.items()]
+
+    s = SimpleNamespace(lost_paths=set(), narrow_losses={}, progress=Progress(quiet=True))
+    note = BudgetSearch._note_lost_paths
+    narrow = 50.0 - PATH_LOST_MARGIN_DB / 2
+    note(s, ["vq", "classes", "scalar"], stage(vq=narrow, classes=50.0, scalar=narrow))
+    assert s.lost_paths == set()                               # one tie says nothing
+    note(s, ["vq", "classes", "scalar"], stage(vq=50.0 - 2 * PATH_LOST_MARGIN_DB, classes=50.0,
+                                               scalar=narrow))
+    assert s.lost_paths == {"vq", "scalar"}                    # a clear loss; a second narrow one
+    s = SimpleNamespace(lost_paths=set(), narrow_losses={}, progress=Progress(quiet=True))
+    note(s, ["vq", "classes"], stage(vq=50.0))                 # classes dropped after its hardest views
+    assert s.lost_paths == {"classes"}

@@ -62,7 +62,8 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     sopts = options or SearchOptions()
     executor = make_executor(sopts.executor, sopts.workers)
     try:
-        with _search_threads(), ThreadPoolExecutor(max_workers=1, thread_name_prefix="gsz-geom") as pool:
+        with _search_threads(), _small_pages(), \
+                ThreadPoolExecutor(max_workers=1, thread_name_prefix="gsz-geom") as pool:
             search = BudgetSearch(cloud, target_bytes, sopts, progress, pool, executor)
             result = search.run(importance, cameras)
     finally:
@@ -97,6 +98,26 @@ def _search_threads():
 PATH_LOST_MARGIN_DB = 0.1
 #: The SH paths as the search's log names them (tau.encode_tau).
 SH_PATH_NAMES = {"vq": "codebook", "classes": "classes", "scalar": "scalar"}
+
+@contextlib.contextmanager
+def _small_pages():
+    """NumPy's large arrays without transparent huge pages for the search.
+
+    The search allocates and drops many short-lived arrays of tens to hundreds of MB; with huge
+    pages each first touch may compact memory in the kernel (THP defrag "madvise", common on
+    Linux) -- a third of the CPU time at 1.2 M Gaussians (docs/design/memory.md).  NumPy's own
+    switch is private: without it nothing changes."""
+    try:
+        from numpy._core.multiarray import _set_madvise_hugepage
+    except ImportError:
+        yield
+        return
+    old = _set_madvise_hugepage(False)
+    try:
+        yield
+    finally:
+        _set_madvise_hugepage(old)
+
 
 #: Prepared stages and voxel grids the search keeps: the one being encoded and, for voxels, the
 #: one screened just before it (both are recomputed, identically, if asked for again).
@@ -153,6 +174,7 @@ class BudgetSearch:
         self.screened: list = []          # exact-attribute bounds rendered or inferred
         self.dropped: list = []           # candidates dropped after their hardest views
         self.lost_paths: set = set()      # SH paths not weighed again (_note_lost_paths)
+        self.narrow_losses: dict = {}     # SH path -> stages it lost by < PATH_LOST_MARGIN_DB
         self.t0 = self.c0 = None
 
     # --- stages -------------------------------------------------------------------------------
@@ -324,9 +346,9 @@ class BudgetSearch:
 
     def _note_lost_paths(self, paths: list, scored: list) -> None:
         """An SH path that rendered PATH_LOST_MARGIN_DB or more below the best of a stage (or
-        was dropped after its hardest views) is not weighed again in this search: what decides
-        it -- palette-like or continuous SH, the rate -- is the same at every stage.  The
-        codebook path is then encoded only where no other path fits."""
+        was dropped after its hardest views), or narrowly below it twice, is not weighed again
+        in this search: what decides it -- palette-like or continuous SH, the rate -- is the
+        same at every stage.  The codebook path is then encoded only where no other path fits."""
         if not scored:
             return
         best = best_of(scored)
@@ -334,11 +356,17 @@ class BudgetSearch:
         for path in dict.fromkeys(paths):
             if path not in SH_PATH_NAMES or path == best.encoded.sh_path or path in self.lost_paths:
                 continue
-            if path in psnr and best.train_psnr < psnr[path] + PATH_LOST_MARGIN_DB:
-                continue                      # a tie says nothing
+            narrow = path in psnr and best.train_psnr < psnr[path] + PATH_LOST_MARGIN_DB
+            if narrow:
+                # one narrow loss says little (at a too-shallow depth every path renders the
+                # same); a second one says the path is never clearly better
+                self.narrow_losses[path] = self.narrow_losses.get(path, 0) + 1
+                if self.narrow_losses[path] < 2:
+                    continue
             self.lost_paths.add(path)
-            self.progress.log(f"the {SH_PATH_NAMES[path]} SH path renders {PATH_LOST_MARGIN_DB:g}+ dB below "
-                              f"the {SH_PATH_NAMES[best.encoded.sh_path]} path: not weighed again in this search")
+            how = "narrowly, a second time," if narrow else f"{PATH_LOST_MARGIN_DB:g}+ dB"
+            self.progress.log(f"the {SH_PATH_NAMES[path]} SH path renders {how} below the "
+                              f"{SH_PATH_NAMES[best.encoded.sh_path]} path: not weighed again in this search")
 
     def refine_tau(self) -> None:
         """The grid neighbours of the best candidate's tau (at its depth), while they improve."""
