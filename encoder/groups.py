@@ -5,9 +5,9 @@ import numpy as np
 
 from ..decoder.bytesio import Writer
 from ..decoder.groups import (MODEL_MODES, MODEL_PER_CHANNEL_BITS, MODEL_PER_GROUP,
-                                blocks_for, group_model_ids)
+                                blocks_for)
 from ..decoder.quant import dequantize_groups, split_lengths
-from .rans import encode_stream_pair
+from .rans import encode_group_streams
 
 
 def write_channel_set(x: np.ndarray, bits, num_blocks: int) -> tuple[bytes, np.ndarray]:
@@ -37,9 +37,8 @@ def write_channel_set(x: np.ndarray, bits, num_blocks: int) -> tuple[bytes, np.n
     # groups at high bit-widths.  The per-(channel, bits) histograms are merged from the
     # per-group ones (group c*B + k -> model c*16 + bits[c, k] - 1, as group_model_ids).
     assert MODEL_MODES == (MODEL_PER_GROUP, MODEL_PER_CHANNEL_BITS)
-    mids, count = group_model_ids(c, length, b, bits_arr, MODEL_PER_GROUP)
     merge = (np.arange(c, dtype=np.int64)[:, None] * 16 + bits_arr - 1).ravel()
-    streams = encode_stream_pair(symbols.ravel(), mids, count, merge, c * 16)
+    streams = encode_group_streams(symbols, split_lengths(length, b), merge, c * 16)
     best = (MODEL_PER_CHANNEL_BITS, streams[1]) if len(streams[1]) < len(streams[0]) \
         else (MODEL_PER_GROUP, streams[0])
     w = Writer()

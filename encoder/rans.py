@@ -163,6 +163,66 @@ def _histograms(symbols: np.ndarray, model_ids: np.ndarray, num_models: int,
     return h
 
 
+def _histograms_rows(symbols: np.ndarray, lens: np.ndarray) -> _Hist:
+    """``_histograms(symbols.ravel(), ids, C * B, symbol_entries=True)`` of a [C, L] channel
+    set whose model ids are its (channel, block) groups, c * B + block (blocks of ``lens``
+    symbols, contiguous along L): the same histograms, one channel at a time, with neither a
+    per-symbol model-id array nor [C * L]-sized temporaries besides the symbols' entries (at
+    1.2 M kept SH vectors those passes over 34 M int64 values took most of a calibration round)."""
+    sym2 = np.asarray(symbols)
+    c, length = sym2.shape
+    lens = np.asarray(lens, dtype=np.int64)
+    b = lens.size
+    m_count = c * b
+    h = _Hist()
+    h.num_models = m_count
+    h.total = np.tile(lens, c)
+    h.lo, hi = np.zeros(m_count, np.int64), np.zeros(m_count, np.int64)
+    h.sym_entry = np.empty(c * length, np.int64)
+    block_of = np.repeat(np.arange(b, dtype=np.int64), lens)
+    full = lens > 0
+    first = (np.cumsum(lens) - lens)[full]
+    parts, base = [], 0
+    for ci in range(c):
+        x = sym2[ci].astype(np.int64)
+        lo_r, hi_r = np.zeros(b, np.int64), np.zeros(b, np.int64)
+        if length:
+            lo_r[full] = np.minimum.reduceat(x, first)
+            hi_r[full] = np.maximum.reduceat(x, first)
+        span_r = hi_r - lo_r
+        if np.any((span_r > MAX_SPAN) | (lo_r < -VALUE_LIMIT) | (hi_r >= VALUE_LIMIT)):
+            return _histograms(sym2.ravel(), np.arange(m_count, dtype=np.int64).reshape(c, b)[:, block_of].ravel(),
+                               m_count, symbol_entries=True)     # its error names the model
+        size = np.where(full, span_r + 1, 0)
+        ends = np.cumsum(size)
+        dstart = ends - size
+        key = x - (lo_r - dstart)[block_of]
+        cells = int(ends[-1]) if b else 0
+        if cells <= max(_DENSE_CELLS_MIN, _DENSE_CELLS_PER_SYMBOL * length):
+            dense = np.bincount(key, minlength=cells)
+            pos = np.flatnonzero(dense)
+            cnt = dense[pos].astype(np.int64)
+            rank = np.zeros(cells, np.int64)
+            rank[pos] = np.arange(base, base + pos.size, dtype=np.int64)
+            h.sym_entry[ci * length:(ci + 1) * length] = rank[key]
+        else:
+            pos, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
+            cnt = cnt.astype(np.int64)
+            h.sym_entry[ci * length:(ci + 1) * length] = inv.ravel() + base
+        em = np.searchsorted(ends, pos, side="right").astype(np.int64)
+        parts.append((em + ci * b, pos - dstart[em], cnt))
+        h.lo[ci * b:(ci + 1) * b] = lo_r
+        hi[ci * b:(ci + 1) * b] = hi_r
+        base += pos.size
+    h.span = hi - h.lo
+    h.em, h.eo, h.ec = (np.concatenate([p[i] for p in parts]) if parts else np.zeros(0, np.int64)
+                        for i in range(3))
+    h.k = np.bincount(h.em, minlength=m_count).astype(np.int64) if h.em.size \
+        else np.zeros(m_count, np.int64)
+    h.start = np.cumsum(h.k) - h.k
+    return h
+
+
 def _dense_counts(h: _Hist, m: int) -> np.ndarray:
     a, b = int(h.start[m]), int(h.start[m] + h.k[m])
     counts = np.zeros(int(h.span[m]) + 1, np.int64)
@@ -1063,8 +1123,20 @@ def encode_stream_pair(symbols: np.ndarray, model_ids: np.ndarray, num_models: i
     mid = np.asarray(model_ids, dtype=np.int64).ravel()
     sym = np.asarray(symbols, dtype=np.int64).ravel()
     h = _histograms(sym, mid, num_models, symbol_entries=True)
-    n = sym.size
     del sym, mid                      # the entries say all the rest needs
+    return _encode_pair(h, merge, merged_models)
+
+
+def encode_group_streams(symbols: np.ndarray, lens: np.ndarray, merge: np.ndarray,
+                         merged_models: int) -> tuple[bytes, bytes]:
+    """:func:`encode_stream_pair` of a [C, L] channel set whose model ids are its (channel,
+    block) groups c * B + block, blocks of ``lens`` symbols (GSZ.md §5 model mode 0): the same
+    bytes, without a per-symbol model-id array."""
+    return _encode_pair(_histograms_rows(symbols, lens), merge, merged_models)
+
+
+def _encode_pair(h: _Hist, merge: np.ndarray, merged_models: int) -> tuple[bytes, bytes]:
+    n = int(h.total.sum())
     first = _encode_hist(h, n)
     merged = _merge_histograms(h, merge, merged_models)
     h.sym_entry = None

@@ -369,3 +369,24 @@ def test_model_sets_of_100k_models_build_without_a_per_model_loop():
     assert time.perf_counter() - t0 < 1.5
     assert models.num_models == m and np.array_equal(out, sym)
     assert (models.types == SINGLE).sum() > 30_000 and (models.types == COARSE).sum() > 30_000
+
+
+def test_channel_set_streams_without_model_ids_are_the_same_bytes():
+    """encode_group_streams (a [C, L] channel set's (channel, block) groups, no per-symbol
+    model ids) writes exactly encode_stream_pair's bytes: empty and one-value groups, 16-bit
+    groups, L shorter than the block count."""
+    from gsz.decoder.groups import blocks_for, group_model_ids
+    from gsz.decoder.quant import split_lengths
+    from gsz.encoder.rans import encode_group_streams, encode_stream_pair
+    rng = np.random.default_rng(3)
+    for c, length, nb in [(3, 0, 4), (2, 5, 16), (7, 2000, 13), (45, 1500, 40), (1, 70000, 2)]:
+        b = blocks_for(length, nb)
+        lens = split_lengths(length, b)
+        bits = rng.integers(1, 17, size=(c, b))
+        top = np.repeat((1 << bits) - 1, lens, axis=1)
+        sym = np.minimum(np.round(np.abs(rng.laplace(0, 1 + top / 8))), top).astype(np.int32)
+        sym[:, :lens[0]] = 1                                      # one-value groups
+        mids, count = group_model_ids(c, length, b)
+        merge = (np.arange(c)[:, None] * 16 + bits - 1).ravel()
+        assert encode_group_streams(sym, lens, merge, c * 16) == \
+            encode_stream_pair(sym.ravel(), mids, count, merge, c * 16)
