@@ -94,22 +94,7 @@ def draw_panel(app) -> None:
             for label, msg in snap["errors"]:
                 imgui.text_colored(imgui.ImVec4(1, 0.4, 0.4, 1), f"{label}: {msg}")
 
-    cand = app.stream_candidate()
-    if cand is not None:
-        imgui.separator_text("streaming (simulated network)")
-        st_ = app.stream_status
-        if st_ is not None:
-            frac = st_["bytes"] / max(1, st_["total"])
-            imgui.progress_bar(frac, imgui.ImVec2(-1, 0),
-                               f"{format_bytes(st_['bytes'])} / {format_bytes(st_['total'])}")
-            tiles = f"   tiles {st_['tiles']} parts / {st_['tiles_total']}" if (st_.get("tiles_total") or 1) > 1 else ""
-            imgui.text(f"layers {st_['layers']}/{st_['layers_total'] or '?'}{tiles}   "
-                       f"{len(app.stream_scene.cloud):,} splats" + ("   done" if st_["done"] else ""))
-        mbps = app.stream_rate / 1e6
-        _, mbps = imgui.slider_float("MB/s", mbps, 0.05, 100.0, "%.2f", imgui.SliderFlags_.logarithmic)
-        app.stream_rate = mbps * 1e6
-        if imgui.button(f"replay {cand.name} at {mbps:.2f} MB/s"):
-            app.start_stream(cand, app.stream_rate)
+    _streaming(app)
 
     if app.comparing:
         imgui.separator_text("compare")
@@ -144,6 +129,34 @@ def draw_panel(app) -> None:
         s.background = tuple(float(c) for c in col)
     _, s.labels = imgui.checkbox("labels", s.labels)
 
+    _camera(app, s)
+    if app.status:
+        imgui.text_wrapped(app.status)
+    imgui.end()
+
+
+def _streaming(app) -> None:
+    """The simulated-network replay of a layered or tiled file."""
+    cand = app.stream_candidate()
+    if cand is not None:
+        imgui.separator_text("streaming (simulated network)")
+        st_ = app.stream_status
+        if st_ is not None:
+            frac = st_["bytes"] / max(1, st_["total"])
+            imgui.progress_bar(frac, imgui.ImVec2(-1, 0),
+                               f"{format_bytes(st_['bytes'])} / {format_bytes(st_['total'])}")
+            tiles = f"   tiles {st_['tiles']} parts / {st_['tiles_total']}" if (st_.get("tiles_total") or 1) > 1 else ""
+            imgui.text(f"layers {st_['layers']}/{st_['layers_total'] or '?'}{tiles}   "
+                       f"{len(app.stream_scene.cloud):,} splats" + ("   done" if st_["done"] else ""))
+        mbps = app.stream_rate / 1e6
+        _, mbps = imgui.slider_float("MB/s", mbps, 0.05, 100.0, "%.2f", imgui.SliderFlags_.logarithmic)
+        app.stream_rate = mbps * 1e6
+        if imgui.button(f"replay {cand.name} at {mbps:.2f} MB/s"):
+            app.start_stream(cand, app.stream_rate)
+
+
+def _camera(app, s) -> None:
+    """Snap to a camera, step through them, fly speed, screenshot."""
     imgui.separator_text("camera")
     kind, i, cam = app.camera_list[app.camera_index]
     names = [f"{k} {j}  {c.name}" for k, j, c in app.camera_list]
@@ -164,6 +177,3 @@ def draw_panel(app) -> None:
                        "WASD/QE: fly (shift x4)")
     if imgui.button("screenshot (P)"):
         app.request_screenshot()
-    if app.status:
-        imgui.text_wrapped(app.status)
-    imgui.end()
