@@ -365,8 +365,10 @@ class BudgetSearch:
                     continue
             self.lost_paths.add(path)
             how = "narrowly, a second time," if narrow else f"{PATH_LOST_MARGIN_DB:g}+ dB"
+            then = ("encoded again only where fewer than half the vectors are kept exact or no "
+                    "other path fits") if path == "vq" else "not weighed again in this search"
             self.progress.log(f"the {SH_PATH_NAMES[path]} SH path renders {how} below the "
-                              f"{SH_PATH_NAMES[best.encoded.sh_path]} path: not weighed again in this search")
+                              f"{SH_PATH_NAMES[best.encoded.sh_path]} path: {then}")
 
     def refine_tau(self) -> None:
         """The grid neighbours of the best candidate's tau (at its depth), while they improve."""
