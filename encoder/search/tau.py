@@ -41,7 +41,7 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
         return
     with progress.stage("sh-plan", "codebook size and keep-count vs bit allocation"):
         sh_model, keep, vq_total = choose_sh(sh_models, loss, rate, target - base_fixed, weights, min_keep)
-    m, w_sh = sh_model.m, 1.0 if weights is None else weights["sh"]
+    m, w_sh, keep_estimate = sh_model.m, 1.0 if weights is None else weights["sh"], keep
     # the codebook path is skipped (after it lost) only where the estimate keeps most vectors
     # exact: below that, which path renders better changes with the depth (flowers 12x: the
     # scalar path 0.3 dB better at depth 11, the codebook 0.6 dB better at 13)
@@ -99,7 +99,7 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
             # every attribute group sits at its best width (as the codebook path's saturation)
             yield _finish(stage, res, _attributes_at_max(res, loss, rate), "scalar", log)
     if not codebook and not found:
-        res, saturated = _codebook_path(args, sh_model, keep, weights)
+        res, saturated = _codebook_path(args, sh_model, keep_estimate, weights)
         if res is not None:
             yield _finish(stage, res, saturated, "vq", log)
 
