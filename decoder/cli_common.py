@@ -146,3 +146,15 @@ def write_output(path, data: bytes) -> None:
         # the reader went away: the output is incomplete; keep the interpreter's final flush quiet
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         raise GszOutputError("the reader closed stdout before the output was written", "-") from None
+
+
+def parse_background(text: str) -> tuple:
+    """``--background R,G,B`` (each in [0, 1]) as a float tuple; GszUsageError otherwise."""
+    import math
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) != 3 or not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in vals):
+        raise GszUsageError(f"--background must be three numbers in [0,1] like 0,0,0 or 1,1,1, got {text!r}")
+    return tuple(vals)

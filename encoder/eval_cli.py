@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 import time
@@ -31,16 +30,6 @@ from ..evaluation.metrics import PSNR_CAP_DB
 
 class _UsageError(GszUsageError):
     pass
-
-
-def _parse_background(s: str):
-    try:
-        vals = [float(v) for v in s.split(",")]
-    except ValueError:
-        raise _UsageError(f"--background must be R,G,B numbers in [0,1], got {s!r}") from None
-    if len(vals) != 3 or not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in vals):
-        raise _UsageError(f"--background must be three numbers in [0,1] like 0,0,0 or 1,1,1, got {s!r}")
-    return tuple(vals)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -100,7 +89,8 @@ def _test_cameras(args, original):
 
 
 def _check_common(args):
-    bg = _parse_background(args.background)
+    from ..decoder.cli_common import parse_background
+    bg = parse_background(args.background)
     if args.views is not None and args.views < 1:
         raise _UsageError(f"--views must be at least 1, got {args.views}")
     if args.width is not None and not 8 <= args.width <= 8192:

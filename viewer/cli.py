@@ -96,16 +96,6 @@ class _UsageError(GszUsageError):
     pass
 
 
-def _parse_background(text: str):
-    try:
-        vals = [float(v) for v in text.split(",")]
-    except ValueError:
-        vals = []
-    if len(vals) != 3 or not all(np.isfinite(vals)) or not all(0.0 <= v <= 1.0 for v in vals):
-        raise _UsageError(f"--background must be three numbers in 0..1 like 1,1,1, got {text!r}")
-    return tuple(vals)
-
-
 def _up_vector(up_arg, cloud, cameras_path, cams):
     from ..evaluation.cameras import _up_vector, detect_up
     if up_arg != "auto":
@@ -141,7 +131,8 @@ def _with_height(cam, height):
 
 def _settings(args, comparing: bool, a, b):
     from .app import Settings
-    s = Settings(background=_parse_background(args.background))
+    from ..decoder.cli_common import parse_background
+    s = Settings(background=parse_background(args.background))
     if comparing:
         s.mode = args.mode or ("single" if args.flip else "split")
     else:
