@@ -35,6 +35,7 @@ from ..decoder.sh import MAX_CODEBOOK, MAX_SH_CLASSES, class_order
 from ..evaluation.cameras import DEFAULT_VIEW_WIDTH
 
 from .encode_report import MODE_FIXED, EncodeReport, FixedDetails
+from .executor import in_order
 from .geometry import write_geometry
 from .groups import write_channel_set
 from .progress import Progress
@@ -489,7 +490,7 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
     parts = _prepare_parts(vox, part_of, grids, layers, progress, pool, executor)
     c = vox.cloud
     return Stage(reserve=float(reserve), depth=d, vox=vox, layers=parts,
-                 sh=c.sh_rest.reshape(m, -1).astype(np.float32), importance=vox.importance,
+                 sh=np.ascontiguousarray(c.sh_rest.reshape(m, -1), dtype=np.float32), importance=vox.importance,
                  sh_degree=cloud.sh_degree, input_gaussians=len(cloud), source=source, executor=executor)
 
 
@@ -611,12 +612,11 @@ def attribute_chunks(stage: Stage, bits, blocks: int):
     from ..decoder.attributes import Attributes
 
     payloads, parts, stats = [], [], {"raht_bytes": 0, "scale_bytes": 0}
-    jobs = []
-    for li, (layer, b) in enumerate(zip(stage.layers, stage.layer_blocks(blocks))):
-        rb, sb = (bits, bits) if np.isscalar(bits) else bits[li]
-        jobs.append(AttributeJob(layer.raht_dc, layer.raht_ac, layer.scales, layer.codes, layer.tree, rb, sb, b))
+    jobs = (AttributeJob(layer.raht_dc, layer.raht_ac, layer.scales, layer.codes, layer.tree,
+                         *((bits, bits) if np.isscalar(bits) else bits[li]), b)
+            for li, (layer, b) in enumerate(zip(stage.layers, stage.layer_blocks(blocks))))
     ex = stage.executor if stage.num_tiles > 1 else None
-    for data, dec, st in (ex.map(code_attributes, jobs) if ex is not None else map(code_attributes, jobs)):
+    for data, dec, st in in_order(ex, code_attributes, jobs):
         payloads.append(data)
         parts.append(dec)
         for k in stats:
@@ -821,10 +821,10 @@ class ShPayloads:
         pos = np.empty(self.m, np.int64)       # voxel -> its row in the output
         pos[order] = np.arange(self.m)
         stats = dict(self.stats)
-        jobs = [(self.kept_vectors(li), self.sh_bits if kept_bits is None else kept_bits[li], kb)
-                for li, (sel, kb) in enumerate(self.kept_sets) if sel.size]
+        jobs = ((self.kept_vectors(li), self.sh_bits if kept_bits is None else kept_bits[li], kb)
+                for li, (sel, kb) in enumerate(self.kept_sets) if sel.size)
         ex = self.stage.executor if self.stage.num_tiles > 1 else None
-        coded = iter(ex.map(_code_channel_set, jobs) if ex is not None else map(_code_channel_set, jobs))
+        coded = in_order(ex, _code_channel_set, jobs)
         payloads = []
         for li, (sel, kb) in enumerate(self.kept_sets):
             body = b""
@@ -866,8 +866,9 @@ def _block_bounds(length: int, blocks: int):
 
 
 def _code_channel_set(job):
-    """write_channel_set(values, bits, blocks) of one job (an executor's unit of work)."""
-    return write_channel_set(*job)
+    """write_channel_set(values, bits, blocks) of one job (an executor's unit of work), its
+    reconstruction float32 (the SH output's type)."""
+    return write_channel_set(*job, recon_dtype=np.float32)
 
 
 def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: dict,

@@ -66,3 +66,20 @@ def test_cli_reports_a_bad_executor_in_one_line(tmp_path, capsys):
     rc = main([str(tmp_path / "missing.ply"), "-o", str(tmp_path / "x.gsz"), "--executor", "spark"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "--executor" in err[0]
+
+
+def test_work_run_here_makes_each_job_only_when_its_turn_comes():
+    """Inline work is lazy: at 1.2 M Gaussians every part's inputs at once cost hundreds of MB."""
+    from gsz.encoder.executor import in_order
+    made = []
+
+    def jobs():
+        for j in range(3):
+            made.append(j)
+            yield j
+
+    for ex in (None, make_executor("inline"), make_executor("local", workers=1)):
+        made.clear()
+        it = in_order(ex, lambda j: (j, len(made)), jobs())
+        assert made == []
+        assert list(it) == [(0, 1), (1, 2), (2, 3)]

@@ -154,3 +154,20 @@ def test_bad_input_raises_gsz_errors():
     with pytest.raises(GszFormatError):
         dequantize_groups(np.zeros((1, 4), int), np.array([[0, np.inf]], np.float32), maxs,
                           np.array([[2, 2]]), lens)
+
+
+def test_channel_set_float32_reconstruction_is_the_decoders_values_rounded():
+    """The SH writer keeps its reconstruction float32 (half the memory): the same bytes, and
+    the decoder's float64 values rounded, constant groups included."""
+    from gsz.decoder.bytesio import Reader
+    from gsz.decoder.groups import read_channel_set
+    from gsz.encoder.groups import write_channel_set
+    rng = np.random.default_rng(3)
+    x = (rng.standard_normal((19, 5000)) * 0.1).astype(np.float32)
+    bits = rng.integers(0, 10, size=(19, 8))
+    data64, rec64 = write_channel_set(x, bits, 8)
+    data32, rec32 = write_channel_set(x, bits, 8, recon_dtype=np.float32)
+    assert data32 == data64 and rec32.dtype == np.float32
+    decoded = read_channel_set(Reader(data32), max_length=5000)
+    np.testing.assert_array_equal(rec64, decoded)
+    np.testing.assert_array_equal(rec32, decoded.astype(np.float32))

@@ -34,7 +34,7 @@ class Codebooks:
         self.sizes = [k_max] if sopts.codebook is not None else sorted(
             {k_max, max(16, k_max // 4), max(16, k_max // 16)}, reverse=True)
         self.sopts, self.assigner, self.progress, self.m1 = sopts, assigner, progress, m1
-        self.src = ShSource(sh=vox_top.cloud.sh_rest.reshape(m1, -1).astype(np.float32),
+        self.src = ShSource(sh=np.ascontiguousarray(vox_top.cloud.sh_rest.reshape(m1, -1), dtype=np.float32),
                             importance=vox_top.importance, num_points=m1)
         # the largest stage's voxels are the first the SH models need: assign them right after
         # each codebook is trained (Stage.source as prepare_stage will compute it)
