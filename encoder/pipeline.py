@@ -730,7 +730,9 @@ class ShPayloads:
         elif rest.any():
             near = np.zeros(m, np.int64)
             near[rest] = assign(stage.sh[rest], codebook) if index is None else np.asarray(index)[rest]
-        self.out = np.empty((m, d), np.float32)
+        #: per tile: (voxels taking a codeword, the tile's reconstructed codebook [K_t, D]
+        #: float32, each voxel's row in it): an [M, D] array per plan would be 216 MB at 1.2 M
+        self._codewords = []
         self.stats = {"kept": keep, "codebook_size": 0, "codebook_bytes": 0, "kept_bytes": 0, "index_bytes": 0}
         #: per part: (kept voxel indices in coding order, blocks of their channel set)
         self.kept_sets = [None] * len(stage.layers)
@@ -754,7 +756,8 @@ class ShPayloads:
                 cb = np.zeros((1, d), np.float32)
             cb_bytes, cb_rec = write_channel_set(
                 cb.T, sh_bits, sh_set_blocks(cb.shape[0], blocks) if cb_blocks is None else cb_blocks)
-            self.out[r] = cb_rec.T[idx_all[r]]
+            self._codewords.append((r, np.ascontiguousarray(cb_rec.T, np.float32),
+                                    idx_all[r].astype(np.int32)))
             self.stats["codebook_size"] += int(cb.shape[0])
             self.stats["codebook_bytes"] += len(cb_bytes)
             kept_counts = [int(kept[l.index].sum()) for _, l in parts]
@@ -817,9 +820,11 @@ class ShPayloads:
         per layer an int or int array [D, B_l] (B_l = blocks_for(P_l, its kept_sets blocks));
         default every group at ``sh_bits``."""
         order = self.stage.order
-        out = self.out[order]                  # output order; one copy of [M, D]
         pos = np.empty(self.m, np.int64)       # voxel -> its row in the output
         pos[order] = np.arange(self.m)
+        out = np.empty((self.m, self.d), np.float32)
+        for r, rec, idx in self._codewords:
+            out[pos[r]] = rec[idx]
         stats = dict(self.stats)
         jobs = ((self.kept_vectors(li), self.sh_bits if kept_bits is None else kept_bits[li], kb)
                 for li, (sel, kb) in enumerate(self.kept_sets) if sel.size)

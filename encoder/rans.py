@@ -178,7 +178,8 @@ def _histograms_rows(symbols: np.ndarray, lens: np.ndarray) -> _Hist:
     h.num_models = m_count
     h.total = np.tile(lens, c)
     h.lo, hi = np.zeros(m_count, np.int64), np.zeros(m_count, np.int64)
-    h.sym_entry = np.empty(c * length, np.int64)
+    # int32 where it can hold every entry (a stream has fewer entries than symbols)
+    h.sym_entry = np.empty(c * length, np.int32 if c * length < 2 ** 31 else np.int64)
     block_of = np.repeat(np.arange(b, dtype=np.int64), lens)
     full = lens > 0
     first = (np.cumsum(lens) - lens)[full]
@@ -900,7 +901,8 @@ def _payload(freq: np.ndarray, cum: np.ndarray, shift: np.ndarray, lanes: int | 
         # the same steps symbol by symbol in C (the row loop below costs ~70 ms per million
         # symbols in NumPy, a third of a size-search round on the flowers scene)
         c64 = (lambda a: np.ascontiguousarray(a, dtype=np.int64))
-        index = () if entry is None else (c64(entry),)
+        index = () if entry is None else (
+            np.ascontiguousarray(entry) if entry.dtype in (np.int32, np.int64) else c64(entry),)
         return native.module().rans_encode(c64(freq), c64(cum), np.ascontiguousarray(shift, np.uint8),
                                            big_l, *index)
     if entry is not None:

@@ -584,6 +584,22 @@ def test_rans_encoder_identical_bytes(case):
 
 
 @needs_native
+def test_rans_encoder_takes_int32_or_int64_entries():
+    """The channel-set writer hands the C encoder int32 symbol entries (half the memory): the
+    same bytes as int64 ones, and other index types are refused with a clear error."""
+    rng = np.random.default_rng(5)
+    freq = np.array([3, 5, 8], np.int64)
+    cum = np.array([0, 3, 8], np.int64)
+    shift = np.full(3, 4, np.uint8)
+    entry = rng.integers(0, 3, 5000)
+    mod = native.module()
+    a = mod.rans_encode(freq, cum, shift, 16, entry.astype(np.int64))
+    assert a == mod.rans_encode(freq, cum, shift, 16, entry.astype(np.int32))
+    with pytest.raises(TypeError, match="4- or 8-byte integer"):
+        mod.rans_encode(freq, cum, shift, 16, entry.astype(np.int16))
+
+
+@needs_native
 @pytest.mark.parametrize("case", range(5))
 def test_stream_encoders_identical_bytes(case):
     """encode_stream / encode_stream_pair (the C encoder reading each symbol's table entry

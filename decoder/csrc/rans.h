@@ -97,9 +97,9 @@ typedef struct {
 } REnc;
 
 /* Symbol j has frequency f[g], cumulative frequency c[g] and precision p[g] with g = idx[j]
- * (idx NULL: g = j), 0 <= g < ne. */
+ * (idx NULL: g = j), 0 <= g < ne; idx holds int32 (idx_bytes 4) or int64 (8) entries. */
 int rans_encode_run(const int64_t *f, const int64_t *c, const uint8_t *p, int64_t ne,
-                    const int64_t *idx, int64_t n, int64_t lanes, REnc *o, Err *e);
+                    const void *idx, int idx_bytes, int64_t n, int64_t lanes, REnc *o, Err *e);
 int bank_encode_run(const uint8_t *bits, const uint8_t *models, int64_t n, const int64_t *f0,
                     int64_t nm, int prec, int64_t lanes, REnc *o, Err *e);
 void renc_free(REnc *o);

@@ -50,13 +50,15 @@ void renc_free(REnc *o)
 }
 
 int rans_encode_run(const int64_t *f, const int64_t *c, const uint8_t *p, int64_t ne,
-                    const int64_t *idx, int64_t n, int64_t lanes, REnc *o, Err *e)
+                    const void *idx, int idx_bytes, int64_t n, int64_t lanes, REnc *o, Err *e)
 {
     if (renc_alloc(o, n, lanes, 1, e) < 0) return -1;
     uint64_t *st = o->st;
     int64_t lane = n ? (n - 1) % lanes : 0;
+    const int32_t *idx32 = idx_bytes == 4 ? idx : NULL;
+    const int64_t *idx64 = idx_bytes == 8 ? idx : NULL;
     for (int64_t j = n - 1; j >= 0; j--) {
-        const int64_t g = idx ? idx[j] : j;
+        const int64_t g = idx32 ? (int64_t)idx32[j] : idx64 ? idx64[j] : j;
         if (g < 0 || g >= ne) return fail_value(e, "rans_encode: symbol entry out of range");
         /* a symbol of a valid model: prec <= 16 (0: a SINGLE model, f = 1), 1 <= f, c + f <= 2^prec */
         if (p[g] > 16 || f[g] < 1 || c[g] < 0 || c[g] + f[g] > ((int64_t)1 << p[g]))
