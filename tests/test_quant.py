@@ -171,3 +171,24 @@ def test_channel_set_float32_reconstruction_is_the_decoders_values_rounded():
     decoded = read_channel_set(Reader(data32), max_length=5000)
     np.testing.assert_array_equal(rec64, decoded)
     np.testing.assert_array_equal(rec32, decoded.astype(np.float32))
+
+
+@pytest.mark.skipif(not __import__("gsz.decoder.native", fromlist=["enabled"]).enabled(),
+                    reason="native accelerator not built")
+@pytest.mark.parametrize("length, blocks, bit_range", [(20000, 8, (1, 16)), (5, 8, (1, 16)),
+                                                        (3001, 7, (3, 9))])
+def test_loss_table_in_c_matches_the_torch_reference(length, blocks, bit_range):
+    """The loss table the allocation reads comes from C where the accelerator is built: the
+    torch reference's values to float64 rounding, +inf outside the range, 0 for empty groups."""
+    from gsz.kernels import quantize_cpu
+    rng = np.random.default_rng(length)
+    x = (rng.standard_normal((5, length)) * 0.1).astype(np.float32)
+    x[2] = 0.25                                          # a constant channel: step 1
+    _, mins, maxs, loss = quantize_all_bits(x, blocks, bit_range)
+    t = torch.from_numpy(x)
+    ref = quantize_cpu.loss_all_bits(t, blocks, torch.from_numpy(mins), torch.from_numpy(maxs),
+                                     *bit_range).numpy()
+    assert np.array_equal(np.isinf(loss), np.isinf(ref))
+    fin = np.isfinite(ref)
+    np.testing.assert_allclose(loss[fin], ref[fin], rtol=1e-12, atol=1e-300)
+    assert np.all(loss[2][fin[2]] == 0.0) and np.all(loss[:, :, :bit_range[0] - 1] == np.inf)

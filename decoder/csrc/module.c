@@ -952,6 +952,49 @@ static PyObject *py_rate_group_stats(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(loss_all_bits_doc,
+"loss_all_bits(x, num_blocks, mins, maxs, lo, hi, out)\n\n"
+"gsz.kernels.quantize_cpu.loss_all_bits in C: x float32 [C, L], mins/maxs float32 [C, B]\n"
+"(B = num_blocks, blocks split_lengths(L, B)), out float64 [C, B, 16] written at columns\n"
+"lo-1..hi-1 with each group's squared quantisation error at that width (the torch path's\n"
+"arithmetic; its sums agree to ~1e-15 relative).");
+
+static PyObject *py_loss_all_bits(PyObject *self, PyObject *args)
+{
+    PyObject *o[4];
+    long long nb;
+    int lo, hi;
+    if (!PyArg_ParseTuple(args, "OLOOiiO", &o[0], &nb, &o[1], &o[2], &lo, &hi, &o[3]))
+        return NULL;
+    Py_buffer v[4];
+    int nv = 0;
+    for (; nv < 4; nv++) {
+        if (getbuf(o[nv], &v[nv], nv == 3 ? 8 : 4, 'f', nv == 3, "loss_all_bits argument") < 0) {
+            release_views(v, nv);
+            return NULL;
+        }
+    }
+    const int64_t groups = (int64_t)(v[1].len / 4);
+    const int64_t c = nb > 0 ? groups / nb : 0;
+    const int64_t length = c > 0 ? (int64_t)(v[0].len / 4) / c : 0;
+    if (nb < 1 || c < 1 || c * nb != groups || (int64_t)(v[2].len / 4) != groups
+        || c * length != (int64_t)(v[0].len / 4) || (int64_t)(v[3].len / 8) != groups * RATE_BITS
+        || lo < 1 || lo > hi || hi > RATE_BITS) {
+        release_views(v, nv);
+        PyErr_SetString(PyExc_ValueError, "loss_all_bits: inconsistent arguments");
+        return NULL;
+    }
+    const float *x = v[0].buf, *mins = v[1].buf, *maxs = v[2].buf;
+    double *out = v[3].buf;
+    Py_BEGIN_ALLOW_THREADS
+    for (int64_t ci = 0; ci < c; ci++)
+        loss_all_bits_run(x + ci * length, length, nb, mins + ci * nb, maxs + ci * nb, lo, hi,
+                          out + ci * nb * RATE_BITS);
+    Py_END_ALLOW_THREADS
+    release_views(v, nv);
+    Py_RETURN_NONE;
+}
+
 /* ================================================================== module */
 static PyMethodDef methods[] = {
     {"octree_decode", py_octree_decode, METH_VARARGS, octree_decode_doc},
@@ -973,6 +1016,7 @@ static PyMethodDef methods[] = {
     {"all_finite", py_all_finite, METH_O, all_finite_doc},
     {"read_varints", py_read_varints, METH_VARARGS, read_varints_doc},
     {"model_set_parse", py_model_set_parse, METH_O, model_set_parse_doc},
+    {"loss_all_bits", py_loss_all_bits, METH_VARARGS, loss_all_bits_doc},
     {"rate_group_stats", py_rate_group_stats, METH_VARARGS, rate_group_stats_doc},
     {NULL, NULL, 0, NULL},
 };

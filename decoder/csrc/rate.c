@@ -218,3 +218,31 @@ int rate_group_stats_run(const float *x, int64_t nb, int64_t blen, const double 
     free(d); free(sym); free(cnt);
     return ok ? 0 : -1;
 }
+
+/* ================================================================== loss table (encoder) */
+/* gsz.kernels.quantize_cpu.loss_all_bits for one channel row: per block, the squared error
+ * of the normative quantiser (gsz.decoder.quant: float64 step from the float32 min/max,
+ * round half to even, clamp) at every width lo..hi, summed in value order.  The same float64
+ * operations per value as the torch reference; only the order of the final sum differs
+ * (torch's dot product), so the two agree to ~1e-15 relative. */
+void loss_all_bits_run(const float *x, int64_t length, int64_t nb, const float *mins,
+                       const float *maxs, int lo, int hi, double *out)
+{
+    const int64_t base = length / nb, extra = length % nb;
+    for (int64_t b = 0; b < nb; b++) {
+        const int64_t start = b * base + (b < extra ? b : extra), n = base + (b < extra);
+        const float *v = x + start;
+        const double m = (double)mins[b], span = (double)maxs[b] - m;
+        for (int q = lo; q <= hi; q++) {
+            const double levels = (double)((1 << q) - 1);
+            const double s = span > 0 ? span / levels : 1.0;
+            double acc = 0.0;
+            for (int64_t j = 0; j < n; j++) {
+                const double d = (double)v[j] - m;     /* >= 0: m is the block's minimum */
+                const double e = d - rate_sym(d, s, levels) * s;
+                acc += e * e;
+            }
+            out[b * RATE_BITS + (q - 1)] = acc;
+        }
+    }
+}

@@ -51,6 +51,11 @@ typedef struct {
 int rate_group_stats_run(const float *x, int64_t nb, int64_t blen, const double *tab,
                          int q_first, int hi, double rho_min, double rho_max, const RateOut *o);
 
+/* loss_all_bits of one channel row x [length] cut into nb blocks (split_lengths): out [nb, 16]
+ * written at columns lo-1..hi-1. */
+void loss_all_bits_run(const float *x, int64_t length, int64_t nb, const float *mins,
+                       const float *maxs, int lo, int hi, double *out);
+
 #if defined(__GNUC__) && !defined(_WIN32)
 #pragma GCC visibility pop
 #endif
