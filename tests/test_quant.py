@@ -192,3 +192,26 @@ def test_loss_table_in_c_matches_the_torch_reference(length, blocks, bit_range):
     fin = np.isfinite(ref)
     np.testing.assert_allclose(loss[fin], ref[fin], rtol=1e-12, atol=1e-300)
     assert np.all(loss[2][fin[2]] == 0.0) and np.all(loss[:, :, :bit_range[0] - 1] == np.inf)
+
+
+@pytest.mark.skipif(not __import__("gsz.decoder.native", fromlist=["enabled"]).enabled(),
+                    reason="native accelerator not built")
+def test_symbols_in_c_equal_the_torch_reference_bit_for_bit():
+    """quantize_groups runs in C where the accelerator is built: the normative symbols, ties
+    (values exactly half a step between two levels) rounded to even like the reference."""
+    from gsz.kernels import quantize_cpu
+    rng = np.random.default_rng(11)
+    x = (rng.standard_normal((6, 9001)) * 0.1).astype(np.float32)
+    # channel 0 on exact half steps: step 2^-4 at 4 bits (min 0, max 15/16)
+    x[0] = (rng.integers(0, 15, 9001) + 0.5) / 16.0
+    starts = np.concatenate([[0], np.cumsum(split_lengths(9001, 5))[:-1]])
+    x[0, starts], x[0, starts + 1] = 0.0, 15.0 / 16.0    # every block's min and max
+    x[1] = 0.3                                           # constant: step 1, every symbol 0
+    bits = rng.integers(1, 17, size=(6, 5))
+    bits[0] = 4
+    sym, mins, maxs = quantize_groups(x, 5, bits)
+    ref = quantize_cpu.quantize(torch.from_numpy(x), 5, torch.from_numpy(bits),
+                                torch.from_numpy(mins), torch.from_numpy(maxs)).numpy()
+    assert sym.dtype == np.int32 and np.array_equal(sym, ref)
+    assert np.all(sym[1] == 0)
+    assert np.array_equal(sym[0], np.rint(x[0] * 16.0).astype(np.int32))   # ties to even

@@ -995,6 +995,52 @@ static PyObject *py_loss_all_bits(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(quantize_groups_doc,
+"quantize_groups(x, num_blocks, mins, maxs, bits, out)\n\n"
+"gsz.kernels.quantize_cpu.quantize in C: x float32 [C, L], mins/maxs float32 [C, B], bits int64\n"
+"[C, B] in 1..16, out int32 [C, L] (blocks split_lengths(L, B)): the normative symbols,\n"
+"bit-identical to the torch reference.");
+
+static PyObject *py_quantize_groups(PyObject *self, PyObject *args)
+{
+    PyObject *o[5];
+    long long nb;
+    if (!PyArg_ParseTuple(args, "OLOOOO", &o[0], &nb, &o[1], &o[2], &o[3], &o[4])) return NULL;
+    Py_buffer v[5];
+    int nv = 0;
+    static const Py_ssize_t size[5] = {4, 4, 4, 8, 4};
+    static const char kind[5] = {'f', 'f', 'f', 'i', 'i'};
+    for (; nv < 5; nv++) {
+        if (getbuf(o[nv], &v[nv], size[nv], kind[nv], nv == 4, "quantize_groups argument") < 0) {
+            release_views(v, nv);
+            return NULL;
+        }
+    }
+    const int64_t groups = (int64_t)(v[1].len / 4);
+    const int64_t c = nb > 0 ? groups / nb : 0;
+    const int64_t length = c > 0 ? (int64_t)(v[0].len / 4) / c : 0;
+    int ok = nb >= 1 && c >= 1 && c * nb == groups && (int64_t)(v[2].len / 4) == groups
+             && (int64_t)(v[3].len / 8) == groups && c * length == (int64_t)(v[0].len / 4)
+             && v[4].len == v[0].len;
+    const int64_t *bits = v[3].buf;
+    for (int64_t g = 0; ok && g < groups; g++)
+        if (bits[g] < 1 || bits[g] > RATE_BITS) ok = 0;
+    if (!ok) {
+        release_views(v, nv);
+        PyErr_SetString(PyExc_ValueError, "quantize_groups: inconsistent arguments");
+        return NULL;
+    }
+    const float *x = v[0].buf, *mins = v[1].buf, *maxs = v[2].buf;
+    int32_t *sym = v[4].buf;
+    Py_BEGIN_ALLOW_THREADS
+    for (int64_t ci = 0; ci < c; ci++)
+        quantize_row_run(x + ci * length, length, nb, mins + ci * nb, maxs + ci * nb,
+                         bits + ci * nb, sym + ci * length);
+    Py_END_ALLOW_THREADS
+    release_views(v, nv);
+    Py_RETURN_NONE;
+}
+
 /* ================================================================== module */
 static PyMethodDef methods[] = {
     {"octree_decode", py_octree_decode, METH_VARARGS, octree_decode_doc},
@@ -1017,6 +1063,7 @@ static PyMethodDef methods[] = {
     {"read_varints", py_read_varints, METH_VARARGS, read_varints_doc},
     {"model_set_parse", py_model_set_parse, METH_O, model_set_parse_doc},
     {"loss_all_bits", py_loss_all_bits, METH_VARARGS, loss_all_bits_doc},
+    {"quantize_groups", py_quantize_groups, METH_VARARGS, quantize_groups_doc},
     {"rate_group_stats", py_rate_group_stats, METH_VARARGS, rate_group_stats_doc},
     {NULL, NULL, 0, NULL},
 };

@@ -246,3 +246,23 @@ void loss_all_bits_run(const float *x, int64_t length, int64_t nb, const float *
         }
     }
 }
+
+/* gsz.kernels.quantize_cpu.quantize for one channel row: symbols min(max(rint((x - m) / s), 0),
+ * 2^q - 1) per block at its width bits[b], the same float64 operations as the torch reference
+ * (so the same symbols, bit for bit). */
+void quantize_row_run(const float *x, int64_t length, int64_t nb, const float *mins,
+                      const float *maxs, const int64_t *bits, int32_t *sym)
+{
+    const int64_t base = length / nb, extra = length % nb;
+    for (int64_t b = 0; b < nb; b++) {
+        const int64_t start = b * base + (b < extra ? b : extra), n = base + (b < extra);
+        const double m = (double)mins[b], span = (double)maxs[b] - m;
+        const double levels = (double)((1 << bits[b]) - 1);
+        const double s = span > 0 ? span / levels : 1.0;
+        for (int64_t j = start; j < start + n; j++) {
+            /* rate_sym's rounding is exact for d >= 0; below 0 it gives some k <= 0, as rint */
+            const double k = rate_sym((double)x[j] - m, s, levels);
+            sym[j] = (int32_t)(k > 0.0 ? k : 0.0);
+        }
+    }
+}

@@ -56,6 +56,10 @@ int rate_group_stats_run(const float *x, int64_t nb, int64_t blen, const double 
 void loss_all_bits_run(const float *x, int64_t length, int64_t nb, const float *mins,
                        const float *maxs, int lo, int hi, double *out);
 
+/* quantize of one channel row x [length] cut into nb blocks at widths bits [nb] (1..16). */
+void quantize_row_run(const float *x, int64_t length, int64_t nb, const float *mins,
+                      const float *maxs, const int64_t *bits, int32_t *sym);
+
 #if defined(__GNUC__) && !defined(_WIN32)
 #pragma GCC visibility pop
 #endif
