@@ -799,7 +799,7 @@ class RansDecoder:
             return out
         self._check_models(mids)
         binary = "binary_f0" in self._t and self._lanes >= SCALAR_LANES
-        out = np.empty(count, dtype=np.bool_ if binary else self._models.slot_symbols().dtype)
+        out = np.empty(count, dtype=np.bool_ if binary else np.int64)
         # work in chunks of whole rows (~256k symbols) so the per-symbol arrays stay in cache
         chunk = max(1, (1 << 18) // self._lanes) * self._lanes
         j = 0
@@ -810,7 +810,7 @@ class RansDecoder:
             else:
                 self._decode_chunk(mids[j:end], out[j:end])
             j = end
-        return out.astype(np.int64) if binary else self._t["value"].take(out)
+        return out.astype(np.int64) if binary else out
 
     def _check_models(self, mids: np.ndarray) -> None:
         """Model ids within the set and of non-empty models (NumPy path)."""
@@ -834,7 +834,7 @@ class RansDecoder:
             raise GszFormatError(f"rANS: asked for {self._pos + count} symbols, "
                                  f"stream has {self._n}")
         self._check_models(rm[rl > 0])
-        out = np.empty(count, dtype=self._models.slot_symbols().dtype)
+        out = np.empty(count, dtype=np.int64)
         chunk = max(1, (1 << 18) // self._lanes) * self._lanes
         j = 0
         for m, length in zip(rm.tolist(), rl.tolist()):
@@ -843,7 +843,7 @@ class RansDecoder:
                 e = min(end, j + chunk - (self._pos % self._lanes))
                 self._decode_chunk(None, out[j:e], model=m)
                 j = e
-        return self._t["value"].take(out)
+        return out
 
     def decode_blocks(self, table: np.ndarray, channels: int, length: int, blocks: int,
                       out: np.ndarray, steps=None, lo=None, qmax=None) -> None:
@@ -865,7 +865,7 @@ class RansDecoder:
 
     def _decode_chunk(self, mids: np.ndarray | None, out: np.ndarray, model=None) -> None:
         """Decode len(out) symbols with models ``mids`` (or all with ``model``); writes their
-        global symbol indices to ``out`` (dtype of :meth:`ModelSet.slot_symbols`)."""
+        values to ``out`` (int64)."""
         t = self._t
         count = out.size
         # per-symbol mask, shift and LUT base -- scalars where every model has one precision
@@ -886,15 +886,14 @@ class RansDecoder:
             # than a dozen NumPy calls per row (small streams, e.g. every stream of a tiny file)
             b = (lambda v: np.broadcast_to(v, (count,)))
             if "symbol_lists" not in t:          # once per model set: Python ints per symbol
-                t["symbol_lists"] = (t["freq"].tolist(), t["slot_start"].tolist())
+                t["symbol_lists"] = (t["freq"].tolist(), t["slot_start"].tolist(), t["value"].tolist())
             self._wpos = _decode_scalar(out, b(mask), b(shift), b(base), self._models.slot_symbols(),
                                         *t["symbol_lists"], self._words, self._states, lanes,
                                         self._pos, self._wpos)
             self._pos += count
             return
-        self._wpos = _decode_rows(out, mask, shift, base, self._models.slot_symbols(), t["freq"],
-                                  t["slot_start"], self._words, self._states, lanes, self._pos,
-                                  self._wpos)
+        self._wpos = _decode_rows(out, mask, shift, base, self._models.slot_symbols(), t,
+                                  self._words, self._states, lanes, self._pos, self._wpos)
         self._pos += count
 
     def binary_reader(self):
@@ -939,26 +938,27 @@ class RansDecoder:
             raise GszFormatError("rANS: final states differ from 2**16 (corrupt payload)")
 
 
-def _decode_rows(out, mask, shift, base, lut_symbol, freq, slot_start, words, states, lanes,
-                 pos, wpos) -> int:
+def _decode_rows(out, mask, shift, base, lut_symbol, tables, words, states, lanes, pos,
+                 wpos) -> int:
     """The NumPy row loop of RansDecoder._decode_chunk (ENTROPY.md 4.3): one row of up to
     ``lanes`` consecutive symbols (one per lane) per step.  mask, shift, base: per-symbol arrays
-    or scalars; lut_symbol, freq, slot_start: :meth:`ModelSet.slot_symbols` and the build()
-    tables; writes each symbol's global index to ``out`` (lut_symbol's dtype); returns the new
-    word position."""
+    or scalars; lut_symbol: :meth:`ModelSet.slot_symbols`; tables: :meth:`ModelSet.build`'s
+    (freq, slot_start and value per symbol).  Writes each symbol's value to ``out`` (int64);
+    returns the new word position."""
     count = out.size
+    freq, slot_start, value = tables["freq"], tables["slot_start"], tables["value"]
     arr = [isinstance(v, np.ndarray) for v in (mask, shift, base)]
     width = min(lanes, count)
     flag = np.empty(width, dtype=np.bool_)
     slot_row = np.empty(width, dtype=np.int64)
+    sym_row = np.empty(width, dtype=lut_symbol.dtype)
     j = 0
     while j < count:
         lane0 = (pos + j) % lanes
         k = min(lanes - lane0, count - j)
         sl = slice(j, j + k)
         x = states[lane0:lane0 + k]
-        slot = slot_row[:k]
-        sym = out[sl]
+        slot, sym = slot_row[:k], sym_row[:k]
         # decode step: x = freq * (x >> n) + (slot - cum), slot - cum = global slot - slot_start
         np.bitwise_and(x, mask[sl] if arr[0] else mask, out=slot)
         np.add(slot, base[sl] if arr[2] else base, out=slot)
@@ -969,6 +969,7 @@ def _decode_rows(out, mask, shift, base, lut_symbol, freq, slot_start, words, st
         np.multiply(x, freq.take(sym), out=x)
         np.add(x, slot, out=x)
         np.subtract(x, slot_start.take(sym), out=x)
+        value.take(sym, out=out[sl], mode="clip")
         wpos = _renormalise(x, flag[:k], words, wpos)
         j += k
     return wpos
@@ -1036,11 +1037,11 @@ def _decode_rows_binary(out, f0, f1, n, words, states, lanes, pos, wpos) -> int:
 SCALAR_LANES = 8
 
 
-def _decode_scalar(out, mask, shift, base, lut_symbol, freqs, slot_starts, words, states, lanes,
-                   pos, wpos) -> int:
+def _decode_scalar(out, mask, shift, base, lut_symbol, freqs, slot_starts, values, words, states,
+                   lanes, pos, wpos) -> int:
     """RansDecoder._decode_chunk for streams with few lanes, one symbol at a time (ENTROPY.md
-    4.3, identical arithmetic); freqs, slot_starts: the build() tables as lists.  Writes the
-    global symbol indices to ``out``, returns the new word position."""
+    4.3, identical arithmetic); freqs, slot_starts, values: the build() tables as lists.
+    Writes the symbols' values to ``out``, returns the new word position."""
     st = states.tolist()
     masks, shifts, bases = mask.tolist(), shift.tolist(), base.tolist()
     nwords = words.size
@@ -1050,7 +1051,7 @@ def _decode_scalar(out, mask, shift, base, lut_symbol, freqs, slot_starts, words
         x = st[lane]
         slot = (x & masks[j]) + bases[j]
         g = int(lut_symbol[slot])
-        res[j] = g
+        res[j] = values[g]
         x = freqs[g] * (x >> shifts[j]) + slot - slot_starts[g]
         if x < STATE_LOW:
             if wpos >= nwords:
