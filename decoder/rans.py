@@ -316,6 +316,18 @@ class ModelSet:
             t["lut_symbol"] = np.repeat(np.arange(freq.size, dtype=dtype), freq)
         return t["lut_symbol"]
 
+    def model_slot_symbols(self, m: int) -> tuple[np.ndarray, dict]:
+        """Model m's own LUT and tables (after :meth:`build`), for a run of its symbols: the
+        index within the model of the symbol owning each of its slots 0 .. 2**n_m - 1 (int32),
+        and its symbols' freq, slot_start (= cum, its slots counted from 0) and value.  Made
+        per call (at most 2**16 entries, cache-resident), so a stream decoded in runs never
+        needs the whole set's LUT."""
+        t = self._tables
+        first, count = int(t["sym_start"][m]), int(t["sym_count"][m])
+        own = slice(first, first + count)
+        lut = np.repeat(np.arange(count, dtype=np.int32), t["freq"][own])
+        return lut, dict(freq=t["freq"][own], slot_start=t["cum"][own], value=t["value"][own])
+
     def native_tables(self, max_lut_entries: int) -> tuple:
         """Build (once) the compact decoding tables of the C decoder (``_native.rans_tables``:
         same frequencies as :meth:`build`); ``max_lut_entries`` as there."""
@@ -822,8 +834,9 @@ class RansDecoder:
 
     def decode_runs(self, run_models: np.ndarray, run_lengths: np.ndarray) -> np.ndarray:
         """``decode(np.repeat(run_models, run_lengths))`` (same symbols, checks and errors);
-        long runs (a channel set's groups) are decoded with their model's scalars and no
-        per-symbol model-id array."""
+        long runs (a channel set's groups) are decoded with their model's scalars and own LUT
+        (:meth:`ModelSet.model_slot_symbols`), no per-symbol model-id array and no LUT of the
+        whole set."""
         rm = np.asarray(run_models, dtype=np.int64).ravel()
         rl = np.asarray(run_lengths, dtype=np.int64).ravel()
         count = int(rl.sum())
@@ -835,14 +848,16 @@ class RansDecoder:
                                  f"stream has {self._n}")
         self._check_models(rm[rl > 0])
         out = np.empty(count, dtype=np.int64)
-        chunk = max(1, (1 << 18) // self._lanes) * self._lanes
         j = 0
         for m, length in zip(rm.tolist(), rl.tolist()):
-            end = j + length
-            while j < end:
-                e = min(end, j + chunk - (self._pos % self._lanes))
-                self._decode_chunk(None, out[j:e], model=m)
-                j = e
+            if length:
+                # the model's slots numbered from 0: mask and shift of its precision, base 0
+                lut, tables = self._models.model_slot_symbols(m)
+                self._wpos = _decode_rows(out[j:j + length], int(self._t["mask"][m]),
+                                          int(self._models.prec[m]), 0, lut, tables, self._words,
+                                          self._states, self._lanes, self._pos, self._wpos)
+                self._pos += length
+                j += length
         return out
 
     def decode_blocks(self, table: np.ndarray, channels: int, length: int, blocks: int,
