@@ -225,12 +225,13 @@ def _child_neighbour_table(nbr: np.ndarray, col: np.ndarray | None, occ: np.ndar
     # int32 where it fits: the table is the decoder's largest array, and fresh memory costs
     # page faults on every level
     dt = np.int32 if c < (1 << 31) else np.int64
-    # ch[j, p]: Morton index of child j of node p, -1 if absent; column N (the absent node that
-    # nbr's -1 entries reach, mode="wrap") all -1.  j-major: a group's lookups for one
-    # neighbour read one row, in ascending parent order (cache-resident)
+    # ch[j, p + 1]: Morton index of child j of node p, -1 if absent; column 0 (the absent node
+    # that nbr's -1 entries reach once shifted by one) all -1, so that every lookup index is
+    # non-negative (take's "clip" mode is ~2x faster than "wrap").  j-major: a group's lookups
+    # for one neighbour read one row, in ascending parent order (cache-resident)
     ch = np.full((8, n + 1), -1, dtype=dt)
     for j in range(8):
-        np.copyto(ch[j, :n], start[:n] + RANK8[j].take(occ), where=(occ & np.uint8(1 << j)) > 0,
+        np.copyto(ch[j, 1:], start[:n] + RANK8[j].take(occ), where=(occ & np.uint8(1 << j)) > 0,
                   casting="unsafe")
     table = np.empty((27, c), dtype=dt)
     new_col = np.empty(c, dtype=np.int64)
@@ -240,13 +241,13 @@ def _child_neighbour_table(nbr: np.ndarray, col: np.ndarray | None, occ: np.ndar
         if r.size == 0:
             continue
         g1 = g0 + r.size
-        new_col[ch[k, r]] = np.arange(g0, g1)
+        new_col[ch[k, r + 1]] = np.arange(g0, g1)
         rc = r if col is None else col.take(r)
-        # the 8 parent-level nodes of k's octant (-1 where absent)
-        par = {o: r if o == SELF else nbr[o][rc].astype(np.intp) for o in _OCTANT[k]}
+        # the 8 parent-level nodes of k's octant, plus one (0 where absent): ch's columns
+        par = {o: r + 1 if o == SELF else np.add(nbr[o][rc], 1, dtype=np.intp) for o in _OCTANT[k]}
         for t in _NOT_SELF:
             np.take(ch[int(CHILD_IDX[k, t])], par[int(CHILD_PAR[k, t])], out=table[t, g0:g1],
-                    mode="wrap")
+                    mode="clip")
         g0 = g1
     return table, new_col
 

@@ -204,9 +204,10 @@ class ModelSet:
                their level codes (1..max_level_code(g)); absent bins are not stored
 
     Built tables (``build()``): per present symbol of every model, concatenated in model order:
-      freq, cum (start within its model's [0, 2**n)), value; ``sym_start[m]`` = first index of
-      model m, ``sym_count[m]``; ``lut_base[m]`` = offset of model m's 2**n_m slots in ``lut``;
-      ``lut[lut_base[m] + slot]`` = global symbol index.
+      freq, cum (start within its model's [0, 2**n)), value, slot_start (= lut_base of its model
+      + cum: its first global slot); ``sym_start[m]`` = first index of model m, ``sym_count[m]``;
+      ``lut_base[m]`` = offset of model m's 2**n_m slots in the global slot range.
+    ``slot_symbols()`` (on demand): ``lut[lut_base[m] + slot]`` = global symbol index.
     """
 
     types: np.ndarray
@@ -286,17 +287,13 @@ class ModelSet:
         lut_base = np.zeros(m_count, dtype=np.int64)
         if m_count:
             lut_base[1:] = np.cumsum(total)[:-1]
-        # LUT entry of slot z of model m: (g << 33) | (freq_g << 16) | (z - cum_g), g the
-        # symbol owning slot z: the decode step then needs no separate cum/slot terms.  Models'
-        # slot ranges are consecutive, so z - cum_g = global slot - global start of g.
-        start = np.cumsum(freq) - freq
-        packed_lut = np.repeat((np.arange(freq.size, dtype=np.int64) << 33) + (freq << 16) - start,
-                               freq)
-        packed_lut += np.arange(packed_lut.size, dtype=np.int64)
+        # models' slot ranges are consecutive, so a symbol's first global slot is the running
+        # total of the frequencies before it, and slot - cum = global slot - slot_start
+        slot_start = np.cumsum(freq) - freq
         used = self.types != EMPTY
         uniform = bool(used.any()) and int(self.prec[used].min()) == int(self.prec[used].max())
-        self._tables = dict(freq=freq, cum=cum, value=value, sym_start=sym_start,
-                            sym_count=sym_count, lut_base=lut_base, packed_lut=packed_lut,
+        self._tables = dict(freq=freq, cum=cum, value=value, slot_start=slot_start,
+                            sym_start=sym_start, sym_count=sym_count, lut_base=lut_base,
                             total=total, mask=total - 1,
                             uniform_prec=int(self.prec[used][0]) if uniform else None,
                             has_empty=bool((~used).any()))
@@ -307,15 +304,29 @@ class ModelSet:
             self._tables["binary_f0"] = freq[sym_start]
         return self._tables
 
-    def split_luts(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The NumPy row loop's LUTs (once, after :meth:`build`): freq, slot - cum and value of
-        every slot's symbol (two gathers per row instead of one and four unpacking steps)."""
+    def slot_symbols(self) -> np.ndarray:
+        """The NumPy decoder's LUT (once, after :meth:`build`): the global symbol index of every
+        global slot, int32 [lut_entries()] (int64 past 2**31 symbols).  One narrow entry per
+        slot: symbols' freq/slot_start/value are read from the small per-symbol tables, which
+        stay in cache while the per-slot table (2**16 slots per model) does not."""
         t = self._tables
-        if "lut_freq" not in t:
-            p = t["packed_lut"]
-            t["lut_freq"], t["lut_bias"] = (p >> 16) & 0x1FFFF, p & 0xFFFF
-            t["lut_value"] = t["value"][p >> 33]
-        return t["lut_freq"], t["lut_bias"], t["lut_value"]
+        if "lut_symbol" not in t:
+            freq = t["freq"]
+            dtype = np.int32 if freq.size < (1 << 31) else np.int64
+            t["lut_symbol"] = np.repeat(np.arange(freq.size, dtype=dtype), freq)
+        return t["lut_symbol"]
+
+    def model_slot_symbols(self, m: int) -> tuple[np.ndarray, dict]:
+        """Model m's own LUT and tables (after :meth:`build`), for a run of its symbols: the
+        index within the model of the symbol owning each of its slots 0 .. 2**n_m - 1 (int32),
+        and its symbols' freq, slot_start (= cum, its slots counted from 0) and value.  Made
+        per call (at most 2**16 entries, cache-resident), so a stream decoded in runs never
+        needs the whole set's LUT."""
+        t = self._tables
+        first, count = int(t["sym_start"][m]), int(t["sym_count"][m])
+        own = slice(first, first + count)
+        lut = np.repeat(np.arange(count, dtype=np.int32), t["freq"][own])
+        return lut, dict(freq=t["freq"][own], slot_start=t["cum"][own], value=t["value"][own])
 
     def native_tables(self, max_lut_entries: int) -> tuple:
         """Build (once) the compact decoding tables of the C decoder (``_native.rans_tables``:
@@ -811,7 +822,7 @@ class RansDecoder:
             else:
                 self._decode_chunk(mids[j:end], out[j:end])
             j = end
-        return out.astype(np.int64) if binary else self._models.split_luts()[2].take(out)
+        return out.astype(np.int64) if binary else out
 
     def _check_models(self, mids: np.ndarray) -> None:
         """Model ids within the set and of non-empty models (NumPy path)."""
@@ -823,8 +834,9 @@ class RansDecoder:
 
     def decode_runs(self, run_models: np.ndarray, run_lengths: np.ndarray) -> np.ndarray:
         """``decode(np.repeat(run_models, run_lengths))`` (same symbols, checks and errors);
-        long runs (a channel set's groups) are decoded with their model's scalars and no
-        per-symbol model-id array."""
+        long runs (a channel set's groups) are decoded with their model's scalars and own LUT
+        (:meth:`ModelSet.model_slot_symbols`), no per-symbol model-id array and no LUT of the
+        whole set."""
         rm = np.asarray(run_models, dtype=np.int64).ravel()
         rl = np.asarray(run_lengths, dtype=np.int64).ravel()
         count = int(rl.sum())
@@ -836,15 +848,17 @@ class RansDecoder:
                                  f"stream has {self._n}")
         self._check_models(rm[rl > 0])
         out = np.empty(count, dtype=np.int64)
-        chunk = max(1, (1 << 18) // self._lanes) * self._lanes
         j = 0
         for m, length in zip(rm.tolist(), rl.tolist()):
-            end = j + length
-            while j < end:
-                e = min(end, j + chunk - (self._pos % self._lanes))
-                self._decode_chunk(None, out[j:e], model=m)
-                j = e
-        return self._models.split_luts()[2].take(out)
+            if length:
+                # the model's slots numbered from 0: mask and shift of its precision, base 0
+                lut, tables = self._models.model_slot_symbols(m)
+                self._wpos = _decode_rows(out[j:j + length], int(self._t["mask"][m]),
+                                          int(self._models.prec[m]), 0, lut, tables, self._words,
+                                          self._states, self._lanes, self._pos, self._wpos)
+                self._pos += length
+                j += length
+        return out
 
     def decode_blocks(self, table: np.ndarray, channels: int, length: int, blocks: int,
                       out: np.ndarray, steps=None, lo=None, qmax=None) -> None:
@@ -866,7 +880,7 @@ class RansDecoder:
 
     def _decode_chunk(self, mids: np.ndarray | None, out: np.ndarray, model=None) -> None:
         """Decode len(out) symbols with models ``mids`` (or all with ``model``); writes their
-        global LUT slots to ``out``."""
+        values to ``out`` (int64)."""
         t = self._t
         count = out.size
         # per-symbol mask, shift and LUT base -- scalars where every model has one precision
@@ -886,12 +900,15 @@ class RansDecoder:
             # rows of a few symbols: the same decode step on Python integers is ~10x faster
             # than a dozen NumPy calls per row (small streams, e.g. every stream of a tiny file)
             b = (lambda v: np.broadcast_to(v, (count,)))
-            self._wpos = _decode_scalar(out, b(mask), b(shift), b(base), t["packed_lut"],
-                                        self._words, self._states, lanes, self._pos, self._wpos)
+            if "symbol_lists" not in t:          # once per model set: Python ints per symbol
+                t["symbol_lists"] = (t["freq"].tolist(), t["slot_start"].tolist(), t["value"].tolist())
+            self._wpos = _decode_scalar(out, b(mask), b(shift), b(base), self._models.slot_symbols(),
+                                        *t["symbol_lists"], self._words, self._states, lanes,
+                                        self._pos, self._wpos)
             self._pos += count
             return
-        lut_freq, lut_bias, _ = self._models.split_luts()
-        self._wpos = _decode_rows(out, mask, shift, base, lut_freq, lut_bias, self._words, self._states, lanes, self._pos, self._wpos)
+        self._wpos = _decode_rows(out, mask, shift, base, self._models.slot_symbols(), t,
+                                  self._words, self._states, lanes, self._pos, self._wpos)
         self._pos += count
 
     def binary_reader(self):
@@ -936,27 +953,38 @@ class RansDecoder:
             raise GszFormatError("rANS: final states differ from 2**16 (corrupt payload)")
 
 
-def _decode_rows(out, mask, shift, base, lut_freq, lut_bias, words, states, lanes, pos,
+def _decode_rows(out, mask, shift, base, lut_symbol, tables, words, states, lanes, pos,
                  wpos) -> int:
     """The NumPy row loop of RansDecoder._decode_chunk (ENTROPY.md 4.3): one row of up to
     ``lanes`` consecutive symbols (one per lane) per step.  mask, shift, base: per-symbol arrays
-    or scalars; writes each symbol's global LUT slot to ``out``; returns the new word position."""
+    or scalars; lut_symbol: :meth:`ModelSet.slot_symbols`; tables: :meth:`ModelSet.build`'s
+    (freq, slot_start and value per symbol).  Writes each symbol's value to ``out`` (int64);
+    returns the new word position."""
     count = out.size
+    freq, slot_start, value = tables["freq"], tables["slot_start"], tables["value"]
     arr = [isinstance(v, np.ndarray) for v in (mask, shift, base)]
-    flag = np.empty(min(lanes, count), dtype=np.bool_)
+    width = min(lanes, count)
+    flag = np.empty(width, dtype=np.bool_)
+    slot_row = np.empty(width, dtype=np.int64)
+    sym_row = np.empty(width, dtype=lut_symbol.dtype)
     j = 0
     while j < count:
         lane0 = (pos + j) % lanes
         k = min(lanes - lane0, count - j)
         sl = slice(j, j + k)
         x = states[lane0:lane0 + k]
-        slot = out[sl]
-        # decode step: x = freq * (x >> n) + (slot - cum)
+        slot, sym = slot_row[:k], sym_row[:k]
+        # decode step: x = freq * (x >> n) + (slot - cum), slot - cum = global slot - slot_start
         np.bitwise_and(x, mask[sl] if arr[0] else mask, out=slot)
         np.add(slot, base[sl] if arr[2] else base, out=slot)
         np.right_shift(x, shift[sl] if arr[1] else shift, out=x)
-        np.multiply(x, lut_freq.take(slot), out=x)
-        np.add(x, lut_bias.take(slot), out=x)
+        # slots are in range by construction (mask and base of a checked non-empty model), so
+        # "clip" only skips take()'s buffered bounds check
+        lut_symbol.take(slot, out=sym, mode="clip")
+        np.multiply(x, freq.take(sym), out=x)
+        np.add(x, slot, out=x)
+        np.subtract(x, slot_start.take(sym), out=x)
+        value.take(sym, out=out[sl], mode="clip")
         wpos = _renormalise(x, flag[:k], words, wpos)
         j += k
     return wpos
@@ -1024,10 +1052,11 @@ def _decode_rows_binary(out, f0, f1, n, words, states, lanes, pos, wpos) -> int:
 SCALAR_LANES = 8
 
 
-def _decode_scalar(out, mask, shift, base, lut, words, states, lanes, pos, wpos) -> int:
+def _decode_scalar(out, mask, shift, base, lut_symbol, freqs, slot_starts, values, words, states,
+                   lanes, pos, wpos) -> int:
     """RansDecoder._decode_chunk for streams with few lanes, one symbol at a time (ENTROPY.md
-    4.3, identical arithmetic); writes the global LUT slots to ``out``, returns the new word
-    position."""
+    4.3, identical arithmetic); freqs, slot_starts, values: the build() tables as lists.
+    Writes the symbols' values to ``out``, returns the new word position."""
     st = states.tolist()
     masks, shifts, bases = mask.tolist(), shift.tolist(), base.tolist()
     nwords = words.size
@@ -1036,9 +1065,9 @@ def _decode_scalar(out, mask, shift, base, lut, words, states, lanes, pos, wpos)
     for j in range(out.size):
         x = st[lane]
         slot = (x & masks[j]) + bases[j]
-        e = int(lut[slot])
-        res[j] = slot
-        x = ((e >> 16) & 0x1FFFF) * (x >> shifts[j]) + (e & 0xFFFF)
+        g = int(lut_symbol[slot])
+        res[j] = values[g]
+        x = freqs[g] * (x >> shifts[j]) + slot - slot_starts[g]
         if x < STATE_LOW:
             if wpos >= nwords:
                 states[:] = st

@@ -99,21 +99,24 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
     classes = None if classes_chunk is None else read_sh_classes(classes_chunk, p)
     if native.enabled():
         return _assemble_native(r, m, k, d, p, kcb, codebook, classes), codebook
-    # every Gaussian's vector is one row of [kept vectors; codebook] as float32 (the rounding
-    # the float32 output applies anyway): one contiguous gather, not two masked scatters
-    rows = np.zeros((0, d), np.float32)
+    kept = None
     if p:
         kept = read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set")
         flags = decode_stream_single(r.blob(), m)
         r.check(bool(np.all((flags == 0) | (flags == 1))), "kept flag outside 0/1")
         kept_mask = flags.astype(bool)
         r.check(int(kept_mask.sum()) == p, f"{int(kept_mask.sum())} kept flags set, header says {p}")
-        rows = kept.T.astype(np.float32)
     idx = decode_stream_single(r.blob(), m - p)
     r.check(idx.size == 0 or (idx.min() >= 0 and idx.max() < kcb), "codeword index out of range")
     r.expect_end()
+    # every Gaussian's vector is one row of [kept vectors; codebook] as float32 (the rounding
+    # the float32 output applies anyway): one contiguous gather, not two masked scatters; the
+    # rows are cast in place (no float32 copy of each part, then of their concatenation)
+    rows = np.empty((p + (kcb if idx.size else 0), d), np.float32)
+    if p:
+        rows[:p] = kept.T
     if idx.size:
-        rows = np.concatenate([rows, codebook.T.astype(np.float32)])
+        rows[p:] = codebook.T
     # the row of [kept vectors as stored; codebook] each Gaussian takes (kept ones in point order)
     if p and idx.size:
         which = np.empty(m, np.int64)
