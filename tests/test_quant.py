@@ -215,3 +215,19 @@ def test_symbols_in_c_equal_the_torch_reference_bit_for_bit():
     assert sym.dtype == np.int32 and np.array_equal(sym, ref)
     assert np.all(sym[1] == 0)
     assert np.array_equal(sym[0], np.rint(x[0] * 16.0).astype(np.int32))   # ties to even
+
+
+@pytest.mark.skipif(not __import__("gsz.decoder.native", fromlist=["enabled"]).enabled(),
+                    reason="native accelerator not built")
+def test_c_quantiser_refuses_arrays_that_do_not_fit_together():
+    from gsz.decoder import native
+    mod = native.module()
+    x = np.zeros((3, 10), np.float32)
+    mm = np.zeros((3, 2), np.float32)
+    bits = np.full((3, 2), 4, np.int64)
+    with pytest.raises(ValueError, match="inconsistent"):
+        mod.quantize_groups(x, 2, mm, mm[:2], bits, np.empty((3, 10), np.int32))   # maxs short
+    with pytest.raises(ValueError, match="inconsistent"):
+        mod.quantize_groups(x, 2, mm, mm, np.full((3, 2), 17, np.int64), np.empty((3, 10), np.int32))
+    with pytest.raises(ValueError, match="inconsistent"):
+        mod.loss_all_bits(x, 2, mm, mm, 3, 2, np.zeros((3, 2, 16)))                # lo > hi

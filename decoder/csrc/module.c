@@ -952,6 +952,18 @@ static PyObject *py_rate_group_stats(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* Channels c and length of x float32 [C, L] (v[0]) with mins / maxs float32 [C, B] (v[1], v[2])
+ * and B = nb blocks: the group count C * B, or -1 when the three do not fit together. */
+static int64_t group_shape(const Py_buffer *v, int64_t nb, int64_t *c, int64_t *length)
+{
+    const int64_t groups = (int64_t)(v[1].len / 4), values = (int64_t)(v[0].len / 4);
+    *c = nb > 0 ? groups / nb : 0;
+    *length = *c > 0 ? values / *c : 0;
+    const int ok = nb >= 1 && *c >= 1 && *c * nb == groups && (int64_t)(v[2].len / 4) == groups
+                   && *c * *length == values;
+    return ok ? groups : -1;
+}
+
 PyDoc_STRVAR(loss_all_bits_doc,
 "loss_all_bits(x, num_blocks, mins, maxs, lo, hi, out)\n\n"
 "gsz.kernels.quantize_cpu.loss_all_bits in C: x float32 [C, L], mins/maxs float32 [C, B]\n"
@@ -974,11 +986,9 @@ static PyObject *py_loss_all_bits(PyObject *self, PyObject *args)
             return NULL;
         }
     }
-    const int64_t groups = (int64_t)(v[1].len / 4);
-    const int64_t c = nb > 0 ? groups / nb : 0;
-    const int64_t length = c > 0 ? (int64_t)(v[0].len / 4) / c : 0;
-    if (nb < 1 || c < 1 || c * nb != groups || (int64_t)(v[2].len / 4) != groups
-        || c * length != (int64_t)(v[0].len / 4) || (int64_t)(v[3].len / 8) != groups * RATE_BITS
+    int64_t c, length;
+    const int64_t groups = group_shape(v, nb, &c, &length);
+    if (groups < 0 || (int64_t)(v[3].len / 8) != groups * RATE_BITS
         || lo < 1 || lo > hi || hi > RATE_BITS) {
         release_views(v, nv);
         PyErr_SetString(PyExc_ValueError, "loss_all_bits: inconsistent arguments");
@@ -1016,12 +1026,9 @@ static PyObject *py_quantize_groups(PyObject *self, PyObject *args)
             return NULL;
         }
     }
-    const int64_t groups = (int64_t)(v[1].len / 4);
-    const int64_t c = nb > 0 ? groups / nb : 0;
-    const int64_t length = c > 0 ? (int64_t)(v[0].len / 4) / c : 0;
-    int ok = nb >= 1 && c >= 1 && c * nb == groups && (int64_t)(v[2].len / 4) == groups
-             && (int64_t)(v[3].len / 8) == groups && c * length == (int64_t)(v[0].len / 4)
-             && v[4].len == v[0].len;
+    int64_t c, length;
+    const int64_t groups = group_shape(v, nb, &c, &length);
+    int ok = groups >= 0 && (int64_t)(v[3].len / 8) == groups && v[4].len == v[0].len;
     const int64_t *bits = v[3].buf;
     for (int64_t g = 0; ok && g < groups; g++)
         if (bits[g] < 1 || bits[g] > RATE_BITS) ok = 0;
