@@ -25,7 +25,7 @@ from ..decoder.bytesio import Writer
 from ..decoder.cloud import GaussianCloud
 from ..decoder.container import (CHUNK_ENTRY_SIZE, CHUNK_REQUIRED, FRAME_RDF, LAYER_SHIFT, Chunk, FileHeader,
                                  write_container)
-from ..decoder.errors import GszError, GszUsageError
+from ..decoder.errors import GszUsageError
 from ..decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHCL, CHUNK_SHVQ, RAHT_CHANNELS,
                                 ROTATION_EULER_ZYX)
 from ..decoder.morton import morton_encode
