@@ -32,9 +32,18 @@ def _as_tensor(x) -> torch.Tensor:
     if not t.is_floating_point():
         raise GszError(f"quantiser input must be floating point, got {t.dtype}")
     t = t.to(torch.float32).contiguous()
-    if not bool(torch.isfinite(t).all()):
+    if not _all_finite(t):
         raise GszError("quantiser input contains NaN or infinity")
     return t
+
+
+def _all_finite(t: torch.Tensor) -> bool:
+    """Every value finite; on the CPU through the accelerator's one pass where it is built
+    (torch's check makes a [C, L] bool tensor first)."""
+    from ..decoder import native
+    if t.device.type == "cpu" and native.enabled():
+        return bool(native.module().all_finite(t.numpy()))
+    return bool(torch.isfinite(t).all())
 
 
 def _check_blocks(num_blocks) -> int:

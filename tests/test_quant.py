@@ -130,10 +130,17 @@ def test_empty_blocks_and_constant_groups():
 
 
 def test_bad_input_raises_gsz_errors():
-    x = np.ones((2, 10), np.float32)
-    x[1, 3] = np.nan
-    with pytest.raises(GszError, match="NaN"):
-        quantize_all_bits(x, 2)
+    for bad in (np.nan, np.inf, -np.inf):
+        x = np.ones((2, 10), np.float32)
+        x[1, 3] = bad
+        with pytest.raises(GszError, match="NaN or infinity"):
+            quantize_all_bits(x, 2)
+        with pytest.raises(GszError, match="NaN or infinity"):
+            quantize_groups(x, 2, 4)
+    big = np.ones((2, 10))
+    big[0, 9] = 1e300                                   # finite in float64, infinite in float32
+    with pytest.raises(GszError, match="NaN or infinity"):
+        quantize_groups(big, 2, 4)
     with pytest.raises(GszError):
         quantize_groups(np.ones((2, 10), np.float32), 2, np.full((2, 2), 17))
     with pytest.raises(GszError):
