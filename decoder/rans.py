@@ -337,7 +337,6 @@ class ModelSet:
                                  f"more than the {max_lut_entries} this stream allows")
         if self._ntables is None:
             c64 = (lambda a: np.ascontiguousarray(a, dtype=np.int64))
-            cat = (lambda xs: c64(np.concatenate(xs)) if len(xs) else np.zeros(0, np.int64))
             self._ntables = native.module().rans_tables(
                 c64(self.types), c64(self.lo), c64(self.span), c64(self.prec), c64(self.group),
                 c64(self.binshift), c64(self.centre), c64(self.r_left), c64(self.r_right),
@@ -848,11 +847,14 @@ class RansDecoder:
                                  f"stream has {self._n}")
         self._check_models(rm[rl > 0])
         out = np.empty(count, dtype=np.int64)
+        own = {}                 # model -> its LUT and tables (runs of one channel share models)
         j = 0
         for m, length in zip(rm.tolist(), rl.tolist()):
             if length:
                 # the model's slots numbered from 0: mask and shift of its precision, base 0
-                lut, tables = self._models.model_slot_symbols(m)
+                if m not in own:
+                    own[m] = self._models.model_slot_symbols(m)
+                lut, tables = own[m]
                 self._wpos = _decode_rows(out[j:j + length], int(self._t["mask"][m]),
                                           int(self._models.prec[m]), 0, lut, tables, self._words,
                                           self._states, self._lanes, self._pos, self._wpos)

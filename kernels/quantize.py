@@ -5,8 +5,9 @@ per group, float64 step s = (M - m) / (2^q - 1) or 1, k = clamp(rint((x - m) / s
 so symbols are bit-identical whichever runs; loss tables agree to float64 rounding.
 
 Device choice: ``device=None`` picks CUDA when torch has CUDA and a GPU is present and the
-extension builds (``gsz.kernels.quantize_cuda``), else the chunked torch CPU path
-(``gsz.kernels.quantize_cpu``; its loss table in C where ``gsz.decoder.native`` is enabled).  ``device="cpu"`` / ``"cuda"`` force one (``"cuda"`` raises
+extension builds (``gsz.kernels.quantize_cuda``), else the CPU path: the torch reference
+(``gsz.kernels.quantize_cpu``), its symbols, loss table and finiteness check in C where
+``gsz.decoder.native`` is enabled.  ``device="cpu"`` / ``"cuda"`` force one (``"cuda"`` raises
 when it is unavailable).  Outputs are always numpy arrays on the host.
 """
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from ..decoder import native
 from ..decoder.errors import GszError
 from ..decoder.quant import MAX_BITS, MIN_BITS
 
@@ -40,7 +42,6 @@ def _as_tensor(x) -> torch.Tensor:
 def _all_finite(t: torch.Tensor) -> bool:
     """Every value finite; on the CPU through the accelerator's one pass where it is built
     (torch's check makes a [C, L] bool tensor first)."""
-    from ..decoder import native
     if t.device.type == "cpu" and native.enabled():
         return bool(native.module().all_finite(t.numpy()))
     return bool(torch.isfinite(t).all())
@@ -107,7 +108,6 @@ def _loss_cpu(t: torch.Tensor, nb: int, mins: torch.Tensor, maxs: torch.Tensor, 
     """quantize_cpu.loss_all_bits (the reference), in C where the accelerator is enabled: the
     same float64 steps in one pass per width (2.5x faster single-threaded; the search runs
     torch on one thread), sums agreeing to ~1e-14 relative."""
-    from ..decoder import native
     if not native.enabled() or t.shape[1] == 0:
         return quantize_cpu.loss_all_bits(t, nb, mins, maxs, lo, hi)
     out = np.full((t.shape[0], nb, MAX_BITS), np.inf)
@@ -130,7 +130,6 @@ def _quantize_with(t, nb, bits, mins, maxs, dev) -> np.ndarray:
     if dev == "cuda":
         from . import quantize_cuda
         return quantize_cuda.quantize(t, nb, b, mins, maxs).cpu().numpy()
-    from ..decoder import native
     if native.enabled() and t.shape[1]:
         # the same symbols, bit for bit, in one pass (the torch path's 6 passes per chunk were
         # ~5 % of a search on its single torch thread)
