@@ -21,6 +21,7 @@ from .layer import (GAUSSIANS_PER_BYTE, LAYER_DATA_CHUNKS, LayerState, _cores, c
                     check_max_gaussians, check_tile_complete, concat_clouds, decode_layer, guard, load_bytes,
                     open_gsz, plan_layers, plan_parts, tile_table)
 from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_TILE, KNOWN_CHUNKS
+from .pages import small_pages
 from .tiles import check_region, select_tiles
 from .stream import StreamDecoder
 
@@ -95,7 +96,10 @@ def decode_parts(container: Container, plan, tiles: list, chosen: list, count: i
     else:
         from concurrent.futures import ThreadPoolExecutor
         with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="gsz-tile") as pool:
-            futures = {t: pool.submit(native.carry(_decode_tile), container, by_tile[t], h, states[t], False,
+            # no more tiles than cores: each tile also overlaps its geometry with its attributes
+            # (a large tile's traversal is the critical path); else the tiles fill the cores
+            overlap = len(chosen) <= (threads or _cores())
+            futures = {t: pool.submit(native.carry(_decode_tile), container, by_tile[t], h, states[t], overlap,
                                       tiled) for t in chosen}
             for t in chosen:                        # the first failing tile's error
                 if futures[t].exception() is not None:
@@ -125,7 +129,9 @@ def decode_container(container: Container, *, max_gaussians: int | None = None,
     except ValueError as e:
         raise GszError(str(e)) from None
     per_byte = GAUSSIANS_PER_BYTE if max_gaussians is None else None
-    cloud = concat_clouds(decode_parts(container, plan, table, chosen, count, per_byte=per_byte), h.sh_degree)
+    with small_pages():      # the parts and their concatenation are fresh memory
+        cloud = concat_clouds(decode_parts(container, plan, table, chosen, count, per_byte=per_byte),
+                              h.sh_degree)
     if region is not None:
         lo, hi = (np.asarray(v, np.float32) for v in check_region(region))
         inside = np.all((cloud.positions >= lo) & (cloud.positions <= hi), axis=1)

@@ -25,6 +25,7 @@ from .errors import GszError, GszFormatError, GszLimitError
 from .geometry import read_geometry_header
 from .io_util import check_input_file
 from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_TILE
+from .pages import small_pages
 from .sh import read_sh
 
 
@@ -295,6 +296,11 @@ def decode_layer(chunks: dict, header, state: LayerState, *, overlap: bool = Tru
     :func:`_decode_layer_threaded`); ``overlap=False`` when the caller already decodes several
     tiles at once.  Errors are raised in the sequential order: a corrupt geometry is reported
     before a corrupt attribute chunk."""
+    with small_pages():
+        return _decode_layer(chunks, header, state, overlap, label)
+
+
+def _decode_layer(chunks: dict, header, state: LayerState, overlap: bool, label: str) -> GaussianCloud:
     room = state.limit - state.decoded_points
     if room <= 0:
         raise GszFormatError(f"layers hold more Gaussians than {state.what} {state.limit}")

@@ -53,3 +53,20 @@ def test_convert_frame_round_trips_and_flips_y_and_z():
 def test_cloud_repr_is_short():
     r = repr(sample("sh3"))
     assert r.startswith("GaussianCloud(") and "SH degree 3" in r and len(r) < 200
+
+
+@pytest.mark.parametrize("app_setting", [True, False])
+def test_decoding_in_threads_leaves_numpys_huge_page_setting_as_the_app_had_it(app_setting):
+    """The decoder turns NumPy's huge-page advice off while it runs (decoder/pages.py); tiles
+    decode in several threads at once, and the app's own setting must come back after them."""
+    from concurrent.futures import ThreadPoolExecutor
+    pages = pytest.importorskip("numpy._core.multiarray")
+    old = pages._set_madvise_hugepage(app_setting)
+    try:
+        data = gsz.encode(sample("sh0", 1500), options=EncodeOptions(bits=10, reserve=1.0, **FAST))
+        with ThreadPoolExecutor(4) as pool:
+            clouds = list(pool.map(lambda _: gsz.decoder.decode(data), range(8)))
+        assert all(c.equals(clouds[0]) for c in clouds)
+        assert pages._set_madvise_hugepage(app_setting) is app_setting
+    finally:
+        pages._set_madvise_hugepage(old)

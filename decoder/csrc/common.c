@@ -1,10 +1,6 @@
 /* gsz.decoder._native: the shared error record, allocator and tables (gsz_common.h). */
 #include "gsz_common.h"
 
-#if defined(__linux__)
-#include <sys/mman.h>
-#endif
-
 int fail(Err *e, const char *msg)
 {
     if (!e->failed) {
@@ -29,20 +25,12 @@ int fail_value(Err *e, const char *msg)
     return -1;
 }
 
-/* On Linux, blocks of 4 MB and more are 2 MB aligned and marked for transparent huge pages:
- * the traversal's tables are written once and streamed over, and on the project's VM faulting
- * them in 4 kB pages cost ~20 % of the geometry decode (0.185 s -> 0.152 s on the flowers
- * scene). */
+/* The traversal's large tables.  Not marked for transparent huge pages: with THP defrag
+ * "madvise" the first touch of each 2 MB page may compact memory in the kernel, which in a
+ * fresh process cost more (and far more unevenly) than the TLB misses it saves
+ * (docs/design/memory.md, "Small pages"). */
 void *big_alloc(size_t size)
 {
-#if defined(__linux__) && defined(MADV_HUGEPAGE)
-    if (size >= ((size_t)4 << 20)) {
-        void *q = NULL;
-        if (posix_memalign(&q, (size_t)2 << 20, size) != 0) return NULL;
-        madvise(q, size, MADV_HUGEPAGE);        /* advisory: failure changes nothing */
-        return q;
-    }
-#endif
     return malloc(size ? size : 1);
 }
 

@@ -15,6 +15,7 @@ from collections import OrderedDict
 
 import numpy as np
 
+from ...decoder.pages import small_pages
 from ..pipeline import (EncodeOptionsError, EncodeResult, Stage, assemble, attribute_chunks,
                         compute_train_importance, prepare_stage, sh_chunk, sh_set_blocks, voxelize_stage)
 from ..progress import Progress
@@ -62,7 +63,7 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     sopts = options or SearchOptions()
     executor = make_executor(sopts.executor, sopts.workers)
     try:
-        with _search_threads(), _small_pages(), \
+        with _search_threads(), small_pages(), \
                 ThreadPoolExecutor(max_workers=1, thread_name_prefix="gsz-geom") as pool:
             search = BudgetSearch(cloud, target_bytes, sopts, progress, pool, executor)
             result = search.run(importance, cameras)
@@ -98,26 +99,6 @@ def _search_threads():
 PATH_LOST_MARGIN_DB = 0.1
 #: The SH paths as the search's log names them (tau.encode_tau).
 SH_PATH_NAMES = {"vq": "codebook", "classes": "classes", "scalar": "scalar"}
-
-@contextlib.contextmanager
-def _small_pages():
-    """NumPy's large arrays without transparent huge pages for the search.
-
-    The search allocates and drops many short-lived arrays of tens to hundreds of MB; with huge
-    pages each first touch may compact memory in the kernel (THP defrag "madvise", common on
-    Linux) -- a third of the CPU time at 1.2 M Gaussians (docs/design/memory.md).  NumPy's own
-    switch is private: without it nothing changes."""
-    try:
-        from numpy._core.multiarray import _set_madvise_hugepage
-    except ImportError:
-        yield
-        return
-    old = _set_madvise_hugepage(False)
-    try:
-        yield
-    finally:
-        _set_madvise_hugepage(old)
-
 
 #: Prepared stages and voxel grids the search keeps: the one being encoded and, for voxels, the
 #: one screened just before it (both are recomputed, identically, if asked for again).
