@@ -20,6 +20,7 @@ import numpy as np
 
 from . import native
 from .bytesio import Reader
+from .errors import GszFormatError
 from .morton import MAX_DEPTH, morton_decode, morton_decode_planes
 from .octree import decode_octree_codes
 
@@ -95,6 +96,14 @@ def read_geometry_header(data, *, max_points: int) -> GeometryHeader:
     r.check(1 <= m <= max_points, f"voxel count {m} outside 1..{max_points}")
     return GeometryHeader(depth=depth, origin=origin, side=side, num_points=m,
                           payload=r.bytes(r.remaining))
+
+
+def octree_scheme(data) -> int:
+    """The coding scheme byte of a GEOM chunk's octree payload (OCTREE.md section 2)."""
+    payload = read_geometry_header(data, max_points=1 << 63).payload
+    if len(payload) < 1:
+        raise GszFormatError("octree payload is empty")
+    return payload[0]
 
 
 def read_geometry(data, *, max_points: int) -> Geometry:

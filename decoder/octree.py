@@ -66,6 +66,9 @@ NUM_SIB = 4
 NUM_COARSE = 8 * 27 * 27 * NUM_SIB
 #: face neighbours kn_f, unk_f in 0..6; edge/corner neighbours kn_o, unk_o in 0..20
 NUM_FINE = 8 * 7 * 7 * 21 * 21 * NUM_SIB * NUM_LEVEL_BUCKETS
+#: contexts of the direct flag (scheme 1): occupied neighbours (0..7, 7 = 7 or more) x the
+#: parent's children (1..4, 4 = 4 or more) x level bucket
+NUM_DIRECT = 8 * 4 * NUM_LEVEL_BUCKETS
 
 
 def _make_bank() -> np.ndarray:
@@ -388,12 +391,24 @@ _MARK_MIN_NODES = 4096
 BitSource = Callable[[int, int, np.ndarray, np.ndarray], np.ndarray]
 
 
-def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
+#: ``bits``' plane index of the direct flags (scheme 1)
+FLAG_PLANE = 8
+
+# A raw source (scheme 1): given (level, node indices of the level's direct nodes, width w)
+# return their leaves' low w Morton bits (uint64 [n]).
+RawSource = Callable[[int, np.ndarray, int], np.ndarray]
+
+
+def walk_octree(depth: int, num_points: int, bits: BitSource, direct_from: int | None = None,
+                raw: RawSource | None = None) -> np.ndarray:
     """Run the normative traversal; return the uint64 Morton codes of the leaves, ascending.
 
     ``bits(level, k, node_idx, model_ids)`` supplies the occupancy bits (int64 0/1 [n]) of child
     ``k`` of nodes ``node_idx`` (indices into the level's Morton-ordered node list), coded with the
     given bank models: the decoder reads them from the rANS stream, the encoder looks them up.
+    ``direct_from`` (scheme 1, OCTREE.md section 4.1): from that level on, nodes holding one voxel
+    leave the tree with their remaining bits from ``raw``; k = FLAG_PLANE asks ``bits`` for
+    their flags.
     Raises GszFormatError if a level would hold more than ``num_points`` nodes or the leaf count
     differs from ``num_points``.
     """
@@ -414,8 +429,14 @@ def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
     # than the traversal itself on small files)
     carry = np.zeros(0, dtype=np.int64)
     decided = 0
+    df_n = np.zeros(NUM_DIRECT, dtype=np.int64)
+    direct_points = []      # per level: the leaf codes of its direct nodes
+    num_direct = 0
+    par_pop = None          # per node: its parent's child count
     for level in range(depth):
         n = codes.shape[0]
+        if n == 0:          # every remaining voxel was coded directly
+            break
         used = [carry]
         if n >= _MARK_MIN_NODES:
             if marks is None:
@@ -426,14 +447,29 @@ def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
         state[n] = 0
         lb = min(NUM_LEVEL_BUCKETS - 1, depth - 1 - level)
         held = {}
+        kept = None         # the level's nodes left to code (None: all)
+        if direct_from is not None and level >= direct_from:
+            direct = _direct_flags(level, direct_from, lb, nbr, col, par_pop, df_n, bits)
+            decided += direct.shape[0]
+            if direct.any():
+                dn = np.flatnonzero(direct)
+                w = 3 * (depth - level)
+                low = np.asarray(raw(level, dn, w), dtype=np.uint64)
+                direct_points.append((codes[dn] << np.uint64(w)) | low)
+                num_direct += dn.size
+                # its one child, known: neighbours' contexts see it; it is not coded
+                state[dn] = np.uint16(256) | (np.uint16(1) << (low >> np.uint64(w - 3)).astype(np.uint16))
+                kept = np.flatnonzero(~direct)
         for k in range(8):
             ctx = plane_contexts(k, state, nbr, col, lb, held)
-            coded = None
+            coded = kept
             if k == 7:
                 free = (state[:n] & 127) == 0   # no child yet: child 7 for free, not coded
-                coded = np.flatnonzero(~free)
+                coded = np.flatnonzero(~free if kept is None else ~free & ~direct)
                 state[:n][free] |= np.uint16(128)
                 ctx = ctx[coded]
+            elif kept is not None:
+                ctx = ctx[kept]
             # every count total is at most the number of decisions so far (halving never
             # increases one)
             decided += ctx.shape[0]
@@ -450,18 +486,60 @@ def walk_octree(depth: int, num_points: int, bits: BitSource) -> np.ndarray:
             cand = np.unique(np.concatenate(used))
         carry = _halve_some(ff_n, cand)
         occ = state[:n].astype(np.uint8)
+        if kept is not None:
+            occ[direct] = 0                 # a direct node has no children in the tree
         # children in Morton order: node-major, child index ascending
-        total = int(POPCOUNT8[occ].sum())
-        if total > num_points:
-            raise GszFormatError(f"octree level {level + 1} decodes to {total} nodes, more than "
+        pop = POPCOUNT8[occ]
+        total = int(pop.sum())
+        if total + num_direct > num_points:
+            what = f"{total} nodes" + (f" and {num_direct} direct points" if num_direct else "")
+            raise GszFormatError(f"octree level {level + 1} decodes to {what}, more than "
                                  f"the {num_points} points declared")
         nz = np.flatnonzero(np.unpackbits(occ, bitorder="little"))
         codes = (codes[nz >> 3] << np.uint64(3)) | (nz & 7).astype(np.uint64)
         if level + 1 < depth:
             nbr, col = _child_neighbour_table(nbr, col, occ)
-    if codes.shape[0] != num_points:
-        raise GszFormatError(f"octree decodes to {codes.shape[0]} points, header declares {num_points}")
+            if direct_from is not None and level + 1 >= direct_from:
+                par_pop = np.repeat(pop, pop)
+    if codes.shape[0] + num_direct != num_points:
+        raise GszFormatError(f"octree decodes to {codes.shape[0] + num_direct} points, header "
+                             f"declares {num_points}")
+    if direct_points:
+        codes = np.sort(np.concatenate([codes, *direct_points]))
     return codes
+
+
+def _direct_flags(level: int, direct_from: int, lb: int, nbr: np.ndarray, col: np.ndarray | None,
+                  par_pop: np.ndarray, df_n: np.ndarray, bits: BitSource) -> np.ndarray:
+    """The direct flags of a level's nodes (OCTREE.md section 4.1), bool [N] in Morton order.
+    Below ``direct_from`` a node whose parent has one child holds what its parent held (two
+    voxels or more): its flag is 0, not coded."""
+    present = np.zeros(nbr.shape[1], dtype=np.int64)
+    for t in _NOT_SELF:
+        present += nbr[t] >= 0
+    if col is not None:
+        present = present.take(col)                        # columns -> Morton order
+    ctx = (np.minimum(present, 7) * 4 + np.minimum(par_pop, 4) - 1) * NUM_LEVEL_BUCKETS + lb
+    coded = np.arange(ctx.shape[0]) if level == direct_from else np.flatnonzero(par_pop > 1)
+    ctx = ctx[coded]
+    flags = np.zeros(par_pop.shape[0], dtype=np.bool_)
+    out = np.empty(ctx.shape[0], dtype=np.int64)
+    for s, e in _chunk_bounds(ctx.shape[0]):
+        c = ctx[s:e]
+        v = df_n[c]
+        c1 = v >> 32
+        v &= _LOW32
+        v += c1
+        v <<= 1
+        v += 2                                             # 2 (c0 + c1) + 2
+        c1 <<= 17
+        c1 += 1 << 16                                      # (2 c1 + 1) << 16
+        b = np.asarray(bits(level, FLAG_PLANE, coded[s:e], P16_TO_MODEL[c1 // v]), dtype=np.int64)
+        np.add.at(df_n, c, _INC[b])
+        out[s:e] = b
+    flags[coded] = out > 0
+    _halve_some(df_n, np.arange(NUM_DIRECT))
+    return flags
 
 
 def _floor_div(a: np.ndarray, b: np.ndarray, exact_float: bool) -> np.ndarray:
@@ -534,14 +612,80 @@ def _halve_some(counts: np.ndarray, ids: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- payload
-#: First payload byte: the coding scheme (only scheme 0, this module's, exists).
+#: First payload byte: the coding scheme.  0: every voxel through the tree; 1: with direct
+#: coding of single-voxel nodes from a signalled level on (OCTREE.md section 4.1).
 SCHEME_ADAPTIVE_BITWISE = 0
+SCHEME_DIRECT = 1
 
 
-def max_symbols(depth: int, num_points: int) -> int:
+def max_symbols(depth: int, num_points: int, scheme: int = SCHEME_ADAPTIVE_BITWISE) -> int:
     """Upper bound on the coded binary decisions of a valid payload: every level holds at most
-    ``num_points`` nodes and each node codes at most 8 child bits."""
-    return 8 * depth * num_points
+    ``num_points`` nodes and each node codes at most 8 child bits (and one direct flag)."""
+    return (9 if scheme == SCHEME_DIRECT else 8) * depth * num_points
+
+
+def pack_direct_bits(values: np.ndarray, width: int) -> bytes:
+    """One level's direct values (uint64 [n], each < 2^width) as the raw section stores them:
+    ``width`` bits each, least significant first, in a little-endian bit string padded with
+    zero bits to a whole byte (OCTREE.md section 2)."""
+    v = np.asarray(values, dtype=np.uint64)
+    bits = ((v[:, None] >> np.arange(width, dtype=np.uint64)) & np.uint64(1)).astype(np.uint8)
+    return np.packbits(bits.reshape(-1), bitorder="little").tobytes()
+
+
+class DirectBits:
+    """Reads the raw section of a scheme-1 payload level by level (the decoder's RawSource)."""
+
+    def __init__(self, raw: np.ndarray):
+        self.raw = raw
+        self.pos = 0
+
+    def __call__(self, level: int, nodes: np.ndarray, width: int) -> np.ndarray:
+        n = int(nodes.shape[0])
+        nbytes = (n * width + 7) // 8
+        if self.pos + nbytes > self.raw.shape[0]:
+            raise GszFormatError(f"octree payload: the direct points of level {level} need "
+                                 f"{nbytes} bytes, {self.raw.shape[0] - self.pos} left in the raw section")
+        bits = np.unpackbits(self.raw[self.pos:self.pos + nbytes], bitorder="little")
+        self.pos += nbytes
+        if bits[n * width:].any():
+            raise GszFormatError(f"octree payload: non-zero padding after the direct points of level {level}")
+        rows = np.packbits(bits[:n * width].reshape(n, width), axis=1, bitorder="little")
+        out = np.zeros((n, 8), dtype=np.uint8)
+        out[:, :rows.shape[1]] = rows
+        return out.view("<u8")[:, 0].astype(np.uint64, copy=False)
+
+    def finish(self) -> None:
+        if self.pos != self.raw.shape[0]:
+            raise GszFormatError(f"octree payload: {self.raw.shape[0] - self.pos} bytes of the raw "
+                                 f"section left unread")
+
+
+def read_scheme(buf: np.ndarray, depth: int, num_points: int) -> tuple:
+    """The payload's header fields (OCTREE.md section 2): (scheme, S, direct_from or None,
+    raw section uint8 [R], body uint8), validated."""
+    if buf.size < 1:
+        raise GszFormatError("octree payload is empty")
+    scheme = int(buf[0])
+    if scheme not in (SCHEME_ADAPTIVE_BITWISE, SCHEME_DIRECT):
+        raise GszFormatError(f"octree payload: unknown coding scheme {scheme}")
+    num_symbols, pos = read_varint(buf, 1, "octree symbol count")
+    bound = max_symbols(depth, num_points, scheme)
+    if num_symbols > bound:
+        raise GszFormatError(f"octree payload declares {num_symbols} symbols, more than "
+                             f"{bound} possible for {num_points} points")
+    if scheme == SCHEME_ADAPTIVE_BITWISE:
+        return scheme, num_symbols, None, buf[:0], buf[pos:]
+    if pos >= buf.size:
+        raise GszFormatError("octree payload truncated before its direct level")
+    direct_from = int(buf[pos])
+    if not 1 <= direct_from <= depth - 1:
+        raise GszFormatError(f"octree payload: direct level {direct_from} outside 1..{depth - 1}")
+    raw_len, pos = read_varint(buf, pos + 1, "octree raw section length")
+    # each direct point has at most 3 * (depth - 1) raw bits
+    if raw_len > buf.size - pos or raw_len > num_points * 8 + depth:
+        raise GszFormatError(f"octree payload: raw section of {raw_len} bytes does not fit")
+    return scheme, num_symbols, direct_from, buf[pos:pos + raw_len], buf[pos + raw_len:]
 
 
 def decode_octree_codes(payload, depth: int, num_points: int, helper=None) -> np.ndarray:
@@ -560,23 +704,15 @@ def decode_octree_codes(payload, depth: int, num_points: int, helper=None) -> np
     if num_points < 0 or num_points > (1 << (3 * depth)):
         raise GszFormatError(f"octree point count {num_points} impossible at depth {depth}")
     buf = np.frombuffer(payload, dtype=np.uint8)
-    if buf.size < 1:
-        raise GszFormatError("octree payload is empty")
-    if int(buf[0]) != SCHEME_ADAPTIVE_BITWISE:
-        raise GszFormatError(f"octree payload: unknown coding scheme {int(buf[0])}")
-    num_symbols, pos = read_varint(buf, 1, "octree symbol count")
-    if num_symbols > max_symbols(depth, num_points):
-        raise GszFormatError(f"octree payload declares {num_symbols} symbols, more than "
-                             f"{max_symbols(depth, num_points)} possible for {num_points} points")
-    body = buf[pos:]
+    scheme, num_symbols, direct_from, raw, body = read_scheme(buf, depth, num_points)
     if native.enabled() and num_points <= native.module().MAX_POINTS:
         # the payload header is validated here exactly as RansDecoder does (ENTROPY.md 4.1);
         # the C code re-checks what it relies on
         lanes, _, p = parse_payload_header(body, num_symbols, OCTREE_MAX_ROWS)
         tables = octree_tables(bank_precision(num_symbols))
-        raw = native.module().octree_decode(tables, int(depth), int(num_points), int(num_symbols),
-                                            int(lanes), body[p:], helper)
-        return np.frombuffer(raw, dtype="<u8").astype(np.uint64, copy=False)
+        out = native.module().octree_decode(tables, int(depth), int(num_points), int(num_symbols),
+                                            int(lanes), body[p:], helper, direct_from or 0, raw)
+        return np.frombuffer(out, dtype="<u8").astype(np.uint64, copy=False)
     dec = RansDecoder(body, num_symbols, bank_model_set(num_symbols), max_rows=OCTREE_MAX_ROWS)
     # the bank's binary row loop (model ids come from P16_TO_MODEL: valid by construction);
     # its symbols are 0/1 by construction too
@@ -585,8 +721,11 @@ def decode_octree_codes(payload, depth: int, num_points: int, helper=None) -> np
     def read_bits(level, k, idx, model):
         return read(model)
 
-    codes = walk_octree(depth, num_points, read_bits)
+    direct = DirectBits(raw) if direct_from is not None else None
+    codes = walk_octree(depth, num_points, read_bits, direct_from, direct)
     dec.finish()
+    if direct is not None:
+        direct.finish()
     return codes
 
 

@@ -14,8 +14,8 @@ import numpy as np
 from ..decoder import native
 from ..decoder.errors import CloudValidationError
 from ..decoder.morton import MAX_DEPTH, morton_decode, morton_encode
-from ..decoder.octree import (SCHEME_ADAPTIVE_BITWISE, bank_model_set, bank_precision, octree_tables,
-                                walk_octree)
+from ..decoder.octree import (FLAG_PLANE, SCHEME_ADAPTIVE_BITWISE, SCHEME_DIRECT, bank_model_set,
+                              bank_precision, octree_tables, pack_direct_bits, walk_octree)
 from .rans import encode_symbols, varint_bytes
 
 
@@ -50,10 +50,46 @@ def choose_lanes(num_symbols: int) -> int:
     return int(min(4096, max(1, int(num_symbols) // SYMBOLS_PER_LANE)))
 
 
-def octree_symbols(ijk: np.ndarray, depth: int):
-    """Validate ``ijk`` and run the normative traversal with its true occupancy.
+class DirectTree:
+    """What the traversal with direct coding from level ``start`` sees of a known voxel set
+    (OCTREE.md section 4.1): per level, its nodes' occupancy bytes, direct flags and raw values.
 
-    Returns (sorted Morton codes uint64 [M], coded bits int64 [S], bank model ids int64 [S]).
+    A node of level l >= start is direct when it holds one voxel; it is in the tree when no
+    ancestor of level >= start was direct, i.e. (the voxel count only falls going down) when
+    l <= start or its parent holds two voxels or more."""
+
+    def __init__(self, codes: np.ndarray, depth: int, start: int):
+        self.occ, self.flags, self.low = [], {}, {}
+        m = codes.shape[0]
+        par_count = None                    # per voxel: its level l-1 node's voxel count
+        for level in range(depth):
+            shift = np.uint64(3 * (depth - level))
+            prefix = codes >> shift
+            first = np.ones(m, dtype=bool)
+            first[1:] = prefix[1:] != prefix[:-1]
+            starts = np.flatnonzero(first)
+            count = np.diff(np.append(starts, m))
+            child = (codes >> (shift - np.uint64(3))) & np.uint64(7)
+            occ = np.bitwise_or.reduceat(np.int64(1) << child.astype(np.int64), starts)
+            in_tree = slice(None) if level <= start else par_count[starts] >= 2
+            self.occ.append(occ[in_tree])
+            if level >= start:
+                one = count[in_tree] == 1
+                self.flags[level] = one.astype(np.int64)
+                firsts = starts[in_tree][one]
+                self.low[level] = codes[firsts] & ((np.uint64(1) << shift) - np.uint64(1))
+            par_count = np.repeat(count, count)
+
+    def raw_section(self, depth: int) -> bytes:
+        return b"".join(pack_direct_bits(v, 3 * (depth - level)) for level, v in sorted(self.low.items()))
+
+
+def octree_symbols(ijk: np.ndarray, depth: int, direct_from: int | str | None = None):
+    """Validate ``ijk`` and run the normative traversal with its true occupancy (and direct
+    coding from level ``direct_from``, "auto": :func:`choose_direct_level`; scheme 1).
+
+    Returns (sorted Morton codes uint64 [M], coded bits int64 [S], bank model ids int64 [S],
+    the raw section's bytes, the direct level or None).
     """
     a = np.asarray(ijk)
     if a.ndim != 2 or a.shape[1] != 3 or not np.issubdtype(a.dtype, np.integer):
@@ -71,48 +107,94 @@ def octree_symbols(ijk: np.ndarray, depth: int):
             first = morton_decode(codes[dup[:1]])[0].tolist()
             raise CloudValidationError(f"encode_octree needs unique voxels: {dup.size} duplicate "
                                        f"coordinate(s), e.g. {first}; merge duplicates first")
-    occ = occupancy_levels(codes, depth) if codes.size else []
+    if isinstance(direct_from, str):
+        if direct_from != "auto":
+            raise ValueError(f"direct_from must be a level, 'auto' or None, got {direct_from!r}")
+        direct_from = choose_direct_level(codes, int(depth))
+    if direct_from is not None and not 1 <= direct_from < depth:
+        raise ValueError(f"direct level {direct_from} outside 1..{depth - 1}")
+    if direct_from is not None and codes.size:
+        tree = DirectTree(codes, int(depth), int(direct_from))
+        occ, raw = tree.occ, tree.raw_section(int(depth))
+    else:
+        tree, raw = None, b""
+        occ = occupancy_levels(codes, depth) if codes.size else []
     if native.enabled() and codes.size <= native.module().MAX_POINTS:
-        bits, mods = _native_symbols(codes, occ, int(depth))
-        return codes, bits.astype(np.int64), mods.astype(np.int64)
+        bits, mods = _native_symbols(codes, occ, int(depth), direct_from, tree)
+        return codes, bits.astype(np.int64), mods.astype(np.int64), raw, direct_from
     syms, mods = [], []
 
     def true_bits(level, k, idx, model):
-        b = (occ[level][idx] >> k) & 1
+        b = tree.flags[level][idx] if k == FLAG_PLANE else (occ[level][idx] >> k) & 1
         syms.append(b)
         mods.append(model)
         return b
 
-    leaves = walk_octree(int(depth), int(codes.size), true_bits)
+    leaves = walk_octree(int(depth), int(codes.size), true_bits, direct_from,
+                         None if tree is None else (lambda level, idx, w: tree.low[level]))
     if not np.array_equal(leaves, codes):     # the traversal must rebuild exactly the input
         raise AssertionError("octree traversal did not reproduce the input voxels")
     cat = (lambda xs: np.concatenate(xs) if xs else np.zeros(0, np.int64))
-    return codes, cat(syms), cat(mods)
+    return codes, cat(syms), cat(mods), raw, direct_from
 
 
-def _native_symbols(codes: np.ndarray, occ: list, depth: int) -> tuple[np.ndarray, np.ndarray]:
+def _native_symbols(codes: np.ndarray, occ: list, depth: int, direct_from: int | None = None,
+                    tree: DirectTree | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The traversal with known occupancy in C (``_native.octree_encode``): the same decisions
     and bank model ids as walk_octree with the true_bits source, as uint8 arrays."""
     # the model ids do not depend on the bank precision; any precision's tables will do
     tables = octree_tables(bank_precision(0))
     known = np.concatenate(occ).astype(np.uint8) if occ else np.zeros(0, np.uint8)
     sizes = np.array([o.size for o in occ], dtype=np.int64)
-    bits, mods, leaves = native.module().octree_encode(tables, depth, int(codes.size), known, sizes)
+    extra = ()
+    if tree is not None:
+        levels = sorted(tree.flags)
+        cat = (lambda xs, dt: np.ascontiguousarray(np.concatenate(xs) if xs else np.zeros(0), dtype=dt))
+        extra = (int(direct_from), cat([tree.flags[lv] for lv in levels], np.uint8),
+                 cat([tree.low[lv] for lv in levels], np.uint64))
+    bits, mods, leaves = native.module().octree_encode(tables, depth, int(codes.size), known, sizes, *extra)
     if not np.array_equal(np.frombuffer(leaves, dtype="<u8"), codes):
         raise AssertionError("octree traversal did not reproduce the input voxels")
     return np.frombuffer(bits, dtype=np.uint8), np.frombuffer(mods, dtype=np.uint8)
 
 
-def encode_octree(ijk: np.ndarray, depth: int) -> bytes:
+#: Direct coding starts at the first level where at least this share of the nodes hold one voxel.
+DIRECT_SHARE = 0.5
+
+
+def choose_direct_level(codes: np.ndarray, depth: int) -> int | None:
+    """The level from which single-voxel nodes are coded directly (scheme 1), None for scheme 0
+    (no level of 1..depth-1 has that share: a dense grid, or depth 1).
+
+    Below the first level where half the nodes hold one voxel, the tree's context coding
+    costs about 3 bits per node and level, as the raw bits do; starting there rather than at
+    the byte-optimal level (later, where ~95 % are single) costs at most ~0.6 % of the geometry
+    payload on the shared scenes and halves the decoder's tree (docs/design/octree-direct.md)."""
+    if depth < 2 or codes.size == 0:
+        return None
+    for level in range(1, depth):
+        prefix = codes >> np.uint64(3 * (depth - level))
+        first = np.ones(codes.shape[0], dtype=bool)
+        first[1:] = prefix[1:] != prefix[:-1]
+        starts = np.flatnonzero(first)
+        single = np.count_nonzero(np.diff(np.append(starts, codes.shape[0])) == 1)
+        if single >= DIRECT_SHARE * starts.size:
+            return level
+    return None
+
+
+def encode_octree(ijk: np.ndarray, depth: int, direct_from: int | str | None = "auto") -> bytes:
     """Geometry payload of unique voxels (``format_spec/OCTREE.md``).
 
     ijk: int [M, 3] unique voxel coordinates in [0, 2^depth); depth: 1..21.
+    direct_from: the level from which single-voxel nodes are coded directly (scheme 1), "auto"
+    (:func:`choose_direct_level`), or None for scheme 0.
     Returns bytes; ``gsz.decoder.octree.decode_octree(payload, depth, M)`` gives the voxels back
     in ascending Morton order (``gsz.decoder.morton``).  Deterministic.
     Raises CloudValidationError (a GszError and ValueError) on duplicates, out-of-range
     coordinates, a bad shape or a bad depth.
     """
-    codes, syms, mods = octree_symbols(ijk, depth)
+    codes, syms, mods, raw, direct_from = octree_symbols(ijk, depth, direct_from)
     n = int(syms.size)
     if native.enabled():
         # binary rANS in C: the bytes encode_symbols writes for the bank (ENTROPY.md 6)
@@ -121,4 +203,6 @@ def encode_octree(ijk: np.ndarray, depth: int) -> bytes:
                                            tables[5], tables[6], choose_lanes(n))
     else:
         body = encode_symbols(syms, mods, bank_model_set(n), lanes=choose_lanes(n))
-    return bytes([SCHEME_ADAPTIVE_BITWISE]) + varint_bytes([n]) + body
+    if direct_from is None:
+        return bytes([SCHEME_ADAPTIVE_BITWISE]) + varint_bytes([n]) + body
+    return bytes([SCHEME_DIRECT]) + varint_bytes([n]) + bytes([direct_from]) + varint_bytes([len(raw)]) + raw + body

@@ -882,9 +882,13 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
 
     attr / sh   per-part ATTR / SHVQ payloads; decoded, sh_rest in output order.  A stage of
                 several tiles gets a TILE chunk first and format version 1.2.
-    sh_classes  per part the SHCL payload or None; any SHCL makes the file version 1.3."""
+    sh_classes  per part the SHCL payload or None; any SHCL makes the file version 1.3, any
+                direct-coded geometry (OCTREE.md scheme 1) 1.4."""
     import zstandard
-    from ..decoder.container import MINOR_LAYERS, MINOR_SH_CLASSES, MINOR_TILES, TILE_SHIFT, VERSION_MAJOR
+    from ..decoder.container import (MINOR_DIRECT, MINOR_LAYERS, MINOR_SH_CLASSES, MINOR_TILES, TILE_SHIFT,
+                                     VERSION_MAJOR)
+    from ..decoder.geometry import octree_scheme
+    from ..decoder.octree import SCHEME_DIRECT
     from ..decoder.layout import CHUNK_TILE
     from ..decoder.tiles import TileInfo, pack_tile_table
 
@@ -918,7 +922,10 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
     header = FileHeader(num_gaussians=m, sh_degree=stage.sh_degree, frame=FRAME_RDF,
                         bbox_min=tuple(out_cloud.positions.min(0)),
                         bbox_max=tuple(out_cloud.positions.max(0)),
-                        version=(VERSION_MAJOR, MINOR_SH_CLASSES if any(c.type == CHUNK_SHCL for c in chunks)
+                        version=(VERSION_MAJOR,
+                                 MINOR_DIRECT if any(c.type == CHUNK_GEOM and octree_scheme(c.data) == SCHEME_DIRECT
+                                                     for c in chunks)
+                                 else MINOR_SH_CLASSES if any(c.type == CHUNK_SHCL for c in chunks)
                                  else MINOR_TILES if tiles > 1 else MINOR_LAYERS))
     return write_container(header, chunks), out_cloud, len(meta_bytes)
 

@@ -623,12 +623,18 @@ def test_octree_encoder_identical_bits_models_and_payload():
               (np.unique(rng.integers(0, 1 << 21, size=(500, 3)), axis=0), 21),
               (np.zeros((0, 3), np.int64), 4)]
     for ijk, depth in cases:
-        (ka, a), (kb, b) = both(lambda: octree_symbols(ijk, depth))
+        (ka, a), (kb, b) = both(lambda: octree_symbols(ijk, depth)[:3])
         assert ka == kb == "ok"
         for x, y in zip(a, b):
             assert x.dtype == y.dtype and np.array_equal(x, y)
         (ka, pa), (kb, pb) = both(lambda: encode_octree(ijk, depth))
         assert pa == pb, depth
+        for level in sorted({1, depth // 2, depth - 1} - {0}) if depth > 1 else ():   # scheme 1
+            (ka, a), (kb, b) = both(lambda: octree_symbols(ijk, depth, level)[:4])
+            assert ka == kb == "ok"
+            for x, y in zip(a[:3], b[:3]):
+                assert x.dtype == y.dtype and np.array_equal(x, y)
+            assert a[3] == b[3], (depth, level)
 
 
 @needs_native

@@ -6,8 +6,8 @@ import zstandard
 
 from gsz.decoder.errors import GszError, GszFormatError
 from gsz.decoder.morton import morton_decode, morton_encode
-from gsz.decoder.octree import decode_octree
-from gsz.encoder.octree import encode_octree, occupancy_levels
+from gsz.decoder.octree import SCHEME_ADAPTIVE_BITWISE, SCHEME_DIRECT, decode_octree, read_scheme
+from gsz.encoder.octree import choose_direct_level, encode_octree, occupancy_levels
 from conftest import SAMPLE_SH3, shared_scene
 
 
@@ -189,12 +189,80 @@ def test_truncated_and_corrupted_payloads_rejected(real_payload):
             decode_octree(payload[:cut], 9, m)
     with pytest.raises(GszFormatError):
         decode_octree(payload + b"\x00", 9, m)
+    # a flipped byte anywhere but in the raw section (scheme 1's direct bits, which decode to
+    # other valid positions: the container's chunk checksum catches those)
+    _, _, _, raw, _ = read_scheme(np.frombuffer(payload, np.uint8), 9, m)
+    raw_start = payload.index(raw.tobytes())
     rng = np.random.default_rng(11)
-    for pos in rng.integers(0, len(payload), size=12):
+    for pos in rng.integers(0, len(payload) - raw.size, size=12):
+        pos = pos if pos < raw_start else pos + raw.size
         bad = bytearray(payload)
         bad[pos] ^= int(rng.integers(1, 256))
         with pytest.raises(GszFormatError):
             decode_octree(bytes(bad), 9, m)
+
+
+def test_every_direct_level_and_scheme_0_round_trip(real_payload):
+    ijk, payload = real_payload
+    order = np.argsort(morton_encode(ijk))
+    assert payload[0] == SCHEME_DIRECT          # the encoder's default
+    for level in (None, 1, 4, 6, 8):
+        p = encode_octree(ijk, 9, level)
+        assert p[0] == (SCHEME_ADAPTIVE_BITWISE if level is None else SCHEME_DIRECT)
+        assert np.array_equal(decode_octree(p, 9, len(ijk)), ijk[order]), level
+    # a cloud whose voxels all go direct at the first flagged level
+    far = np.array([[0, 0, 0], [511, 511, 511], [0, 511, 0]])
+    p = encode_octree(far, 9, 1)
+    assert np.array_equal(decode_octree(p, 9, 3), far[np.argsort(morton_encode(far))])
+
+
+def test_direct_level_is_chosen_from_the_share_of_single_voxel_nodes(real_payload):
+    ijk, _ = real_payload
+    codes = np.sort(morton_encode(ijk))
+    level = choose_direct_level(codes, 9)
+    prefix = lambda l: codes >> np.uint64(3 * (9 - l))        # noqa: E731
+    share = lambda l: np.mean(np.unique(prefix(l), return_counts=True)[1] == 1)  # noqa: E731
+    assert 1 <= level <= 8 and share(level) >= 0.5
+    assert all(share(l) < 0.5 for l in range(1, level))
+    assert choose_direct_level(codes[:0], 9) is None and choose_direct_level(np.zeros(1, np.uint64), 1) is None
+
+
+def _scheme1(direct_from: int, num_symbols: int, raw: bytes, body: bytes) -> bytes:
+    from gsz.encoder.rans import varint_bytes
+    return bytes([SCHEME_DIRECT]) + varint_bytes([num_symbols]) + bytes([direct_from]) + \
+        varint_bytes([len(raw)]) + raw + body
+
+
+def test_direct_payload_rejects(real_payload):
+    ijk, _ = real_payload
+    m = len(ijk)
+    payload = encode_octree(ijk, 9, 5)
+    _, s, d, raw, body = read_scheme(np.frombuffer(payload, np.uint8), 9, m)
+    raw, body = raw.tobytes(), body.tobytes()
+    assert decode_octree(_scheme1(d, s, raw, body), 9, m).shape == (m, 3)
+    cases = {
+        "direct level 0": _scheme1(0, s, raw, body),
+        "direct level 9": _scheme1(9, s, raw, body),
+        "raw section byte left over": _scheme1(d, s, raw + b"\x00", body),
+        "raw section one byte short": _scheme1(d, s, raw[:-1], body),
+        "raw section longer than the payload": _scheme1(d, s, raw, body)[:-len(raw) - len(body)],
+        "unknown scheme 2": bytes([2]) + payload[1:],
+        "symbol count above 9 d M": _scheme1(d, 9 * 9 * m + 1, raw, body),
+    }
+    for what, bad in cases.items():
+        with pytest.raises(GszFormatError):
+            decode_octree(bad, 9, m)
+
+
+def test_non_zero_padding_of_direct_bits_rejected():
+    # two direct voxels at level 8 (3 bits each: 6 bits, 2 bits of padding in the byte)
+    ijk = np.array([[0, 0, 0], [300, 300, 300]])
+    payload = encode_octree(ijk, 9, 8)
+    _, s, d, raw, body = read_scheme(np.frombuffer(payload, np.uint8), 9, 2)
+    assert raw.size == 1 and raw[0] >> 6 == 0
+    bad = _scheme1(d, s, bytes([int(raw[0]) | 0x80]), body.tobytes())
+    with pytest.raises(GszFormatError, match="padding"):
+        decode_octree(bad, 9, 2)
 
 
 def test_hostile_headers_rejected():

@@ -11,7 +11,7 @@ from gsz.decoder.container import (CHUNK_REQUIRED, LAYER_SHIFT, TILE_SHIFT, Chun
 from gsz.decoder.layout import CHUNK_TILE
 from gsz.decoder.tiles import TileInfo, pack_tile_table
 
-from codec_util import FAST, sample
+from codec_util import FAST, lowest_version, sample
 
 FIELDS = ("positions", "scales", "rotations", "opacities", "sh_dc", "sh_rest")
 
@@ -39,7 +39,7 @@ def _part_rows(info):
 def test_tiled_encode_decodes_to_what_the_encoder_predicted(tiled, monkeypatch):
     _, res = tiled
     info = inspect(res.data)
-    assert info["version"] == "1.2" and len(info["tiles"]) >= 3
+    assert info["version"] == lowest_version(res.data) >= "1.2" and len(info["tiles"]) >= 3
     assert all(r["gaussians"] <= 4096 for r in info["tiles"])
     assert sum(r["gaussians"] for r in info["tiles"]) == info["num_gaussians"] == len(res.cloud)
     assert all(len(r["parts"]) == 2 for r in info["tiles"])
@@ -174,11 +174,11 @@ def test_tile_bits_without_a_tile_chunk_are_rejected():
         decode(write_container(c.header, chunks))
 
 
-def test_untiled_files_stay_version_1_1_without_a_tile_chunk():
+def test_untiled_files_have_no_tile_chunk_nor_its_version():
     from gsz.encoder.pipeline import EncodeOptions, encode
     res = encode(sample("sh0", 3000), EncodeOptions(**FAST))
     info = inspect(res.data)
-    assert info["version"] == "1.1" and len(info["tiles"]) == 1
+    assert info["version"] == lowest_version(res.data) != "1.2" and len(info["tiles"]) == 1
     assert all(ch["type"] != "TILE" and ch["tile"] == 0 for ch in info["chunks"])
 
 
@@ -199,9 +199,9 @@ def test_size_search_holds_one_budget_across_tiles():
     res = encode_to_budget(sample("sh3"), target, options=SearchOptions(
         tile_gaussians=4096, train_views=6, eval_views=2, eval_width=160, importance_width=160))
     info = inspect(res.data)
-    # tiles make a 1.2 file; SH importance classes (SHCL chunks), which the search may choose, 1.3
-    shcl = any(c["type"] == "SHCL" for c in info["chunks"])
-    assert len(info["tiles"]) >= 3 and info["version"] == ("1.3" if shcl else "1.2")
+    # tiles make a 1.2 file; SH importance classes (SHCL chunks), which the search may choose,
+    # 1.3; a direct-coded octree 1.4
+    assert len(info["tiles"]) >= 3 and info["version"] == lowest_version(res.data) >= "1.2"
     assert 0.99 * target <= len(res.data) <= target
     assert decode(res.data).equals(res.cloud)
 

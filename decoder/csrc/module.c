@@ -189,28 +189,36 @@ static PyObject *codes_bytes(const uint64_t *codes, int64_t count)
 }
 
 PyDoc_STRVAR(octree_decode_doc,
-"octree_decode(tables, depth, num_points, num_symbols, lanes, body, helper=None) -> bytes\n\n"
+"octree_decode(tables, depth, num_points, num_symbols, lanes, body, helper=None, direct_from=0,\n"
+"              raw=b'') -> bytes\n\n"
 "Decode the octree traversal (OCTREE.md §4) from a rANS payload whose lane count `lanes`\n"
 "and word count were validated by the caller; `body` holds the 4*lanes state bytes followed\n"
 "by the 16-bit words.  Returns the leaf Morton codes as little-endian uint64 bytes.  Checks\n"
 "the end conditions of ENTROPY.md §4.4.  Raises GszFormatError on corrupt input.  `helper`:\n"
 "an unused octree_helper() that another thread may join with octree_help(); it is closed\n"
-"when the traversal ends.");
+"when the traversal ends.  direct_from > 0: scheme 1 (OCTREE.md §4.1), `raw` its raw section.");
 
 static PyObject *py_octree_decode(PyObject *self, PyObject *args)
 {
-    PyObject *tables, *body_obj, *helper_obj = Py_None;
-    int depth;
+    PyObject *tables, *body_obj, *helper_obj = Py_None, *raw_obj = NULL;
+    int depth, direct_from = 0;
     long long num_points, num_symbols, lanes;
-    if (!PyArg_ParseTuple(args, "OiLLLO|O", &tables, &depth, &num_points, &num_symbols, &lanes,
-                          &body_obj, &helper_obj))
+    if (!PyArg_ParseTuple(args, "OiLLLO|OiO", &tables, &depth, &num_points, &num_symbols, &lanes,
+                          &body_obj, &helper_obj, &direct_from, &raw_obj))
         return NULL;
+    Py_buffer raw = {0};
+    if (raw_obj && getbuf(raw_obj, &raw, 1, 'x', 0, "octree raw section") < 0) return NULL;
+    DirectIn di = {0};
+    di.from = direct_from;
+    di.raw = raw.buf;
+    di.raw_len = raw_obj ? (int64_t)raw.len : 0;
     HelperBox *hb = NULL;
     if (helper_obj != Py_None) {
         hb = PyCapsule_GetPointer(helper_obj, HELPER_CAPSULE);
         if (!hb) return NULL;
         if (hb->used) {
             PyErr_SetString(PyExc_ValueError, "octree_decode: this helper was used already");
+            if (raw_obj) PyBuffer_Release(&raw);
             return NULL;
         }
         hb->used = 1;
@@ -224,17 +232,19 @@ static PyObject *py_octree_decode(PyObject *self, PyObject *args)
     if (load_tables(&tb, tables, views, &nviews) < 0 || getbuf(body_obj, &body, 1, 'x', 0, "octree payload") < 0) {
         release_tables(&tb, views, nviews);
         helper_close(h);
+        if (raw_obj) PyBuffer_Release(&raw);
         return NULL;
     }
     Err e = {0};
     uint64_t *codes = NULL;
     int64_t count = 0;
     Py_BEGIN_ALLOW_THREADS
-    octree_decode_run(&tb, depth, num_points, num_symbols, lanes, body.buf, (int64_t)body.len, h,
-                      &codes, &count, &e);
+    octree_decode_run(&tb, depth, num_points, num_symbols, lanes, body.buf, (int64_t)body.len, &di,
+                      h, &codes, &count, &e);
     Py_END_ALLOW_THREADS
     helper_close(h);
     PyBuffer_Release(&body);
+    if (raw_obj) PyBuffer_Release(&raw);
     release_tables(&tb, views, nviews);
     if (!hb) free(local.done_buf);
     if (e.failed) { free(codes); return raise_err(&e); }
@@ -244,20 +254,24 @@ static PyObject *py_octree_decode(PyObject *self, PyObject *args)
 }
 
 PyDoc_STRVAR(octree_encode_doc,
-"octree_encode(tables, depth, num_points, known, known_sizes) -> (bits, models, codes)\n\n"
+"octree_encode(tables, depth, num_points, known, known_sizes, direct_from=0, flags=b'',\n"
+"              values=b'') -> (bits, models, codes)\n\n"
 "Run the traversal with the known occupancy bytes (`known`: every level's bytes concatenated,\n"
 "`known_sizes`: int64 node count per level).  Returns the coded bits and their bank model ids\n"
-"(uint8 bytes each, in coding order) and the leaf Morton codes (uint64 LE bytes).");
+"(uint8 bytes each, in coding order) and the leaf Morton codes (uint64 LE bytes).  direct_from\n"
+"> 0: scheme 1 (OCTREE.md §4.1) with the direct flags (uint8, every node of each level from\n"
+"direct_from on) and the direct nodes' values (uint64, level order).");
 
 static PyObject *py_octree_encode(PyObject *self, PyObject *args)
 {
-    PyObject *tables, *known_obj, *sizes_obj;
-    int depth;
+    PyObject *tables, *known_obj, *sizes_obj, *flags_obj = NULL, *vals_obj = NULL;
+    int depth, direct_from = 0;
     long long num_points;
-    if (!PyArg_ParseTuple(args, "OiLOO", &tables, &depth, &num_points, &known_obj, &sizes_obj))
+    if (!PyArg_ParseTuple(args, "OiLOO|iOO", &tables, &depth, &num_points, &known_obj, &sizes_obj,
+                          &direct_from, &flags_obj, &vals_obj))
         return NULL;
     OctTables tb;
-    Py_buffer views[6], known, sizes;
+    Py_buffer views[6], known, sizes, flags = {0}, vals = {0};
     int nviews;
     if (load_tables(&tb, tables, views, &nviews) < 0) { release_tables(&tb, views, nviews); return NULL; }
     if (getbuf(known_obj, &known, 1, 'x', 0, "occupancy bytes") < 0) {
@@ -269,16 +283,32 @@ static PyObject *py_octree_encode(PyObject *self, PyObject *args)
         release_tables(&tb, views, nviews);
         return NULL;
     }
+    if ((flags_obj && getbuf(flags_obj, &flags, 1, 'x', 0, "direct flags") < 0)
+        || (vals_obj && getbuf(vals_obj, &vals, 8, 'u', 0, "direct values") < 0)) {
+        if (flags.obj) PyBuffer_Release(&flags);
+        PyBuffer_Release(&known);
+        PyBuffer_Release(&sizes);
+        release_tables(&tb, views, nviews);
+        return NULL;
+    }
+    DirectIn di = {0};
+    di.from = direct_from;
+    di.kflags = flags.buf;
+    di.kflags_len = flags_obj ? (int64_t)flags.len : 0;
+    di.kvals = vals.buf;
+    di.kvals_len = vals_obj ? (int64_t)(vals.len / 8) : 0;
     Err e = {0};
     uint64_t *codes = NULL;
     int64_t count = 0;
     SymOut out = {0};
     Py_BEGIN_ALLOW_THREADS
     octree_encode_run(&tb, depth, num_points, known.buf, (int64_t)known.len, sizes.buf,
-                      (int64_t)(sizes.len / 8), &out, &codes, &count, &e);
+                      (int64_t)(sizes.len / 8), &di, &out, &codes, &count, &e);
     Py_END_ALLOW_THREADS
     PyBuffer_Release(&known);
     PyBuffer_Release(&sizes);
+    if (flags_obj) PyBuffer_Release(&flags);
+    if (vals_obj) PyBuffer_Release(&vals);
     release_tables(&tb, views, nviews);
     PyObject *res = NULL;
     if (!e.failed) {

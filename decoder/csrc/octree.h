@@ -12,6 +12,7 @@
 #define NUM_LB 4
 #define NUM_COARSE (8 * 27 * 27 * NUM_SIB)
 #define NUM_FINE (8 * 7 * 7 * 21 * 21 * NUM_SIB * NUM_LB)
+#define NUM_DIRECT (8 * 4 * NUM_LB)   /* direct-flag contexts (OCTREE.md §4.1) */
 #define MAX_CHUNK 65536
 /* the largest point count the native traversal takes (its node indices are int32) */
 #define OCT_MAX_POINTS (INT32_MAX / 2)
@@ -72,6 +73,20 @@ typedef struct {
     int64_t nwords, wpos;
     int64_t nsym, pos;
 } BinDec;
+
+/* Direct coding (scheme 1, OCTREE.md §4.1): from level `from` on, nodes holding one voxel
+ * leave the tree with their remaining Morton bits.  from = 0: scheme 0 (none).  Decode mode
+ * reads those bits from the raw section; encode mode takes the flags (one byte per node of
+ * every level >= from, in tree order) and the values (level order) it is given. */
+typedef struct {
+    int from;
+    const uint8_t *raw;
+    int64_t raw_len, raw_pos;
+    const uint8_t *kflags;
+    int64_t kflags_len, kflags_off;
+    const uint64_t *kvals;
+    int64_t kvals_len, kvals_off;
+} DirectIn;
 
 /* Growable byte output (encoder mode: the coded bits and their model ids). */
 typedef struct {
@@ -153,23 +168,23 @@ void helper_init(Helper *h);
 void helper_loop(Helper *h);
 void helper_close(Helper *h);
 int oct_walk(const OctTables *tb, int depth, int64_t num_points, int mode, BinDec *dec,
-             const uint8_t *known, const int64_t *known_sizes, int64_t known_len, SymOut *out,
-             Helper *h, uint64_t **codes_out, int64_t *count_out, Err *e);
+             const uint8_t *known, const int64_t *known_sizes, int64_t known_len, DirectIn *di,
+             SymOut *out, Helper *h, uint64_t **codes_out, int64_t *count_out, Err *e);
 
 /* octree_decode.c */
 /* Decode the traversal from a payload `body` (4*lanes state bytes, then the 16-bit words),
  * checking ENTROPY.md §4.4's end conditions; *codes_out (free()) the leaf Morton codes.
  * Closes the helper `h` when the traversal ends.  Runs without the GIL. */
 int octree_decode_run(const OctTables *tb, int depth, int64_t num_points, int64_t num_symbols,
-                      int64_t lanes, const uint8_t *body, int64_t body_len, Helper *h,
+                      int64_t lanes, const uint8_t *body, int64_t body_len, DirectIn *di, Helper *h,
                       uint64_t **codes_out, int64_t *count_out, Err *e);
 
 /* octree_encode.c */
 /* The traversal over known occupancy bytes: the coded bits and their model ids in *out, the
  * leaf codes in *codes_out (free() both).  Runs without the GIL. */
 int octree_encode_run(const OctTables *tb, int depth, int64_t num_points, const uint8_t *known,
-                      int64_t known_len, const int64_t *sizes, int64_t nsizes, SymOut *out,
-                      uint64_t **codes_out, int64_t *count_out, Err *e);
+                      int64_t known_len, const int64_t *sizes, int64_t nsizes, DirectIn *di,
+                      SymOut *out, uint64_t **codes_out, int64_t *count_out, Err *e);
 
 /* ------------------------------------------------------------------ the binary decoder
  * (inline: the traversal calls it once per decision) */

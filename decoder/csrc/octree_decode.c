@@ -15,7 +15,7 @@ static void oct_end_conditions(const BinDec *d, Err *e)
 }
 
 int octree_decode_run(const OctTables *tb, int depth, int64_t num_points, int64_t num_symbols,
-                      int64_t lanes, const uint8_t *body, int64_t body_len, Helper *h,
+                      int64_t lanes, const uint8_t *body, int64_t body_len, DirectIn *di, Helper *h,
                       uint64_t **codes_out, int64_t *count_out, Err *e)
 {
     BinDec d;
@@ -36,10 +36,15 @@ int octree_decode_run(const OctTables *tb, int depth, int64_t num_points, int64_
         if (d.st[l] < 65536u) fail(e, "rANS: initial state below 2**16");
     }
     if (!e->failed) {
-        const int wrc = oct_walk(tb, depth, num_points, 0, &d, NULL, NULL, 0, NULL, h, codes_out,
+        const int wrc = oct_walk(tb, depth, num_points, 0, &d, NULL, NULL, 0, di, NULL, h, codes_out,
                                  count_out, e);
         helper_close(h);        /* the helper's thread can go on with its own work */
         if (wrc == 0) oct_end_conditions(&d, e);
+        if (wrc == 0 && !e->failed && di->from && di->raw_pos != di->raw_len) {
+            snprintf(e->msg, sizeof e->msg, "octree payload: %lld bytes of the raw section left unread",
+                     (long long)(di->raw_len - di->raw_pos));
+            e->failed = ERR_FORMAT;
+        }
     }
     free(d.st);
     return e->failed ? -1 : 0;

@@ -4,8 +4,8 @@
 #include "octree.h"
 
 int octree_encode_run(const OctTables *tb, int depth, int64_t num_points, const uint8_t *known,
-                      int64_t known_len, const int64_t *sizes, int64_t nsizes, SymOut *out,
-                      uint64_t **codes_out, int64_t *count_out, Err *e)
+                      int64_t known_len, const int64_t *sizes, int64_t nsizes, DirectIn *di,
+                      SymOut *out, uint64_t **codes_out, int64_t *count_out, Err *e)
 {
     *codes_out = NULL;
     *count_out = 0;
@@ -13,7 +13,7 @@ int octree_encode_run(const OctTables *tb, int depth, int64_t num_points, const 
         return fail(e, "octree encoder: one occupancy level per depth needed");
     Helper local;        /* no helper thread joins an encode: the traversal runs every block */
     helper_init(&local);
-    const int rc = oct_walk(tb, depth, num_points, 1, NULL, known, sizes, known_len, out, &local,
+    const int rc = oct_walk(tb, depth, num_points, 1, NULL, known, sizes, known_len, di, out, &local,
                             codes_out, count_out, e);
     free(local.done_buf);
     return rc;

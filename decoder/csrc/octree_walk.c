@@ -338,6 +338,13 @@ typedef struct {
     IdList list, carry;
     size_t cap_codes, cap_ncodes, cap_nbr, cap_nnbr, cap_occ, cap_coded, cap_start, cap_pbit,
            cap_fix;
+    /* direct coding (scheme 1) */
+    uint8_t *par_pop;        /* per node of the level: its parent's child count */
+    int32_t *keep;           /* the level's nodes left in the tree (when some went direct) */
+    uint64_t *pts;           /* the direct points' leaf codes, level after level */
+    int64_t npts;
+    uint32_t dcnt[2 * NUM_DIRECT];
+    size_t cap_pop, cap_keep, cap_pts;
 } Walk;
 
 /* The buffers of level 0 (the root, no neighbours) and the counts. */
@@ -369,6 +376,7 @@ static void walk_free(Walk *w)
     free(w->cc); free(w->ff); free(w->codes); free(w->ncodes); free(w->nbr); free(w->nnbr);
     free(w->occ); free(w->pbit); free(w->coded); free(w->start); free(w->fixa);
     free(w->ff_touched); free(w->mbuf); free(w->bbuf); free(w->list.v); free(w->carry.v);
+    free(w->par_pop); free(w->keep); free(w->pts);
 }
 
 /* The models of chunk [s, end) of bit-plane k into mbuf, all from the counts before the
@@ -420,15 +428,16 @@ static int walk_chunk_models(Walk *w, const OctTables *tb, int64_t s, int64_t en
 /* The bits of chunk [s, end) (from bbuf when `fast` decoded them already, else from the
  * decoder or the known bytes, recorded), then the count updates. */
 static int walk_chunk_bits(Walk *w, const OctTables *tb, int64_t s, int64_t end, int k, int mode,
-                           int fast, BinDec *dec, const uint8_t *kn, SymOut *out, Err *e)
+                           int fast, BinDec *dec, const uint8_t *kn, const int32_t *coded,
+                           SymOut *out, Err *e)
 {
-    const int32_t *coded = w->coded, *fixa = w->fixa;
+    const int32_t *fixa = w->fixa;
     const uint8_t *mbuf = w->mbuf, *bbuf = w->bbuf;
     uint8_t *pbit = w->pbit;
     uint32_t *cc = w->cc;
     FineCtx *ff = w->ff;
     for (int64_t i = s; i < end; i++) {
-        const int64_t node = (k == 7) ? coded[i] : i;
+        const int64_t node = coded ? coded[i] : i;
         int bit;
         if (fast) {
             bit = bbuf[i - s];
@@ -449,18 +458,23 @@ static int walk_chunk_bits(Walk *w, const OctTables *tb, int64_t s, int64_t end,
     return 0;
 }
 
-/* Bit-plane k (child k of every node, child 7 only where not implied) of a level of n nodes. */
-static int walk_plane(Walk *w, const OctTables *tb, int64_t n, int k, int lb, uint8_t tag,
-                      int mode, BinDec *dec, const uint8_t *kn, SymOut *out, Helper *h, Err *e)
+/* Bit-plane k (child k of every node in the tree -- `keep`, nkeep of them, or all n when keep
+ * is NULL --, child 7 only where not implied) of a level of n nodes. */
+static int walk_plane(Walk *w, const OctTables *tb, int64_t n, const int32_t *keep, int64_t nkeep,
+                      int k, int lb, uint8_t tag, int mode, BinDec *dec, const uint8_t *kn,
+                      SymOut *out, Helper *h, Err *e)
 {
-    int64_t cnt = n;
+    int64_t cnt = keep ? nkeep : n;
+    const int32_t *coded = keep;
     if (k == 7) {
         /* a node with no child among 0..6 has child 7 for free (not coded) */
         cnt = 0;
-        for (int64_t i = 0; i < n; i++) {
+        for (int64_t j = 0; j < (keep ? nkeep : n); j++) {
+            const int64_t i = keep ? keep[j] : j;
             if (w->occ[i] & 0x7F) { w->coded[cnt++] = (int32_t)i; w->pbit[i] = 0; }
             else w->pbit[i] = 1;
         }
+        coded = w->coded;
     }
     /* the bit-plane's context ids, as blocks (computed ahead by a helper, if any) */
     Phase *ph = phase_next(h, PHASE_CTX, cnt, CTX_BLOCK);
@@ -468,7 +482,7 @@ static int walk_plane(Walk *w, const OctTables *tb, int64_t n, int k, int lb, ui
     ph->tb = tb;
     ph->occ = w->occ;
     ph->nbr = w->nbr;
-    ph->coded = k == 7 ? w->coded : NULL;
+    ph->coded = coded;
     ph->fix = w->fixa;
     ph->k = k;
     ph->lb = lb;
@@ -488,12 +502,16 @@ static int walk_plane(Walk *w, const OctTables *tb, int64_t n, int k, int lb, ui
         const int fast = mode == 0 && dec->pos + (end - s) <= dec->nsym
                          && dec->wpos + (end - s) <= dec->nwords;
         if (fast) oct_bin_decode_chunk(dec, tb, w->mbuf, w->bbuf, end - s);
-        if (walk_chunk_bits(w, tb, s, end, k, mode, fast, dec, kn, out, e) < 0) return -1;
+        if (walk_chunk_bits(w, tb, s, end, k, mode, fast, dec, kn, coded, out, e) < 0) return -1;
         s = end;
     }
     phase_finish(h, 0);     /* every block was needed (ready >= cnt) */
-    if (k < 7)
-        for (int64_t i = 0; i < n; i++) w->occ[i] |= (uint8_t)(w->pbit[i] << k);
+    if (k < 7) {
+        if (keep)
+            for (int64_t j = 0; j < nkeep; j++) w->occ[keep[j]] |= (uint8_t)(w->pbit[keep[j]] << k);
+        else
+            for (int64_t i = 0; i < n; i++) w->occ[i] |= (uint8_t)(w->pbit[i] << k);
+    }
     return 0;
 }
 
@@ -531,6 +549,7 @@ static int walk_halve(Walk *w, const OctTables *tb, uint8_t tag, Err *e)
 static int walk_next_level(Walk *w, const OctTables *tb, Helper *h, int level, int depth,
                            int64_t num_points, int64_t *n, Err *e)
 {
+    const int64_t nd = w->npts;
     const int64_t nn = *n;
     int64_t total = 0;
     if (ensure((void **)&w->start, &w->cap_start, ((size_t)nn + 1) * sizeof *w->start, e) < 0)
@@ -540,9 +559,14 @@ static int walk_next_level(Walk *w, const OctTables *tb, Helper *h, int level, i
         total += popcount8(w->occ[i]);          /* popcount8 looks at bits 0..7 only */
     }
     w->start[nn] = 0;
-    if (total > num_points) {
-        snprintf(e->msg, sizeof e->msg, "octree level %d decodes to %lld nodes, more than the "
-                 "%lld points declared", level + 1, (long long)total, (long long)num_points);
+    if (total + nd > num_points) {
+        if (nd)
+            snprintf(e->msg, sizeof e->msg, "octree level %d decodes to %lld nodes and %lld direct "
+                     "points, more than the %lld points declared", level + 1, (long long)total,
+                     (long long)nd, (long long)num_points);
+        else
+            snprintf(e->msg, sizeof e->msg, "octree level %d decodes to %lld nodes, more than the "
+                     "%lld points declared", level + 1, (long long)total, (long long)num_points);
         e->failed = ERR_FORMAT;
         return -1;
     }
@@ -575,10 +599,124 @@ static int walk_next_level(Walk *w, const OctTables *tb, Helper *h, int level, i
     return 0;
 }
 
-/* One level's bit-planes, then its halving and the next level's nodes. */
+/* The direct flags of a level of nn nodes (OCTREE.md §4.1), then the direct nodes' remaining
+ * bits (raw section, or the encoder's values): their points go to w->pts, their one child is
+ * known (occ, pbit), dmark[i] = 1.  w->keep lists the nodes left in the tree; *nkeep = -1 when
+ * none went direct. */
+static int walk_direct(Walk *w, const OctTables *tb, int level, int depth, int lb, int64_t nn,
+                       int mode, BinDec *dec, DirectIn *di, SymOut *out, uint8_t *dmark,
+                       int64_t *nkeep, Err *e)
+{
+    const int first = level == di->from;
+    int32_t *coded = w->coded, *ctx = w->fixa;
+    const uint8_t *kf = NULL;
+    if (mode == 1) {
+        if (di->kflags_off + nn > di->kflags_len)
+            return fail(e, "octree encoder: direct flags do not match the traversal");
+        kf = di->kflags + di->kflags_off;
+        di->kflags_off += nn;
+    }
+    memset(dmark, 0, (size_t)nn);
+    int64_t cnt = 0;
+    for (int64_t i = 0; i < nn; i++) {
+        const int pp = w->par_pop[i];
+        if (!first && pp <= 1) continue;       /* holds what its parent held: two voxels or more */
+        const int32_t *nb = w->nbr + i * NUM_T;
+        int present = 0;
+        for (int t = 0; t < NUM_T; t++) present += (t != SELF_T) & (nb[t] != (int32_t)nn);
+        coded[cnt] = (int32_t)i;
+        ctx[cnt++] = ((present < 7 ? present : 7) * 4 + (pp < 4 ? pp : 4) - 1) * NUM_LB + lb;
+    }
+    uint8_t *mbuf = w->mbuf;
+    for (int64_t s = 0; s < cnt;) {
+        int64_t step = s > tb->chunk_min ? s : tb->chunk_min;
+        if (step > tb->chunk_max) step = tb->chunk_max;
+        const int64_t end = s + step < cnt ? s + step : cnt;
+        for (int64_t j = s; j < end; j++) {        /* models from the counts before the chunk */
+            const uint64_t c0 = w->dcnt[2 * ctx[j]], c1 = w->dcnt[2 * ctx[j] + 1];
+            mbuf[j - s] = tb->p16m[((2 * c1 + 1) << 16) / (2 * (c0 + c1) + 2)];
+        }
+        for (int64_t j = s; j < end; j++) {
+            int bit;
+            if (mode == 0) {
+                bit = oct_bin_decode(dec, tb, mbuf[j - s], e);
+                if (bit < 0) return -1;
+            } else {
+                bit = kf[coded[j]] & 1;
+                out->bits[out->len] = (uint8_t)bit;
+                out->models[out->len] = mbuf[j - s];
+                out->len++;
+            }
+            dmark[coded[j]] = (uint8_t)bit;
+        }
+        for (int64_t j = s; j < end; j++) w->dcnt[2 * ctx[j] + dmark[coded[j]]]++;
+        s = end;
+    }
+    for (int c = 0; c < NUM_DIRECT; c++) {
+        const uint32_t a = w->dcnt[2 * c], b = w->dcnt[2 * c + 1];
+        if ((int64_t)a + (int64_t)b > tb->count_limit) {
+            w->dcnt[2 * c] = (a + 1) >> 1;
+            w->dcnt[2 * c + 1] = (b + 1) >> 1;
+        }
+    }
+    int64_t nd = 0;
+    for (int64_t i = 0; i < nn; i++) nd += dmark[i];
+    *nkeep = -1;
+    if (!nd) return 0;
+    const int wb = 3 * (depth - level);
+    const int64_t nbytes = (nd * wb + 7) / 8;
+    const uint8_t *src = NULL;
+    if (mode == 0) {
+        if (nbytes > di->raw_len - di->raw_pos) {
+            snprintf(e->msg, sizeof e->msg, "octree payload: the direct points of level %d need %lld "
+                     "bytes, %lld left in the raw section", level, (long long)nbytes,
+                     (long long)(di->raw_len - di->raw_pos));
+            e->failed = ERR_FORMAT;
+            return -1;
+        }
+        src = di->raw + di->raw_pos;
+        const int used = (int)((nd * wb) & 7);
+        if (used && (src[nbytes - 1] >> used)) {
+            snprintf(e->msg, sizeof e->msg, "octree payload: non-zero padding after the direct "
+                     "points of level %d", level);
+            e->failed = ERR_FORMAT;
+            return -1;
+        }
+        di->raw_pos += nbytes;
+    } else if (di->kvals_off + nd > di->kvals_len) {
+        return fail(e, "octree encoder: direct values do not match the traversal");
+    }
+    if ((size_t)(w->npts + nd) > w->cap_pts) {     /* grows, keeping the earlier levels' points */
+        size_t cap = w->cap_pts ? 2 * w->cap_pts : 4096;
+        while (cap < (size_t)(w->npts + nd)) cap *= 2;
+        uint64_t *q = realloc(w->pts, cap * sizeof *q);
+        if (!q) return fail_nomem(e);
+        w->pts = q;
+        w->cap_pts = cap;
+    }
+    if (ensure((void **)&w->keep, &w->cap_keep, (size_t)nn * sizeof *w->keep, e) < 0) return -1;
+    int64_t p = 0, kept = 0;
+    for (int64_t i = 0; i < nn; i++) {
+        if (!dmark[i]) { w->keep[kept++] = (int32_t)i; continue; }
+        uint64_t v = 0;
+        if (mode == 0)
+            for (int b = 0; b < wb; b++, p++) v |= (uint64_t)((src[p >> 3] >> (p & 7)) & 1) << b;
+        else
+            v = di->kvals[di->kvals_off++];
+        const unsigned child = (unsigned)(v >> (wb - 3)) & 7u;
+        w->pts[w->npts++] = (w->codes[i] << wb) | v;
+        w->occ[i] = (uint8_t)(0x80 | ((1u << child) & 0x7Fu));
+        w->pbit[i] = (uint8_t)(child == 7);
+    }
+    *nkeep = kept;
+    return 0;
+}
+
+/* One level's bit-planes (after its direct flags, from level di->from on), then its halving
+ * and the next level's nodes. */
 static int walk_level(Walk *w, const OctTables *tb, int level, int depth, int64_t num_points,
-                      int mode, BinDec *dec, const uint8_t *kn, SymOut *out, Helper *h,
-                      int64_t *n, Err *e)
+                      int mode, BinDec *dec, const uint8_t *kn, DirectIn *di, SymOut *out,
+                      Helper *h, int64_t *n, Err *e)
 {
     const int64_t nn = *n;
     const int lb = (depth - 1 - level) < (NUM_LB - 1) ? (depth - 1 - level) : (NUM_LB - 1);
@@ -590,12 +728,46 @@ static int walk_level(Walk *w, const OctTables *tb, int level, int depth, int64_
         return -1;
     memset(w->occ, 0x80, (size_t)nn);            /* present, no child known yet */
     w->occ[nn] = 0;                              /* the absent neighbour */
+    int64_t nkeep = -1;
+    uint8_t *dmark = NULL;
+    if (di->from && level >= di->from) {
+        /* the start array (8 bytes per node) is free until walk_next_level */
+        if (ensure((void **)&w->start, &w->cap_start, ((size_t)nn + 1) * sizeof *w->start, e) < 0)
+            return -1;
+        dmark = (uint8_t *)w->start;
+        if (walk_direct(w, tb, level, depth, lb, nn, mode, dec, di, out, dmark, &nkeep, e) < 0)
+            return -1;
+    }
+    const int32_t *keep = nkeep >= 0 ? w->keep : NULL;
     for (int k = 0; k < 8; k++)
-        if (walk_plane(w, tb, nn, k, lb, tag, mode, dec, kn, out, h, e) < 0) return -1;
+        if (walk_plane(w, tb, nn, keep, nkeep, k, lb, tag, mode, dec, kn, out, h, e) < 0) return -1;
     for (int64_t i = 0; i < nn; i++)
         w->occ[i] = (uint8_t)((w->occ[i] & 0x7F) | (w->pbit[i] << 7));
+    if (keep)       /* a direct node has no children in the tree */
+        for (int64_t i = 0; i < nn; i++) if (dmark[i]) w->occ[i] = 0;
     if (walk_halve(w, tb, tag, e) < 0) return -1;
     return walk_next_level(w, tb, h, level, depth, num_points, n, e);
+}
+
+/* par_pop of the level just built: each node's parent's child count. */
+static int walk_par_pop(Walk *w, int64_t parents, int64_t n, Err *e)
+{
+    if (ensure((void **)&w->par_pop, &w->cap_pop, (size_t)n + 1, e) < 0) return -1;
+    int64_t c = 0;
+    for (int64_t r = 0; r < parents; r++) {
+        const int pc = popcount8((unsigned)(w->start[r] & 0xFF));
+        for (int j = 0; j < pc; j++) w->par_pop[c++] = (uint8_t)pc;
+    }
+    return c == n ? 0 : fail(e, "octree: child count mismatch");
+}
+
+/* Merge the ascending runs a[0..na) and b[0..nb) into out. */
+static void merge_codes(const uint64_t *a, int64_t na, const uint64_t *b, int64_t nb, uint64_t *out)
+{
+    int64_t i = 0, j = 0, o = 0;
+    while (i < na && j < nb) out[o++] = a[i] < b[j] ? a[i++] : b[j++];
+    while (i < na) out[o++] = a[i++];
+    while (j < nb) out[o++] = b[j++];
 }
 
 /*
@@ -616,9 +788,10 @@ static int walk_level(Walk *w, const OctTables *tb, int level, int depth, int64_
  * exceeded it after the previous halving.  Both are kept in a list, each context once.
  */
 int oct_walk(const OctTables *tb, int depth, int64_t num_points, int mode, BinDec *dec,
-             const uint8_t *known, const int64_t *known_sizes, int64_t known_len, SymOut *out,
-             Helper *h, uint64_t **codes_out, int64_t *count_out, Err *e)
+             const uint8_t *known, const int64_t *known_sizes, int64_t known_len, DirectIn *di,
+             SymOut *out, Helper *h, uint64_t **codes_out, int64_t *count_out, Err *e)
 {
+    int64_t level_start[24] = {0};   /* where each level's direct points begin in w.pts */
     int rc = -1;
     Walk w;
     memset(&w, 0, sizeof w);
@@ -635,8 +808,10 @@ int oct_walk(const OctTables *tb, int depth, int64_t num_points, int mode, BinDe
         fail(e, "octree point count outside the native decoder's range");
         goto done;
     }
+    if (di->from && (di->from < 1 || di->from >= depth)) { fail(e, "octree: direct level out of range"); goto done; }
     if (walk_init(&w, tb, e) < 0) goto done;
-    for (int level = 0; level < depth; level++) {
+    int levels = 0;
+    for (int level = 0; level < depth && n > 0; level++) {
         const uint8_t *kn = NULL;
         if (mode == 1) {
             if (known_sizes[level] != n || known_off + n > known_len) {
@@ -645,20 +820,43 @@ int oct_walk(const OctTables *tb, int depth, int64_t num_points, int mode, BinDe
             }
             kn = known + known_off;
             known_off += n;
-            if (symout_reserve(out, 8 * n, e) < 0) goto done;
+            if (symout_reserve(out, 9 * n, e) < 0) goto done;
         }
-        if (walk_level(&w, tb, level, depth, num_points, mode, dec, kn, out, h, &n, e) < 0)
+        level_start[level] = w.npts;
+        const int64_t parents = n;
+        if (walk_level(&w, tb, level, depth, num_points, mode, dec, kn, di, out, h, &n, e) < 0)
+            goto done;
+        levels = level + 1;
+        if (di->from && level + 1 >= di->from && level + 1 < depth && walk_par_pop(&w, parents, n, e) < 0)
             goto done;
     }
-    if (n != num_points) {
+    if (n + w.npts != num_points) {
         snprintf(e->msg, sizeof e->msg, "octree decodes to %lld points, header declares %lld",
-                 (long long)n, (long long)num_points);
+                 (long long)(n + w.npts), (long long)num_points);
         e->failed = ERR_FORMAT;
         goto done;
     }
+    if (w.npts) {
+        /* the tree's leaves and each level's direct points are ascending runs: merged */
+        uint64_t *a = malloc((size_t)num_points * sizeof *a), *b = malloc((size_t)num_points * sizeof *b);
+        if (!a || !b) { free(a); free(b); fail_nomem(e); goto done; }
+        memcpy(a, w.codes, (size_t)n * sizeof *a);
+        int64_t na = n;
+        level_start[levels] = w.npts;
+        for (int l = 0; l < levels; l++) {
+            const int64_t g = level_start[l + 1] - level_start[l];
+            if (!g) continue;
+            merge_codes(a, na, w.pts + level_start[l], g, b);
+            na += g;
+            uint64_t *t = a; a = b; b = t;
+        }
+        free(b);
+        free(w.codes);
+        w.codes = a;
+    }
     *codes_out = w.codes;
     w.codes = NULL;
-    *count_out = n;
+    *count_out = num_points;
     rc = 0;
 done:
     phase_close(h);

@@ -54,6 +54,10 @@ VECTORS = [
     # two layers each, every tile with its own codebook
     ("sh1_jug_12k_tiles", "measuring_jug_sh3_12k.ply", 12_000, 1,
      dict(blocks=80, reserve=1.0, bits=6, codebook=64, keep=200, layers=2, tile_gaussians=4096)),
+    # octree scheme 1 (OCTREE.md §4.1, format 1.4): the 20k sample on a depth-16 grid, where
+    # most voxels leave the tree at a level near 9 and the rest are coded down to the leaves
+    ("sh0_plant_20k_d16_direct", "houseplant_sh0_20k.ply", 20_000, 0,
+     dict(blocks=80, reserve=1.0, bits=1, depth=16)),
     # SH classes (GSZ.md §8.1, format 1.3): the 1100 most important of 2000 Gaussians keep their
     # vectors, stored in 4 importance classes (an SHCL chunk), one block per class
     ("sh1_jug_2k_shclasses", "measuring_jug_sh3_12k.ply", 2000, 1,
@@ -87,10 +91,11 @@ def intermediates(data: bytes) -> list[dict]:
     from gsz.decoder.geometry import read_geometry
     from gsz.decoder.groups import read_channel_set
     from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHCL, CHUNK_SHVQ, KNOWN_CHUNKS
+    from gsz.decoder.octree import read_scheme
     from gsz.decoder.sh import read_sh_classes
     from gsz.decoder.morton import morton_encode
     from gsz.decoder.raht import build_raht_tree, raht_inverse
-    from gsz.decoder.rans import decode_stream, read_varint
+    from gsz.decoder.rans import decode_stream
 
     c = read_container(data, known_types=KNOWN_CHUNKS)
     degree = c.header.sh_degree
@@ -104,10 +109,12 @@ def intermediates(data: bytes) -> list[dict]:
         geom = read_geometry(gdata, max_points=c.header.num_gaussians)
         m = len(geom.ijk)
         codes = morton_encode(geom.ijk)
-        decisions, _ = read_varint(np.frombuffer(gdata, np.uint8), 42, "S")   # after scheme byte
+        scheme, decisions, direct_from, raw, _ = read_scheme(np.frombuffer(gdata, np.uint8)[41:], geom.depth, m)
         row["geom"] = {"depth": geom.depth, "origin": [float(v) for v in geom.origin],
                        "side": float(geom.side), "voxels": m, "octree_decisions": int(decisions),
                        "morton_sha256": sha(codes, "<u8"), "first_voxels": geom.ijk[:2].tolist()}
+        if scheme:          # OCTREE.md section 4.1
+            row["geom"].update(octree_scheme=scheme, direct_level=direct_from, raw_bytes=int(raw.size))
         tree = build_raht_tree(codes, geom.depth)
         r = Reader(c.chunks[got[CHUNK_ATTR]].data)
         r.u8(), r.u8()

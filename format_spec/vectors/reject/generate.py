@@ -302,7 +302,7 @@ def _part_vectors(sh1: bytes, lay2: bytes, add) -> None:
             ("geom_depth_22", 0, "<B", 22, "GSZ.md §6 depth 1..21", "octree depth 22 outside 1..21"),
             ("geom_side_negative", 25, "<d", -1.0, "GSZ.md §6 side > 0", "non-finite grid origin or non-positive side"),
             ("geom_origin_nan", 1, "<d", float("nan"), "GSZ.md §6 origin finite", "non-finite grid origin"),
-            ("geom_octree_scheme_1", 41, "<B", 1, "OCTREE.md §2 scheme 0", "unknown coding scheme 1")):
+            ("geom_octree_scheme_2", 41, "<B", 2, "OCTREE.md §2 scheme 0 or 1", "unknown coding scheme 2")):
         add(name, replace_chunk(sh1, b"GEOM", poke(geom, off, fmt, value)), rule, msg)
     small = poke(poke(geom, 0, "<B", 2), 33, "<Q", 65)
     add("geom_m_above_8_to_the_d", replace_chunk(with_header(sh1, "<Q", 16, 65), b"GEOM", small),
