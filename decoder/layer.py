@@ -351,11 +351,13 @@ def _decode_layer_threaded(chunks: dict, header, state: LayerState, gh) -> Gauss
 
 class _GeometryJob:
     """The worker's part of one layer before the join: the octree (then ``codes_ready`` is
-    set) and the RAHT tree of its voxels.  ``helper`` lets the calling thread join the octree
-    traversal once its own work is done (``_native.octree_help``)."""
+    set), the ATTR chunk's streams and scales, and the RAHT tree of the voxels.  ``helper``
+    lets the calling thread join the octree traversal once its own work is done
+    (``_native.octree_help``).  Returns (tree, (dc, ac), (scales, scales finite))."""
 
-    def __init__(self, gh):
+    def __init__(self, gh, attr_chunk):
         self.gh = gh
+        self.attr_chunk = attr_chunk
         self.codes = None
         self.codes_ready = threading.Event()
         self.helper = native.module().octree_helper()
@@ -367,7 +369,8 @@ class _GeometryJob:
         finally:
             native.module().octree_helper_close(self.helper)  # also when it never started
             self.codes_ready.set()
-        return native_tree(self.codes, self.gh.depth)
+        dc, ac, direct = parse_attributes(self.attr_chunk, self.gh.num_points)
+        return native_tree(self.codes, self.gh.depth), (dc, ac), native_scales(direct)
 
 
 class _ColourJob:
@@ -393,33 +396,39 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
     """decode_layer on two threads (native path), the same arrays bit for bit:
 
     worker                              calling thread
-    octree -> codes                     attributes, SH, scales (+ finiteness), then helps
-                                        with the octree's context ids and neighbour rows
-    RAHT tree                           positions (+ finiteness), once the codes are there
+    octree -> codes                     SH (+ finiteness), then helps with the octree's
+                                        context ids and neighbour rows
+    attributes, scales (+ finiteness)   positions (+ finiteness), once the codes are there
+    RAHT tree
     RAHT opacity + DC, float32          RAHT angles -> half angles, cos (NumPy's)
     sin (NumPy's) of the half angles    quaternions
 
-    Errors keep the sequential order: geometry, attributes, SH, then the first non-finite
-    field in FIELDS order."""
+    (The SH streams are the largest part of a file: the attributes go to the worker so that
+    both threads finish their entropy decoding at about the same time.)  Errors keep the
+    sequential order: geometry, attributes, SH, then the first non-finite field in FIELDS
+    order."""
     m = gh.num_points
     pool = _worker()
-    job = _GeometryJob(gh)
+    job = _GeometryJob(gh, chunks[CHUNK_ATTR])
     pending = pool.submit(native.carry(job))
     try:
-        dc, ac, direct, sh_rest, codebook = _read_attributes_and_sh(chunks, header, state, m)
+        if header.sh_degree > 0:
+            sh_rest, codebook = read_sh(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook,
+                                        chunks.get(CHUNK_SHCL))
+        else:
+            sh_rest, codebook = np.zeros((m, 0, 3), np.float32), state.codebook
     except BaseException:
         if pending.exception() is not None:
-            raise pending.exception() from None        # the geometry's error comes first
+            raise pending.exception() from None        # geometry's and attributes' errors first
         raise
     nat = native.module()
-    scales, ok_scales = native_scales(direct)
     ok_sh = nat.all_finite(sh_rest)
     nat.octree_help(job.helper)                        # until the traversal ends
     job.codes_ready.wait()
     if job.codes is None:
         pending.result()                               # raises the geometry's error
     positions, ok_pos = gh.native_positions(job.codes)
-    tree = pending.result()
+    tree, (dc, ac), (scales, ok_scales) = pending.result()
     colour = _ColourJob(tree, dc, ac)
     pending = pool.submit(native.carry(colour))
     try:
