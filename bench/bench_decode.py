@@ -79,6 +79,7 @@ def measure(path: Path, repeats: int, encode_too: bool = False, paths=("numpy", 
     from gsz.decoder.container import read_container
     from gsz.decoder.geometry import read_geometry_header
     from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHVQ, KNOWN_CHUNKS
+    from gsz.decoder.pages import small_pages
     from gsz.decoder.sh import read_sh
 
     data = path.read_bytes()
@@ -99,11 +100,14 @@ def measure(path: Path, repeats: int, encode_too: bool = False, paths=("numpy", 
         # stages, sequentially, on the calling thread
         stages = {}
         stages["container"], c = best_of(lambda: read_container(data, known_types=KNOWN_CHUNKS), repeats)
-        plan = D.plan_layers(c.chunks, c.header.sh_degree)
+        plan = D.plan_parts(c.chunks, c.header.sh_degree).parts      # (layer, tile) parts
         totals = dict(geometry=0.0, attributes=0.0, sh=0.0, finish=0.0)
-        codebook = None
-        for layer in plan:
-            ch = {t: c.chunks[i].data for t, i in layer.items()}
+        codebooks = {}                                                # per tile
+        pages = small_pages()                   # as decode() allocates (decoder/pages.py)
+        pages.__enter__()
+        for part in plan:
+            codebook = codebooks.get(part.tile)
+            ch = {t: c.chunks[i].data for t, i in part.chunks.items()}
             gh = read_geometry_header(ch[CHUNK_GEOM], max_points=c.header.num_gaussians)
             dt, codes = best_of(gh.decode_codes, repeats)
             totals["geometry"] += dt
@@ -113,7 +117,7 @@ def measure(path: Path, repeats: int, encode_too: bool = False, paths=("numpy", 
                 dt, (_, cb) = best_of(lambda: read_sh(ch[CHUNK_SHVQ], gh.num_points, c.header.sh_degree,
                                                       codebook, ch.get(b"SHCL")), repeats)
                 totals["sh"] += dt
-                codebook = cb if codebook is None else codebook
+                codebooks[part.tile] = cb if codebook is None else codebook
 
             def finish():
                 attrs = attributes_from_coefficients(dc, ac, direct, codes, gh.depth)
@@ -129,11 +133,13 @@ def measure(path: Path, repeats: int, encode_too: bool = False, paths=("numpy", 
                 dt, payload = best_of(lambda: encode_octree(ijk, gh.depth), repeats)
                 assert payload == bytes(gh.payload), "octree encoder does not reproduce the file"
                 totals["octree_encode"] = totals.get("octree_encode", 0.0) + dt
+        pages.__exit__(None, None, None)
         stages.update(totals)
         rows[mode] = dict(seconds=best_wall, cpu_seconds=best_cpu, gaussians=n,
                           gaussians_per_second=n / best_wall, stages=stages)
     native.set_enabled(True)
-    return dict(file=str(path), bytes=len(data), layers=len(plan), **{"paths": rows})
+    return dict(file=str(path), bytes=len(data), layers=1 + max(p.layer for p in plan), parts=len(plan),
+                **{"paths": rows})
 
 
 def main(argv=None) -> int:
@@ -179,7 +185,10 @@ def main(argv=None) -> int:
                   f"{s['container']:.3f} | {s['geometry']:.3f} | {s['attributes']:.3f} | {s['sh']:.3f} | "
                   f"{s['finish']:.3f} |" + (f" {s['octree_encode']:.3f} |" if a.encode else ""))
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
+                            text=True).stdout.strip() or None
     Path(a.out).write_text(json.dumps(dict(command=" ".join([Path(sys.argv[0]).name] + (argv or sys.argv[1:])),
+                                           commit=commit, machine=f"{os.cpu_count()} cores",
                                            uptime_before=before, uptime_after=after, results=results), indent=1))
     return 0
 

@@ -459,7 +459,8 @@ def page_decode(d: dict) -> str:
     lines = header("Decode speed", "`gsz.decoder.decode(path)` on the NumPy reference path (`GSZ_NATIVE=0`) "
                    "and the native accelerator (same output bit for bit).  Wall = best of the repeats; CPU = "
                    "that run's process CPU time (both threads); stages are timed one after the other (thread "
-                   "CPU time).", [dict(json="decode.json", command=d.get("command"), when=_uptimes(d))])
+                   "CPU time).", [dict(json="decode.json", command=d.get("command"), commit=d.get("commit"),
+                                                   machine=d.get("machine"), when=_uptimes(d))])
     stages = ["container", "geometry", "attributes", "sh", "finish"]
     rows = []
     for r in sorted(d["results"], key=lambda r: scene_key(Path(r["file"]).name.split("_r0")[0])):
@@ -472,8 +473,9 @@ def page_decode(d: dict) -> str:
     lines += table(["scene", "Gaussians", "MB", "path", "wall s", "CPU s", "M Gaussians/s"]
                    + [f"{s} s" for s in stages], rows)
     lines += ["Files: every shared scene encoded with `gsz-encode --reserve 0.8 --bits 12 --blocks 1` "
-              "(bench/bench_decode.py caches them in bench/.cache/decode).  Reproduce: "
-              "`.venv/bin/python bench/bench_decode.py --repeats 7`.", ""]
+              "(bench/bench_decode.py caches them in bench/.cache/decode); rows named `big_*` are "
+              "`bench/bench_scale.py`'s 12x files of the generated 1.2 M SH-3 scene (one tile, and two tiles "
+              "decoded in parallel; stages summed over the parts).  Reproduce: the command above.", ""]
     return "\n".join(lines)
 
 

@@ -73,12 +73,13 @@ def parse_attributes(data, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def attributes_from_coefficients(dc: np.ndarray, ac: np.ndarray, direct: np.ndarray,
-                                 codes: np.ndarray, depth: int) -> Attributes:
+                                 codes: np.ndarray, depth: int, tree=None) -> Attributes:
     """Inverse RAHT over the voxels with Morton codes ``codes`` (ascending) and the mapping to
     Gaussian fields.  With the native accelerator: the tree, the inverse transform and the
-    float32 conversions in C, cos/sin still NumPy's on the same arrays (bit-identical)."""
+    float32 conversions in C, cos/sin still NumPy's on the same arrays (bit-identical).
+    ``tree``: the NumPy path's ``build_raht_tree(codes, depth)`` when made already."""
     if not native.enabled():
-        tree = build_raht_tree(codes, depth)
+        tree = build_raht_tree(codes, depth) if tree is None else tree
         return _attributes_from_planes(raht_inverse_planes(dc, ac, tree), direct)
     tree = native_tree(codes, depth)
     half = native_half_angles(tree, dc, ac)

@@ -26,6 +26,7 @@ from .geometry import read_geometry_header
 from .io_util import check_input_file
 from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_TILE
 from .pages import small_pages
+from .raht import build_raht_tree
 from .sh import read_sh
 
 
@@ -258,11 +259,6 @@ def _worker():
         return _pool
 
 
-def _decode_codes(gh):
-    with np.errstate(over="ignore", invalid="ignore"):   # errstate is per thread
-        return gh.decode_codes()
-
-
 FIELDS = ("positions", "scales", "rotations", "opacities", "sh_dc", "sh_rest")
 
 
@@ -275,14 +271,23 @@ def _check_finite(ok: dict) -> None:
             raise GszFormatError(f"decoded {name} contain non-finite values (corrupt parameters)")
 
 
+def _read_sh(chunks: dict, header, state: LayerState, m: int):
+    """(sh_rest, the codebook) of a part: its SHVQ chunk, or nothing at SH degree 0."""
+    if header.sh_degree > 0:
+        return read_sh(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook, chunks.get(CHUNK_SHCL))
+    return np.zeros((m, 0, 3), np.float32), state.codebook
+
+
 def _read_attributes_and_sh(chunks: dict, header, state: LayerState, m: int):
     dc, ac, direct = parse_attributes(chunks[CHUNK_ATTR], m)
-    if header.sh_degree > 0:
-        sh_rest, codebook = read_sh(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook,
-                                    chunks.get(CHUNK_SHCL))
-    else:
-        sh_rest, codebook = np.zeros((m, 0, 3), np.float32), state.codebook
-    return dc, ac, direct, sh_rest, codebook
+    return (dc, ac, direct, *_read_sh(chunks, header, state, m))
+
+
+def _codes_and_tree(gh):
+    """The NumPy path's worker: the octree, then the RAHT tree of its voxels."""
+    with np.errstate(over="ignore", invalid="ignore"):   # errstate is per thread
+        codes = gh.decode_codes()
+        return codes, build_raht_tree(codes, gh.depth)
 
 
 def decode_layer(chunks: dict, header, state: LayerState, *, overlap: bool = True,
@@ -319,12 +324,13 @@ def _decode_layer(chunks: dict, header, state: LayerState, overlap: bool, label:
     return cloud
 
 
-def _finish_layer(gh, codes: np.ndarray, decoded: tuple, header, state: LayerState) -> GaussianCloud:
+def _finish_layer(gh, codes: np.ndarray, decoded: tuple, header, state: LayerState,
+                  tree=None) -> GaussianCloud:
     """decode_layer after the entropy decoding: ``decoded`` is _read_attributes_and_sh's result;
-    the inverse RAHT, positions and the finiteness checks."""
+    the inverse RAHT (over ``tree`` when built already), positions and the finiteness checks."""
     dc, ac, direct, sh_rest, codebook = decoded
     state.codebook = codebook
-    attrs = attributes_from_coefficients(dc, ac, direct, codes, gh.depth)
+    attrs = attributes_from_coefficients(dc, ac, direct, codes, gh.depth, tree=tree)
     cloud = GaussianCloud(positions=gh.positions(codes), scales=attrs.scales,
                           rotations=attrs.rotations, opacities=attrs.opacities,
                           sh_dc=attrs.sh_dc, sh_rest=sh_rest, sh_degree=header.sh_degree)
@@ -334,19 +340,20 @@ def _finish_layer(gh, codes: np.ndarray, decoded: tuple, header, state: LayerSta
 
 
 def _decode_layer_threaded(chunks: dict, header, state: LayerState, gh) -> GaussianCloud:
-    """decode_layer's NumPy path on two threads, the same arrays bit for bit: the octree on the
-    worker while the calling thread decodes the attribute and SH streams (NumPy releases the GIL
-    inside its array loops, so the two overlap: ~20 % less wall time for a 1 M-Gaussian SH-3
-    layer on 2 cores).  Errors keep the sequential order: the geometry's comes first."""
+    """decode_layer's NumPy path on two threads, the same arrays bit for bit: the octree and
+    its RAHT tree on the worker while the calling thread decodes the attribute and SH streams
+    (NumPy releases the GIL inside its array loops, so the two overlap).  Errors keep the
+    sequential order: the geometry's comes first."""
     # carry: the worker follows this thread's path (inside numpy_only() too)
-    pending = _worker().submit(native.carry(_decode_codes), gh)
+    pending = _worker().submit(native.carry(_codes_and_tree), gh)
     try:
         decoded = _read_attributes_and_sh(chunks, header, state, gh.num_points)
     except BaseException:
         if pending.exception() is not None:
             raise pending.exception() from None        # the geometry's error comes first
         raise
-    return _finish_layer(gh, pending.result(), decoded, header, state)
+    codes, tree = pending.result()
+    return _finish_layer(gh, codes, decoded, header, state, tree)
 
 
 class _GeometryJob:
@@ -412,11 +419,7 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
     job = _GeometryJob(gh, chunks[CHUNK_ATTR])
     pending = pool.submit(native.carry(job))
     try:
-        if header.sh_degree > 0:
-            sh_rest, codebook = read_sh(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook,
-                                        chunks.get(CHUNK_SHCL))
-        else:
-            sh_rest, codebook = np.zeros((m, 0, 3), np.float32), state.codebook
+        sh_rest, codebook = _read_sh(chunks, header, state, m)
     except BaseException:
         if pending.exception() is not None:
             raise pending.exception() from None        # geometry's and attributes' errors first
