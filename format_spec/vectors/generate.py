@@ -58,6 +58,10 @@ VECTORS = [
     # most voxels leave the tree at a level near 9 and the rest are coded down to the leaves
     ("sh0_plant_20k_d16_direct", "houseplant_sh0_20k.ply", 20_000, 0,
      dict(blocks=80, reserve=1.0, bits=1, depth=16)),
+    # the same scheme on sh1_jug_150's Gaussians at depth 16: the GEOM chunk the scheme-1
+    # must-reject vectors (vectors/reject) are built on
+    ("sh1_jug_150_d16_direct", "measuring_jug_sh3_12k.ply", 150, 1,
+     dict(blocks=80, reserve=0.9, bits=8, codebook=16, keep=10, depth=16)),
     # SH classes (GSZ.md §8.1, format 1.3): the 1100 most important of 2000 Gaussians keep their
     # vectors, stored in 4 importance classes (an SHCL chunk), one block per class
     ("sh1_jug_2k_shclasses", "measuring_jug_sh3_12k.ply", 2000, 1,

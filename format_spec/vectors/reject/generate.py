@@ -125,10 +125,10 @@ def single_stream(models: int = 3, *, lanes: int = 1, states=None, words: bytes 
 
 
 # ---- the base files -------------------------------------------------------------------------
-def base_chunks(layers: int = 1) -> tuple[bytes, list]:
+def base_chunks(layers: int = 1, source: str = "sh1_jug_150.gsz") -> tuple[bytes, list]:
     """(header, chunks) of the valid base: ``layers`` copies of one part (GEOM of sh1_jug_150,
-    hand-built ATTR and SHVQ), the SH codebook in layer 0."""
-    geom = chunk((VECTORS / "sh1_jug_150.gsz").read_bytes(), b"GEOM")
+    or of ``source``, hand-built ATTR and SHVQ), the SH codebook in layer 0."""
+    geom = chunk((VECTORS / source).read_bytes(), b"GEOM")
     m = struct.unpack_from("<Q", geom, 33)[0]
     attr = bytes([0, 7]) + struct.pack("<7d", *[0.0] * 7) + simple_set(7, m - 1) + simple_set(3, m)
     chunks = []
@@ -138,7 +138,7 @@ def base_chunks(layers: int = 1) -> tuple[bytes, list]:
         chunks += [[b"GEOM", 1 | li << 8, geom], [b"ATTR", 1 | li << 8, attr], [b"SHVQ", 1 | li << 8, shvq]]
     h = bytearray(HEADER)
     struct.pack_into("<8sHHIQBBHI6fII", h, 0, b"\x89GSZ\r\n\x1a\n", 1, 1, 64, m * layers, 1, 1, 0, 0,
-                     *struct.unpack_from("<6f", (VECTORS / "sh1_jug_150.gsz").read_bytes(), 32), 0, 0)
+                     *struct.unpack_from("<6f", (VECTORS / source).read_bytes(), 32), 0, 0)
     return bytes(h), chunks
 
 
@@ -210,6 +210,7 @@ def vectors() -> list:
     _header_vectors(base, add)
     _table_vectors(base, lay2, add)
     _part_vectors(base, lay2, add)
+    _direct_vectors(add)
     _entropy_vectors(base, add)
     for name, data in sorted(_bombs().items()):
         rule, message, mg = BOMB_RULES[name]
@@ -404,6 +405,68 @@ def _shcl_vectors(sh1: bytes, m: int, add) -> None:
         "layer 0 has two SHCL chunks")
     add("shcl_in_sh0_file", with_header(two, "<B", 24, 0), "GSZ.md §4 SHCL when sh_degree = 0",
         "SHCL chunk in a file of SH degree 0")
+
+
+def _direct_vectors(add) -> None:
+    """Octree scheme 1 (OCTREE.md §2, §4.1), on the GEOM of sh1_jug_150_d16_direct (135 voxels,
+    depth 16, the same Gaussians as the base)."""
+    base = join(*base_chunks(source="sh1_jug_150_d16_direct.gsz"))
+    geom = chunk(base, b"GEOM")
+    depth, m = geom[0], struct.unpack_from("<Q", geom, 33)[0]
+    assert geom[41] == 1, "the source vector's octree is not scheme 1"
+    pos = 42
+    num_symbols = _varint_value(geom, pos)
+    pos += _varint_len(geom, pos)
+    level = geom[pos]
+    pos += 1
+    raw_len = _varint_value(geom, pos)
+    pos += _varint_len(geom, pos)
+    raw, body = geom[pos:pos + raw_len], geom[pos + raw_len:]
+
+    def with_payload(s=num_symbols, d=level, raw=raw, declared=None):
+        n = len(raw) if declared is None else declared
+        return replace_chunk(base, b"GEOM", geom[:41] + bytes([1]) + varint(s) + bytes([d]) + varint(n) + raw + body)
+
+    add("geom_direct_level_0", with_payload(d=0), "OCTREE.md §2 1 <= D <= d - 1",
+        f"direct level 0 outside 1..{depth - 1}")
+    add("geom_direct_level_d", with_payload(d=depth), "OCTREE.md §2 1 <= D <= d - 1",
+        f"direct level {depth} outside 1..{depth - 1}")
+    most = 9 * depth * m
+    add("geom_direct_too_many_decisions", with_payload(s=most + 1), "OCTREE.md §2 S <= 9 d M (scheme 1)",
+        f"declares {most + 1} symbols, more than {most} possible")
+    add("geom_direct_raw_past_payload", with_payload(declared=len(raw) + len(body) + 1),
+        "OCTREE.md §2 the raw section within the payload", f"raw section of {len(raw) + len(body) + 1} bytes does not fit")
+    add("geom_direct_raw_short", with_payload(raw=raw[:-1]), "OCTREE.md §4.1 a level's direct bits within the raw section",
+        "left in the raw section")
+    add("geom_direct_raw_left_over", with_payload(raw=raw + b"\x00"), "OCTREE.md §4.1 the raw section read to its end",
+        "1 bytes of the raw section left unread")
+    # a set padding bit after the last level's direct bits: the highest clear bit of the last
+    # byte that the reference decoder reports as padding (found by decoding, so the file does
+    # not depend on the level structure being recomputed here)
+    from gsz.decoder import decode
+    for bit in range(7, 0, -1):
+        if raw[-1] >> bit & 1:
+            continue
+        bad = with_payload(raw=raw[:-1] + bytes([raw[-1] | 1 << bit]))
+        try:
+            decode(bad)
+        except Exception as e:          # noqa: BLE001 - any other outcome: try the next bit
+            if "padding" in str(e):
+                add("geom_direct_raw_padding", bad, "OCTREE.md §4.1 zero padding after a level's direct bits",
+                    "non-zero padding after the direct points of level")
+                break
+    else:
+        raise AssertionError("no padding bit in the last byte of the source vector's raw section")
+
+
+def _varint_value(buf: bytes, pos: int) -> int:
+    v, shift = 0, 0
+    while True:
+        b = buf[pos]
+        v |= (b & 0x7F) << shift
+        if not b & 0x80:
+            return v
+        pos, shift = pos + 1, shift + 7
 
 
 def _varint_len(buf: bytes, pos: int) -> int:
