@@ -437,13 +437,13 @@ def voxelize_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float,
     progress = progress or Progress(quiet=True)
     with progress.stage("prune", f"reserve {reserve}"):
         kept = prune(importance, reserve)
-        pruned = cloud.subset(kept)
         imp = importance[kept]
     with progress.stage("voxelize"):
         rel = DEFAULT_REL_ERROR if rel_error is None else float(rel_error)
-        d = int(depth) if depth is not None else choose_depth(pruned.positions, rel_error=rel)
-        vox = voxelize(pruned, imp, d)
-        progress.log(f"depth {d}: {len(pruned)} Gaussians -> {len(vox.ijk)} voxels "
+        d = int(depth) if depth is not None else choose_depth(cloud.positions[kept], rel_error=rel)
+        vox = voxelize(cloud, imp, d, rows=kept)       # no pruned copy of the cloud
+        pruned = len(kept)
+        progress.log(f"depth {d}: {pruned} Gaussians -> {len(vox.ijk)} voxels "
                      f"({100 * vox.merged_fraction:.2f} % merged)")
     return kept, vox
 

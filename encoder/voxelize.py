@@ -277,10 +277,13 @@ def _matrix_to_quaternion(r: np.ndarray) -> np.ndarray:
 
 
 def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None,
-             *, rotation: str = "moment") -> Voxelized:
+             *, rotation: str = "moment", rows: np.ndarray | None = None) -> Voxelized:
     """Snap every Gaussian to its voxel and merge Gaussians that share one.
 
     cloud       GaussianCloud, N >= 1 Gaussians
+    rows        voxelise only these Gaussians of ``cloud`` (int [N] indices): the same result as
+                ``voxelize(cloud.subset(rows), ...)`` without the subset's copy of every field
+                (a pruned copy of a 6 M-Gaussian cloud is 1.4 GB)
     importance  [N] finite, >= 0 (merge weights; summed per voxel)
     depth       octree depth d in [1, 21]
     cube        (origin [3], side) grid; default :func:`bounding_cube` of the centres.  Points
@@ -290,8 +293,10 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
     returns     :class:`Voxelized`; deterministic (no RNG, order-stable reductions)
     """
     d = _check_depth(depth)
-    x = _check_positions(cloud.positions)
+    x = _check_positions(cloud.positions if rows is None else cloud.positions[rows])
     n = x.shape[0]
+    # row of cloud of each voxelised Gaussian (identity when rows is None)
+    take = (lambda a, i: a[i]) if rows is None else (lambda a, i: a[rows[i]])
     if n == 0:
         raise VoxelizeError("cannot voxelise an empty cloud")
     imp = np.asarray(importance, dtype=np.float64)
@@ -319,14 +324,10 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
     ijk = ijk_pt[first]
     counts = np.bincount(inv, minlength=m)
 
-    # Singletons (the vast majority at a sensible depth) are copied bit-exactly.
-    out = {
-        "scales": cloud.scales[first].copy(),
-        "rotations": cloud.rotations[first].copy(),
-        "opacities": cloud.opacities[first].copy(),
-        "sh_dc": cloud.sh_dc[first].copy(),
-        "sh_rest": cloud.sh_rest[first].copy(),
-    }
+    # Singletons (the vast majority at a sensible depth) are copied bit-exactly (an index array
+    # gathers into a fresh array: no second copy).
+    out = {name: take(getattr(cloud, name), first)
+           for name in ("scales", "rotations", "opacities", "sh_dc", "sh_rest")}
     vox_imp = np.bincount(inv, weights=imp, minlength=m)
 
     multi = counts > 1
@@ -347,7 +348,7 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
         wsum = np.add.reduceat(w, starts)
 
         def wmean(a: np.ndarray) -> np.ndarray:
-            a = a[members].astype(np.float64).reshape(members.size, -1)
+            a = take(a, members).astype(np.float64).reshape(members.size, -1)
             return np.add.reduceat(a * w[:, None], starts, axis=0) / wsum[:, None]
 
         out["opacities"][gvox] = wmean(cloud.opacities).reshape(-1).astype(np.float32)
@@ -357,12 +358,12 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
             out["sh_rest"][gvox] = wmean(cloud.sh_rest).reshape(
                 -1, *cloud.sh_rest.shape[1:]).astype(np.float32)
 
-        q = _normalised_quaternions(cloud.rotations[members])
+        q = _normalised_quaternions(take(cloud.rotations, members))
         ref = q[starts]                                 # most important member per voxel
         if rotation == "moment":
             # Moment matching: the weighted mean covariance, re-factorised as R diag(e^2s) R^T.
             r = quaternion_to_matrix(q)
-            var = np.exp(2.0 * cloud.scales[members].astype(np.float64))
+            var = np.exp(2.0 * take(cloud.scales, members).astype(np.float64))
             cov = np.einsum("nij,nj,nkj->nik", r, var * w[:, None], r)
             cov = np.add.reduceat(cov, starts, axis=0) / wsum[:, None, None]
             evals, evecs = np.linalg.eigh(cov)
