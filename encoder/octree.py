@@ -84,13 +84,19 @@ class DirectTree:
         return b"".join(pack_direct_bits(v, 3 * (depth - level)) for level, v in sorted(self.low.items()))
 
 
-def octree_symbols(ijk: np.ndarray, depth: int, direct_from: int | str | None = None):
+def octree_symbols(ijk: np.ndarray, depth: int, direct_from: int | None = None):
     """Validate ``ijk`` and run the normative traversal with its true occupancy (and direct
-    coding from level ``direct_from``, "auto": :func:`choose_direct_level`; scheme 1).
+    coding from level ``direct_from``: scheme 1).
 
     Returns (sorted Morton codes uint64 [M], coded bits int64 [S], bank model ids int64 [S],
-    the raw section's bytes, the direct level or None).
+    the raw section's bytes).
     """
+    codes = _validated_codes(ijk, depth)
+    return (codes, *_symbols(codes, int(depth), direct_from))
+
+
+def _validated_codes(ijk: np.ndarray, depth: int) -> np.ndarray:
+    """The sorted Morton codes of ``ijk`` after the checks encode_octree promises."""
     a = np.asarray(ijk)
     if a.ndim != 2 or a.shape[1] != 3 or not np.issubdtype(a.dtype, np.integer):
         raise CloudValidationError(f"encode_octree expects an integer [M, 3] array, got "
@@ -107,10 +113,11 @@ def octree_symbols(ijk: np.ndarray, depth: int, direct_from: int | str | None = 
             first = morton_decode(codes[dup[:1]])[0].tolist()
             raise CloudValidationError(f"encode_octree needs unique voxels: {dup.size} duplicate "
                                        f"coordinate(s), e.g. {first}; merge duplicates first")
-    if isinstance(direct_from, str):
-        if direct_from != "auto":
-            raise ValueError(f"direct_from must be a level, 'auto' or None, got {direct_from!r}")
-        direct_from = choose_direct_level(codes, int(depth))
+    return codes
+
+
+def _symbols(codes: np.ndarray, depth: int, direct_from: int | None):
+    """(coded bits int64 [S], bank model ids int64 [S], raw section bytes) of sorted codes."""
     if direct_from is not None and not 1 <= direct_from < depth:
         raise ValueError(f"direct level {direct_from} outside 1..{depth - 1}")
     if direct_from is not None and codes.size:
@@ -121,7 +128,7 @@ def octree_symbols(ijk: np.ndarray, depth: int, direct_from: int | str | None = 
         occ = occupancy_levels(codes, depth) if codes.size else []
     if native.enabled() and codes.size <= native.module().MAX_POINTS:
         bits, mods = _native_symbols(codes, occ, int(depth), direct_from, tree)
-        return codes, bits.astype(np.int64), mods.astype(np.int64), raw, direct_from
+        return bits.astype(np.int64), mods.astype(np.int64), raw
     syms, mods = [], []
 
     def true_bits(level, k, idx, model):
@@ -135,7 +142,7 @@ def octree_symbols(ijk: np.ndarray, depth: int, direct_from: int | str | None = 
     if not np.array_equal(leaves, codes):     # the traversal must rebuild exactly the input
         raise AssertionError("octree traversal did not reproduce the input voxels")
     cat = (lambda xs: np.concatenate(xs) if xs else np.zeros(0, np.int64))
-    return codes, cat(syms), cat(mods), raw, direct_from
+    return cat(syms), cat(mods), raw
 
 
 def _native_symbols(codes: np.ndarray, occ: list, depth: int, direct_from: int | None = None,
@@ -158,29 +165,53 @@ def _native_symbols(codes: np.ndarray, occ: list, depth: int, direct_from: int |
     return np.frombuffer(bits, dtype=np.uint8), np.frombuffer(mods, dtype=np.uint8)
 
 
-#: Direct coding starts at the first level where at least this share of the nodes hold one voxel.
-DIRECT_SHARE = 0.5
+#: Candidate start levels of direct coding: the first level where at least this share of the
+#: nodes hold one voxel (earlier: a smaller tree for the decoder; later: usually fewer bytes).
+DIRECT_SHARES = (0.5, 0.8, 0.95)
+#: The earliest candidate whose payload is within this fraction of the smallest is taken.
+DIRECT_TOLERANCE = 0.005
+#: Trees of at most this many voxels also try scheme 0.
+SCHEME0_TRIED_BELOW = 1 << 18
 
 
-def choose_direct_level(codes: np.ndarray, depth: int) -> int | None:
-    """The level from which single-voxel nodes are coded directly (scheme 1), None for scheme 0
-    (no level of 1..depth-1 has that share: a dense grid, or depth 1).
-
-    Below the first level where half the nodes hold one voxel, the tree's context coding
-    costs about 3 bits per node and level, as the raw bits do; starting there rather than at
-    the byte-optimal level (later, where ~95 % are single) costs at most ~0.6 % of the geometry
-    payload on the shared scenes and halves the decoder's tree (docs/design/octree-direct.md)."""
+def direct_candidates(codes: np.ndarray, depth: int) -> list:
+    """Start levels worth trying for sorted unique codes, fastest to decode first: the first
+    level reaching each of DIRECT_SHARES, then None (scheme 0) when the tree is small (its
+    encode is cheap) or direct coding could only start in the last two levels (a dense or
+    shallow grid, where the tree's contexts predict a lone voxel's position better than its
+    raw bits).  A large deep tree is not coded without direct coding: that costs seconds per
+    encode and per decode, for a payload within ~0.5 %."""
     if depth < 2 or codes.size == 0:
-        return None
+        return [None]
+    share = []
     for level in range(1, depth):
         prefix = codes >> np.uint64(3 * (depth - level))
         first = np.ones(codes.shape[0], dtype=bool)
         first[1:] = prefix[1:] != prefix[:-1]
         starts = np.flatnonzero(first)
-        single = np.count_nonzero(np.diff(np.append(starts, codes.shape[0])) == 1)
-        if single >= DIRECT_SHARE * starts.size:
-            return level
-    return None
+        share.append(np.count_nonzero(np.diff(np.append(starts, codes.shape[0])) == 1) / starts.size)
+    out = []
+    for x in DIRECT_SHARES:
+        level = next((l for l, f in enumerate(share, start=1) if f >= x), None)
+        if level is not None and level not in out:
+            out.append(level)
+    if not out or out[0] >= depth - 2 or codes.size <= SCHEME0_TRIED_BELOW:
+        out.append(None)
+    return out
+
+
+def choose_direct_level(codes: np.ndarray, depth: int) -> int | None:
+    """The scheme the encoder writes for sorted unique codes: the start level of direct coding
+    (scheme 1) or None (scheme 0): of :func:`direct_candidates`, the first whose payload is
+    within DIRECT_TOLERANCE of the smallest (docs/design/octree-direct.md)."""
+    return _choose(codes, depth)[0]
+
+
+def _choose(codes: np.ndarray, depth: int) -> tuple:
+    """(direct level or None, payload) per choose_direct_level."""
+    tried = [(d, _payload(codes, depth, d)) for d in direct_candidates(codes, depth)]
+    smallest = min(len(p) for _, p in tried)
+    return next((d, p) for d, p in tried if len(p) <= smallest * (1 + DIRECT_TOLERANCE))
 
 
 def encode_octree(ijk: np.ndarray, depth: int, direct_from: int | str | None = "auto") -> bytes:
@@ -188,13 +219,22 @@ def encode_octree(ijk: np.ndarray, depth: int, direct_from: int | str | None = "
 
     ijk: int [M, 3] unique voxel coordinates in [0, 2^depth); depth: 1..21.
     direct_from: the level from which single-voxel nodes are coded directly (scheme 1), "auto"
-    (:func:`choose_direct_level`), or None for scheme 0.
+    (:func:`choose_direct_level`: tries a few), or None for scheme 0.
     Returns bytes; ``gsz.decoder.octree.decode_octree(payload, depth, M)`` gives the voxels back
     in ascending Morton order (``gsz.decoder.morton``).  Deterministic.
     Raises CloudValidationError (a GszError and ValueError) on duplicates, out-of-range
     coordinates, a bad shape or a bad depth.
     """
-    codes, syms, mods, raw, direct_from = octree_symbols(ijk, depth, direct_from)
+    codes = _validated_codes(ijk, depth)
+    if isinstance(direct_from, str):
+        if direct_from != "auto":
+            raise ValueError(f"direct_from must be a level, 'auto' or None, got {direct_from!r}")
+        return _choose(codes, int(depth))[1]
+    return _payload(codes, int(depth), direct_from)
+
+
+def _payload(codes: np.ndarray, depth: int, direct_from: int | None) -> bytes:
+    syms, mods, raw = _symbols(codes, depth, direct_from)
     n = int(syms.size)
     if native.enabled():
         # binary rANS in C: the bytes encode_symbols writes for the bank (ENTROPY.md 6)

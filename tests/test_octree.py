@@ -205,7 +205,6 @@ def test_truncated_and_corrupted_payloads_rejected(real_payload):
 def test_every_direct_level_and_scheme_0_round_trip(real_payload):
     ijk, payload = real_payload
     order = np.argsort(morton_encode(ijk))
-    assert payload[0] == SCHEME_DIRECT          # the encoder's default
     for level in (None, 1, 4, 6, 8):
         p = encode_octree(ijk, 9, level)
         assert p[0] == (SCHEME_ADAPTIVE_BITWISE if level is None else SCHEME_DIRECT)
@@ -216,14 +215,26 @@ def test_every_direct_level_and_scheme_0_round_trip(real_payload):
     assert np.array_equal(decode_octree(p, 9, 3), far[np.argsort(morton_encode(far))])
 
 
-def test_direct_level_is_chosen_from_the_share_of_single_voxel_nodes(real_payload):
-    ijk, _ = real_payload
+@pytest.mark.parametrize("depth", [6, 9, 12])
+def test_the_encoder_takes_the_earliest_start_level_within_the_tolerance_of_the_smallest(depth):
+    import gsz
+    from gsz.encoder.octree import DIRECT_TOLERANCE, direct_candidates
+    ijk = np.unique(voxelise(gsz.read_ply(SAMPLE_SH3).positions, depth), axis=0)
     codes = np.sort(morton_encode(ijk))
-    level = choose_direct_level(codes, 9)
-    prefix = lambda l: codes >> np.uint64(3 * (9 - l))        # noqa: E731
-    share = lambda l: np.mean(np.unique(prefix(l), return_counts=True)[1] == 1)  # noqa: E731
-    assert 1 <= level <= 8 and share(level) >= 0.5
-    assert all(share(l) < 0.5 for l in range(1, level))
+    candidates = direct_candidates(codes, depth)
+    sizes = [len(encode_octree(ijk, depth, d)) for d in candidates]
+    chosen = choose_direct_level(codes, depth)
+    i = candidates.index(chosen)
+    assert len(encode_octree(ijk, depth)) == sizes[i] <= min(sizes) * (1 + DIRECT_TOLERANCE)
+    assert all(s > min(sizes) * (1 + DIRECT_TOLERANCE) for s in sizes[:i])
+    levels = [d for d in candidates if d is not None]
+    assert levels == sorted(levels) and all(1 <= d < depth for d in levels)
+
+
+def test_a_dense_grid_keeps_scheme_0():
+    full = np.stack(np.meshgrid(*[np.arange(8)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    codes = np.sort(morton_encode(full))
+    assert choose_direct_level(codes, 3) is None and encode_octree(full, 3)[0] == SCHEME_ADAPTIVE_BITWISE
     assert choose_direct_level(codes[:0], 9) is None and choose_direct_level(np.zeros(1, np.uint64), 1) is None
 
 
