@@ -168,7 +168,8 @@ def _native_symbols(codes: np.ndarray, occ: list, depth: int, direct_from: int |
 #: Candidate start levels of direct coding: the first level where at least this share of the
 #: nodes hold one voxel (earlier: a smaller tree for the decoder; later: usually fewer bytes).
 DIRECT_SHARES = (0.5, 0.8, 0.95)
-#: The earliest candidate whose payload is within this fraction of the smallest is taken.
+#: In a large tree, the earliest candidate whose payload is within this fraction of the
+#: smallest is taken (a small tree takes the smallest).
 DIRECT_TOLERANCE = 0.005
 #: Trees of at most this many voxels also try scheme 0.
 SCHEME0_TRIED_BELOW = 1 << 18
@@ -202,8 +203,9 @@ def direct_candidates(codes: np.ndarray, depth: int) -> list:
 
 def choose_direct_level(codes: np.ndarray, depth: int) -> int | None:
     """The scheme the encoder writes for sorted unique codes: the start level of direct coding
-    (scheme 1) or None (scheme 0): of :func:`direct_candidates`, the first whose payload is
-    within DIRECT_TOLERANCE of the smallest (docs/design/octree-direct.md)."""
+    (scheme 1) or None (scheme 0): of :func:`direct_candidates`, the smallest payload; in a
+    tree of more than SCHEME0_TRIED_BELOW voxels, whose decode time matters, the first within
+    DIRECT_TOLERANCE of the smallest (docs/design/octree-direct.md)."""
     return _choose(codes, depth)[0]
 
 
@@ -211,7 +213,8 @@ def _choose(codes: np.ndarray, depth: int) -> tuple:
     """(direct level or None, payload) per choose_direct_level."""
     tried = [(d, _payload(codes, depth, d)) for d in direct_candidates(codes, depth)]
     smallest = min(len(p) for _, p in tried)
-    return next((d, p) for d, p in tried if len(p) <= smallest * (1 + DIRECT_TOLERANCE))
+    tolerance = DIRECT_TOLERANCE if codes.size > SCHEME0_TRIED_BELOW else 0.0
+    return next((d, p) for d, p in tried if len(p) <= smallest * (1 + tolerance))
 
 
 def encode_octree(ijk: np.ndarray, depth: int, direct_from: int | str | None = "auto") -> bytes:

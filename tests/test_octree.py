@@ -218,17 +218,35 @@ def test_every_direct_level_and_scheme_0_round_trip(real_payload):
 @pytest.mark.parametrize("depth", [6, 9, 12])
 def test_the_encoder_takes_the_earliest_start_level_within_the_tolerance_of_the_smallest(depth):
     import gsz
-    from gsz.encoder.octree import DIRECT_TOLERANCE, direct_candidates
+    from gsz.encoder.octree import SCHEME0_TRIED_BELOW, direct_candidates
     ijk = np.unique(voxelise(gsz.read_ply(SAMPLE_SH3).positions, depth), axis=0)
     codes = np.sort(morton_encode(ijk))
     candidates = direct_candidates(codes, depth)
     sizes = [len(encode_octree(ijk, depth, d)) for d in candidates]
     chosen = choose_direct_level(codes, depth)
     i = candidates.index(chosen)
-    assert len(encode_octree(ijk, depth)) == sizes[i] <= min(sizes) * (1 + DIRECT_TOLERANCE)
-    assert all(s > min(sizes) * (1 + DIRECT_TOLERANCE) for s in sizes[:i])
+    # a small tree (this one) takes the smallest payload; a large one the first within the
+    # tolerance
+    assert len(encode_octree(ijk, depth)) == sizes[i] == min(sizes) and len(ijk) <= SCHEME0_TRIED_BELOW
+    assert all(s > min(sizes) for s in sizes[:i])
     levels = [d for d in candidates if d is not None]
     assert levels == sorted(levels) and all(1 <= d < depth for d in levels)
+
+
+def test_a_large_tree_takes_the_earliest_start_level_within_the_tolerance(monkeypatch):
+    """Above SCHEME0_TRIED_BELOW voxels the decoder's tree size matters: the earliest candidate
+    within DIRECT_TOLERANCE of the smallest payload (lowered here so the sample counts as large)."""
+    import gsz
+    import gsz.encoder.octree as O
+    monkeypatch.setattr(O, "SCHEME0_TRIED_BELOW", 0)
+    depth = 12
+    ijk = np.unique(voxelise(gsz.read_ply(SAMPLE_SH3).positions, depth), axis=0)
+    codes = np.sort(morton_encode(ijk))
+    candidates = O.direct_candidates(codes, depth)
+    sizes = [len(encode_octree(ijk, depth, d)) for d in candidates]
+    i = candidates.index(choose_direct_level(codes, depth))
+    limit = min(sizes) * (1 + O.DIRECT_TOLERANCE)
+    assert sizes[i] <= limit and all(s > limit for s in sizes[:i]) and None not in candidates[:-1]
 
 
 def test_a_dense_grid_keeps_scheme_0():
