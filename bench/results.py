@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -55,7 +56,7 @@ NOTES = {
     "stream.json": dict(command=".venv/bin/python bench/bench_stream.py", commit="71b11a3",
                         machine=VM + ", a test run beside it for ~3 min", when="2026-12-02 05:15-05:29 UTC"),
     "golden.json": dict(command="golden.py's usage: `.venv/bin/python bench/golden.py --write bench/out/golden.json`",
-                        commit="git log: dc3d76e rewrote the file"),
+                        commit="the file's git log"),
 }
 
 NA = "not recorded"
@@ -96,7 +97,8 @@ def code(s) -> str:
 def cell(name: str, key: str, recorded) -> str:
     """A provenance cell: the recorded value, else 'not recorded' (+ what the notes said)."""
     if recorded:
-        return code(recorded) if key == "command" else str(recorded)
+        # a command's --out path says nothing about the run (the JSON is named beside it)
+        return code(re.sub(r" --out \S+", "", recorded)) if key == "command" else str(recorded)
     noted = NOTES.get(name, {}).get(key)
     if not noted:
         return NA
@@ -115,7 +117,7 @@ def header(title: str, what: str, sources: list) -> list:
         rows.append([label] + [cell(name, k, s.get(k)) for k in ("command", "commit", "machine", "when")])
     lines += table(["JSON", "command", "commit", "machine", "run"], rows)
     if any("(notes: " in c for r in rows for c in r):
-        lines += ["Notes: the run notes (bench/RESULTS.md, in git history) or what the cell names.", ""]
+        lines += ["Notes: bench/RESULTS.md (git history) or the cell.", ""]
     return lines
 
 
@@ -456,26 +458,25 @@ def _uptimes(d: dict) -> str | None:
 
 
 def page_decode(d: dict) -> str:
-    lines = header("Decode speed", "`gsz.decoder.decode(path)` on the NumPy reference path (`GSZ_NATIVE=0`) "
-                   "and the native accelerator (same output bit for bit).  Wall = best of the repeats; CPU = "
-                   "that run's process CPU time (both threads); stages are timed one after the other (thread "
-                   "CPU time).", [dict(json="decode.json", command=d.get("command"), commit=d.get("commit"),
+    lines = header("Decode speed", "`gsz.decoder.decode(path)`: NumPy reference (`GSZ_NATIVE=0`) and native "
+                   "(identical output).  Wall: best of the repeats; CPU: that run's process CPU time; stages: "
+                   "one after the other (thread CPU).", [dict(json="decode.json", command=d.get("command"), commit=d.get("commit"),
                                                    machine=d.get("machine"), when=_uptimes(d))])
-    stages = ["container", "geometry", "attributes", "sh", "finish"]
+    stages = ["geometry", "attributes", "sh", "finish"]     # (the container parse: ~0 s)
     rows = []
     for r in sorted(d["results"], key=lambda r: scene_key(Path(r["file"]).name.split("_r0")[0])):
         for path in ("numpy", "native"):
             p = r["paths"].get(path)
             if p:
-                rows.append([Path(r["file"]).name.split("_r0")[0], n(p["gaussians"]), mb(r["bytes"]), path,
+                rows.append([Path(r["file"]).name.split("_r0")[0].removesuffix(".gsz"), n(p["gaussians"]),
+                             mb(r["bytes"]), path,
                              f"{p['seconds']:.3f}", f"{p['cpu_seconds']:.3f}", f2(p["gaussians_per_second"] / 1e6)]
                             + [f"{p['stages'].get(s, 0):.3f}" for s in stages])
     lines += table(["scene", "Gaussians", "MB", "path", "wall s", "CPU s", "M Gaussians/s"]
                    + [f"{s} s" for s in stages], rows)
-    lines += ["Files: every shared scene encoded with `gsz-encode --reserve 0.8 --bits 12 --blocks 1` "
-              "(bench/bench_decode.py caches them in bench/.cache/decode); rows named `big_*` are "
-              "`bench/bench_scale.py`'s 12x files of the generated 1.2 M SH-3 scene (one tile, and two tiles "
-              "decoded in parallel; stages summed over the parts).  Reproduce: the command above.", ""]
+    lines += ["Files: the shared scenes at `gsz-encode --reserve 0.8 --bits 12 --blocks 1` (cached in "
+              "bench/.cache/decode); `big_*`: [scale.md](scale.md)'s 1.2 M files (2 tiles decode in "
+              "parallel; stages summed over parts).", ""]
     return "\n".join(lines)
 
 
@@ -509,9 +510,9 @@ def page_stream(rows: list, json_dir: Path) -> str:
 
 def page_scale(sets: list) -> str:
     lines = header("Real-size scenes (1-6 M Gaussians): single tile vs tiles",
-                   "Size-search encodes of scenes built by `bench/big_scene.py`; each variant is its own "
-                   "`gsz-encode --ratio` process under `/usr/bin/time -v` (`single`: one tile, `tiled`: tiles of at "
-                   "most the JSON's tile_gaussians, on local worker processes).",
+                   "Size-search encodes of `bench/big_scene.py` scenes, each a `gsz-encode --ratio` process "
+                   "under `/usr/bin/time -v` (`single`: one tile; `tiled`: tiles of at most tile_gaussians, on "
+                   "local worker processes).",
                    [dict(json=name, command=s.get("command"), commit=s.get("commit"),
                          machine=f"{s['cores']} cores" if s.get("cores") else None, when=_uptimes(s))
                     for name, s in sets])
@@ -526,10 +527,10 @@ def page_scale(sets: list) -> str:
     stages = []
     for _, r in cols:
         stages += [k for k in r["stage_seconds"] if k not in stages]
-    lines += ["## Seconds and peak RSS (MB) per stage", ""]
+    lines += ["## Seconds / peak RSS (MB) per stage", ""]
     lines += table(["stage"] + [c for c, _ in cols],
-                   [[st] + [("–" if st not in r["stage_seconds"] else f"{f1(r['stage_seconds'][st])} s")
-                            + (f", {n(r['stage_peak_mb']['stages'][st]['peak_mb'])} MB"
+                   [[st] + [("–" if st not in r["stage_seconds"] else f1(r['stage_seconds'][st]))
+                            + (f" / {n(r['stage_peak_mb']['stages'][st]['peak_mb'])}"
                                if st in r.get("stage_peak_mb", {}).get("stages", {}) else "") for _, r in cols]
                     for st in stages])
     lines += ["Scenes: `.venv/bin/python bench/big_scene.py --gaussians 1.2M --sh 3 -o bench/.cache/big_1.2M_sh3.ply` "
