@@ -60,13 +60,9 @@ def model_count(num_channels: int, num_blocks: int, mode: int) -> int:
     return num_channels * (num_blocks if mode == MODEL_PER_GROUP else 16)
 
 
-def read_channel_set(r: Reader, *, max_length: int, shape: tuple | None = None,
-                     name: str = "channel set") -> np.ndarray:
-    """Parse one quantised channel set from ``r``; returns the dequantised float64 [C, L].
-
-    shape   the (C, L) its use prescribes (GSZ.md §5): C, then L's bound ``max_length``, then
-            L are checked as soon as they are read, before anything is allocated or decoded
-            (a hostile C or L would otherwise cost C * L symbols of work first)."""
+def _read_header(r: Reader, max_length: int, shape: tuple | None, name: str):
+    """A channel set's fields up to its rANS stream, checked (see :func:`read_channel_set`):
+    (C, L, B, model_mode, bits, mins, maxs, stream blob)."""
     c = r.u8()
     length = r.u32()
     b = r.u16()
@@ -83,7 +79,17 @@ def read_channel_set(r: Reader, *, max_length: int, shape: tuple | None = None,
     mins = r.array(np.float32, c * b).reshape(c, b)
     maxs = r.array(np.float32, c * b).reshape(c, b)
     validate_group_params(mins, maxs, bits)
-    blob = r.blob()
+    return c, length, b, mode, bits, mins, maxs, r.blob()
+
+
+def read_channel_set(r: Reader, *, max_length: int, shape: tuple | None = None,
+                     name: str = "channel set") -> np.ndarray:
+    """Parse one quantised channel set from ``r``; returns the dequantised float64 [C, L].
+
+    shape   the (C, L) its use prescribes (GSZ.md §5): C, then L's bound ``max_length``, then
+            L are checked as soon as they are read, before anything is allocated or decoded
+            (a hostile C or L would otherwise cost C * L symbols of work first)."""
+    c, length, b, mode, bits, mins, maxs, blob = _read_header(r, max_length, shape, name)
     if native.enabled():
         return _decode_native(blob, c, length, b, bits, mins, maxs, mode)
     # decode_stream(blob, group_model_ids(...)) one group (a run of one model) at a time
@@ -96,9 +102,9 @@ def read_channel_set(r: Reader, *, max_length: int, shape: tuple | None = None,
     return dequantize_groups(symbols, mins, maxs, bits, lengths)
 
 
-def _decode_native(blob, c: int, length: int, b: int, bits, mins, maxs, mode: int) -> np.ndarray:
-    """read_channel_set's decode and dequantisation in one C pass (no per-symbol model-id or
-    symbol arrays); same model ids, checks and float64 arithmetic as the NumPy path."""
+def _native_decoder(blob, c: int, length: int, b: int, bits, mins, maxs, mode: int):
+    """The native decoder of a channel set's stream, its model table [C*B] and the groups'
+    (steps, lo, qmax) [C*B] (float64, float64, int64)."""
     models, pos = read_model_set(blob, 0, max_models=model_count(c, b, mode), num_symbols=c * length)
     dec = RansDecoder(memoryview(blob)[pos:], c * length, models, use_native=True)
     bits = np.asarray(bits, dtype=np.int64)
@@ -109,10 +115,32 @@ def _decode_native(blob, c: int, length: int, b: int, bits, mins, maxs, mode: in
     steps = np.ascontiguousarray(step_sizes(mins, maxs, bits), dtype=np.float64).ravel()
     lo = np.asarray(mins, dtype=np.float32).astype(np.float64).ravel()
     qmax = ((np.int64(1) << bits) - 1).ravel()
+    return dec, table, (steps, lo, qmax)
+
+
+def _decode_native(blob, c: int, length: int, b: int, bits, mins, maxs, mode: int) -> np.ndarray:
+    """read_channel_set's decode and dequantisation in one C pass (no per-symbol model-id or
+    symbol arrays); same model ids, checks and float64 arithmetic as the NumPy path."""
+    dec, table, (steps, lo, qmax) = _native_decoder(blob, c, length, b, bits, mins, maxs, mode)
     out = np.empty((c, length), dtype=np.float64)
     dec.decode_blocks(table, c, length, b, out, steps, lo, qmax)
     dec.finish()
     return out
+
+
+def read_channel_set_symbols(r: Reader, *, max_length: int, shape: tuple | None = None,
+                             name: str = "channel set"):
+    """Native only: :func:`read_channel_set` without the dequantisation, for a caller that
+    dequantises where it copies the values anyway (a float64 [C, L] set of 1 M kept SH vectors
+    is 390 MB of fresh pages).  Returns (symbols uint16 [C, L], steps float64 [C, B], lo
+    float64 [C, B]): the set's values are lo + step * k per (channel, block), as
+    ``dequantize_groups`` computes them; symbols are checked against 2^q - 1."""
+    c, length, b, mode, bits, mins, maxs, blob = _read_header(r, max_length, shape, name)
+    dec, table, (steps, lo, qmax) = _native_decoder(blob, c, length, b, bits, mins, maxs, mode)
+    out = np.empty((c, length), dtype=np.uint16)
+    dec.decode_blocks(table, c, length, b, out, qmax=qmax)
+    dec.finish()
+    return out, steps.reshape(c, b), lo.reshape(c, b)
 
 
 def blocks_for(length: int, requested: int) -> int:

@@ -867,14 +867,18 @@ class RansDecoder:
         """Native only: the next ``channels * length`` symbols of a channel set, symbol
         c*length + i with model ``table[c*blocks + block(i)]`` (``quant.split_lengths``), into
         ``out`` (int64 values; or, with ``steps``/``lo``/``qmax``, float64 ``lo + step * k``
-        after checking 0 <= k <= qmax per group)."""
+        after checking 0 <= k <= qmax per group; or, with ``qmax`` alone, uint16 symbols k
+        after the same check)."""
         count = channels * length
         if self._pos + count > self._n:
             raise GszFormatError(f"rANS: asked for {self._pos + count} symbols, "
                                  f"stream has {self._n}")
         c64 = (lambda a: np.ascontiguousarray(a, dtype=np.int64))
-        args = () if steps is None else (np.ascontiguousarray(steps, dtype=np.float64),
-                                         np.ascontiguousarray(lo, dtype=np.float64), c64(qmax))
+        if steps is not None:
+            args = (np.ascontiguousarray(steps, dtype=np.float64),
+                    np.ascontiguousarray(lo, dtype=np.float64), c64(qmax))
+        else:
+            args = () if qmax is None else (None, None, c64(qmax))
         self._wpos = native.module().rans_decode_blocks(
             self._states, self._word_bytes, self._wpos, self._pos, self._nt, c64(table),
             int(channels), int(length), int(blocks), out, *args)

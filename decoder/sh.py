@@ -34,7 +34,7 @@ import numpy as np
 
 from .bytesio import Reader
 from .cloud import sh_rest_count
-from .groups import read_channel_set
+from .groups import read_channel_set, read_channel_set_symbols
 from . import native
 from .rans import decode_stream_single
 
@@ -131,17 +131,18 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
 
 
 def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebook, classes):
-    """read_sh's kept vectors, flags and indices, assembled in one C pass (same checks)."""
+    """read_sh's kept vectors, flags and indices, assembled in one C pass (same checks): the
+    kept set stays uint16 symbols until that pass dequantises them into the float32 rows."""
     flags = None
-    kept = np.zeros((d, 0), np.float64)
+    kept = np.zeros((d, 0), np.uint16)
+    steps = lo = np.zeros((d, 1), np.float64)
     if p:
-        kept = read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set")
+        kept, steps, lo = read_channel_set_symbols(r, max_length=p, shape=(d, p), name="kept SH set")
         flags = decode_stream_single(r.blob(), m)
     idx = decode_stream_single(r.blob(), m - p)
     r.expect_end()
     cb = np.zeros((d, 0), np.float64) if codebook is None else codebook
     out = np.empty((m, d), np.float32)
-    native.module().sh_assemble(flags, np.ascontiguousarray(kept, dtype=np.float64), idx,
-                                np.ascontiguousarray(cb, dtype=np.float64), out,
-                                None if classes is None else class_order(classes).astype(np.int64))
+    native.module().sh_assemble(flags, kept, steps, lo, idx, np.ascontiguousarray(cb, dtype=np.float64),
+                                out, None if classes is None else np.ascontiguousarray(classes, np.int64))
     return out.reshape(m, k, 3)

@@ -84,14 +84,17 @@ int all_finite_run(const uint32_t *p, int64_t n)
 /* Kept vectors per cache-friendly step of the transposed copy: the [D, P] channel set is read
  * column by column, so one step reads D runs of SH_TILE values and writes SH_TILE rows. */
 #define SH_TILE 256
+/* most SH importance classes (gsz.decoder.sh.MAX_SH_CLASSES) */
+#define SH_MAX_CLASSES 16
 
-int sh_assemble_run(const int64_t *flags, const double *kept, const int64_t *order, int64_t P,
+int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *steps,
+                    const double *lo, int64_t B, const int64_t *classes, int64_t P,
                     const int64_t *idx, int64_t nidx, const double *cb, int64_t K, int64_t M,
                     int64_t D, float *out, Err *e)
 {
     /* the codebook as rows (a codeword is one contiguous copy) and the output row of every kept
-     * vector; the [D, P] kept set is then copied tile by tile (reading it row by row, one
-     * Gaussian at a time, strides P values per component: D streams that miss the cache) */
+     * vector; the [D, P] kept symbols are then dequantised tile by tile (reading them row by row,
+     * one Gaussian at a time, strides P values per component: D streams that miss the cache) */
     float *rows = malloc((size_t)(K ? K : 1) * (size_t)(D ? D : 1) * sizeof *rows);
     int64_t *at = malloc((size_t)(P ? P : 1) * sizeof *at);
     if (!rows || !at) { free(rows); free(at); return fail_nomem(e); }
@@ -114,25 +117,45 @@ int sh_assemble_run(const int64_t *flags, const double *kept, const int64_t *ord
         }
     }
     if (!rc && (kp != P || ip != nidx)) rc = fail(e, "SHVQ chunk: kept flags do not match the kept count");
-    if (!rc && order) {
-        /* stored vector t is the kept vector of point-order rank order[t] (SHCL, GSZ.md §8.1):
-         * its output row is at[order[t]], so the copy below stays one sequential read */
-        int64_t *by = malloc((size_t)(P ? P : 1) * sizeof *by);
-        if (!by) rc = fail_nomem(e);
-        for (int64_t t = 0; t < P && !rc; t++) {
-            if (order[t] < 0 || order[t] >= P) rc = fail(e, "sh_assemble: order outside 0..P-1");
-            else by[t] = at[order[t]];
+    if (!rc && classes) {
+        /* SHCL (GSZ.md §8.1): the vectors are stored class by class, Morton order within a class
+         * (gsz.decoder.sh.class_order, a stable sort), so the kept vector of point-order rank r
+         * is stored at its class's start + its rank within the class: a counting sort */
+        int64_t next[SH_MAX_CLASSES] = {0};
+        for (int64_t r = 0; r < P && !rc; r++) {
+            if (classes[r] < 0 || classes[r] >= SH_MAX_CLASSES) rc = fail(e, "sh_assemble: class outside 0..15");
+            else next[classes[r]]++;
         }
-        if (!rc) memcpy(at, by, (size_t)P * sizeof *at);
-        free(by);
+        int64_t run = 0;
+        for (int q = 0; q < SH_MAX_CLASSES; q++) { const int64_t c = next[q]; next[q] = run; run += c; }
+        int64_t *by = rc ? NULL : malloc((size_t)(P ? P : 1) * sizeof *by);
+        if (!rc && !by) rc = fail_nomem(e);
+        if (!rc) {
+            for (int64_t r = 0; r < P; r++) by[next[classes[r]]++] = at[r];
+            free(at);
+            at = by;
+        }
     }
     if (!rc) {
-        for (int64_t t0 = 0; t0 < P; t0 += SH_TILE) {
-            const int64_t t1 = t0 + SH_TILE < P ? t0 + SH_TILE : P;
-            for (int64_t d = 0; d < D; d++) {
-                const double *src = kept + d * P;
-                for (int64_t t = t0; t < t1; t++) out[at[t] * D + d] = (float)src[t];
+        /* block b of every channel covers stored vectors [s, s + len) (quant.split_lengths:
+         * the first P mod B blocks hold one more); lo + step * k rounds as dequantize_groups'
+         * float64 result, then to float32 as the NumPy path's float32 rows */
+        const int64_t base = P / B, extra = P % B;
+        int64_t s0 = 0;
+        for (int64_t b = 0; b < B; b++) {
+            const int64_t s1 = s0 + base + (b < extra);
+            for (int64_t t0 = s0; t0 < s1; t0 += SH_TILE) {
+                const int64_t t1 = t0 + SH_TILE < s1 ? t0 + SH_TILE : s1;
+                for (int64_t d = 0; d < D; d++) {
+                    const uint16_t *src = kept + d * P;
+                    const double st = steps[d * B + b], l0 = lo[d * B + b];
+                    for (int64_t t = t0; t < t1; t++) {
+                        const double prod = st * (double)src[t];
+                        out[at[t] * D + d] = (float)(prod + l0);
+                    }
+                }
             }
+            s0 = s1;
         }
     }
     free(rows);

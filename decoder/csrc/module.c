@@ -580,9 +580,10 @@ PyDoc_STRVAR(rans_decode_blocks_doc,
 "                   steps=None, lo=None, qmax=None) -> wpos\n\n"
 "Decode the C*L symbols of a quantised channel set (GSZ.md §5): symbol c*L + i uses model\n"
 "model_table[c*B + b] (int64), b the block of element i under split_lengths(L, B).  Without\n"
-"steps: the values go to `out` (int64 [C*L]).  With steps, lo (float64 [C*B]) and qmax (int64\n"
-"[C*B], 2^q - 1): `out` (float64 [C*L]) receives lo + step * k (TRANSFORMS.md §3, the same two\n"
-"roundings as gsz.decoder.quant.dequantize_groups), and a symbol outside 0..qmax is an error.");
+"steps and qmax: the values go to `out` (int64 [C*L]).  With steps, lo (float64 [C*B]) and qmax\n"
+"(int64 [C*B], 2^q - 1): `out` (float64 [C*L]) receives lo + step * k (TRANSFORMS.md §3, the\n"
+"same two roundings as gsz.decoder.quant.dequantize_groups).  With qmax alone: `out` (uint16\n"
+"[C*L]) receives the symbols k.  With qmax, a symbol outside 0..qmax is an error.");
 
 static PyObject *py_rans_decode_blocks(PyObject *self, PyObject *args)
 {
@@ -592,16 +593,22 @@ static PyObject *py_rans_decode_blocks(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOLLOOLLLO|OOO", &o_st, &o_words, &wpos, &pos, &tables, &o_tab,
                           &C, &L, &B, &o_out, &o_steps, &o_lo, &o_qmax))
         return NULL;
-    const int deq = o_steps != Py_None;
+    /* deq: float64 out with steps and lo; sym16: uint16 out, qmax alone; else int64 out */
+    const int deq = o_steps != Py_None, sym16 = !deq && o_qmax != Py_None;
+    if (!deq && o_lo != Py_None) {
+        PyErr_SetString(PyExc_TypeError, "rans_decode_blocks: lo without steps");
+        return NULL;
+    }
     RTabViews t;
     if (rtab_load(&t, tables) < 0) return NULL;
-    PyObject *objs[7] = {o_st, o_words, o_tab, o_out, o_steps, o_lo, o_qmax};
+    PyObject *objs[7] = {o_st, o_words, o_tab, o_out, sym16 ? o_qmax : o_steps, o_lo, o_qmax};
     const int wr[7] = {1, 0, 0, 1, 0, 0, 0};
-    const Py_ssize_t isz[7] = {8, 1, 8, 8, 8, 8, 8};
-    const char kind[7] = {'x', 'x', 'i', deq ? 'f' : 'i', 'f', 'f', 'i'};
+    const Py_ssize_t isz[7] = {8, 1, 8, sym16 ? 2 : 8, 8, 8, 8};
+    const char kind[7] = {'x', 'x', 'i', deq ? 'f' : sym16 ? 'u' : 'i', sym16 ? 'i' : 'f', 'f', 'i'};
+    const int nwant = deq ? 7 : sym16 ? 5 : 4;
     Py_buffer v[7];
     int nv = 0;
-    for (; nv < (deq ? 7 : 4); nv++)
+    for (; nv < nwant; nv++)
         if (getbuf(objs[nv], &v[nv], isz[nv], kind[nv], wr[nv], "rans_decode_blocks argument") < 0) {
             release_views(v, nv);
             rtab_release(&t);
@@ -610,12 +617,15 @@ static PyObject *py_rans_decode_blocks(PyObject *self, PyObject *args)
     RState s = {v[0].buf, v[0].len / 8, 0, v[1].buf, v[1].len / 2, wpos};
     Err e = {0};
     if (C < 1 || L < 0 || B < 1 || C > 255 || B > 65535 || v[2].len / 8 != C * B
-        || v[3].len / 8 != C * L || s.lanes < 1 || wpos < 0 || wpos > s.nwords || pos < 0
-        || (deq && (v[4].len / 8 != C * B || v[5].len / 8 != C * B || v[6].len / 8 != C * B)))
+        || v[3].len / v[3].itemsize != C * L || s.lanes < 1 || wpos < 0 || wpos > s.nwords || pos < 0
+        || (deq && (v[4].len / 8 != C * B || v[5].len / 8 != C * B || v[6].len / 8 != C * B))
+        || (sym16 && v[4].len / 8 != C * B))
         fail(&e, "rans_decode_blocks: inconsistent arguments");
     if (!e.failed && C * L > 0) {
         const RBlocks bl = {v[2].buf, C, L, B, deq ? v[4].buf : NULL, deq ? v[5].buf : NULL,
-                            deq ? v[6].buf : NULL, deq ? NULL : v[3].buf, deq ? v[3].buf : NULL};
+                            deq ? v[6].buf : sym16 ? v[4].buf : NULL,
+                            deq || sym16 ? NULL : v[3].buf, deq ? v[3].buf : NULL,
+                            sym16 ? v[3].buf : NULL};
         s.lane = pos % s.lanes;
         Py_BEGIN_ALLOW_THREADS
         rans_decode_blocks_run(&t.t, &s, &bl, &e);
@@ -870,47 +880,54 @@ static PyObject *py_voxel_positions(PyObject *self, PyObject *args)
 }
 
 PyDoc_STRVAR(sh_assemble_doc,
-"sh_assemble(flags, kept, idx, codebook, out, order=None)\n\n"
+"sh_assemble(flags, kept, steps, lo, idx, codebook, out, classes=None)\n\n"
 "SH rest vectors (GSZ.md §8) as float32 out [M, D]: Gaussian i takes the next kept vector\n"
-"(kept: float64 [D, P], channel-major) when flags[i] == 1 (flags: int64 [M], or None when\n"
-"P = 0), else codeword idx[next] of codebook (float64 [D, K]).  order (int64 [P], SHCL):\n"
-"stored kept vector t is the one of point-order rank order[t].  A flag other than 0/1, a\n"
-"kept count other than P or an index >= K raises GszFormatError.");
+"when flags[i] == 1 (flags: int64 [M], or None when P = 0), else codeword idx[next] of\n"
+"codebook (float64 [D, K]).  kept: the kept set's symbols, uint16 [D, P] channel-major, in B\n"
+"blocks per channel (split_lengths) dequantised as lo + step * k with steps, lo float64 [D, B].\n"
+"classes (int64 [P], SHCL): each kept vector's class in point order; the set then stores them\n"
+"class by class.  A flag other than 0/1, a kept count other than P or an index >= K raises\n"
+"GszFormatError.");
 
 static PyObject *py_sh_assemble(PyObject *self, PyObject *args)
 {
-    PyObject *o[6] = {NULL, NULL, NULL, NULL, NULL, Py_None};
-    if (!PyArg_ParseTuple(args, "OOOOO|O", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5])) return NULL;
-    const int has_flags = o[0] != Py_None, has_order = o[5] != Py_None;
-    const Py_ssize_t isz[6] = {8, 8, 8, 8, 4, 8};
-    const char kind[6] = {'i', 'f', 'i', 'f', 'f', 'i'};
-    Py_buffer v[6];
+    PyObject *o[8] = {NULL, NULL, NULL, NULL, NULL, NULL, NULL, Py_None};
+    if (!PyArg_ParseTuple(args, "OOOOOOO|O", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7]))
+        return NULL;
+    const int has_flags = o[0] != Py_None, has_classes = o[7] != Py_None;
+    /* flags, kept, steps, lo, idx, codebook, out, classes */
+    const Py_ssize_t isz[8] = {8, 2, 8, 8, 8, 8, 4, 8};
+    const char kind[8] = {'i', 'u', 'f', 'f', 'i', 'f', 'f', 'i'};
+    Py_buffer v[8];
     memset(v, 0, sizeof v);
     int nv = 0, ok = 1;
-    for (; nv < 6; nv++) {
-        if ((nv == 0 && !has_flags) || (nv == 5 && !has_order)) continue;
-        if (getbuf(o[nv], &v[nv], isz[nv], kind[nv], nv == 4, "sh_assemble argument") < 0) { ok = 0; break; }
+    for (; nv < 8; nv++) {
+        if ((nv == 0 && !has_flags) || (nv == 7 && !has_classes)) continue;
+        if (getbuf(o[nv], &v[nv], isz[nv], kind[nv], nv == 6, "sh_assemble argument") < 0) { ok = 0; break; }
     }
     if (!ok) {
         for (int i = 0; i < nv; i++) if (v[i].obj) PyBuffer_Release(&v[i]);
         return NULL;
     }
-    const int64_t nidx = v[2].len / 8;
+    const int64_t nidx = v[4].len / 8;
     const int64_t M = has_flags ? v[0].len / 8 : nidx;
     Err e = {0};
-    int64_t D = M ? (v[4].len / 4) / M : 0;
-    if (M == 0 || v[4].len / 4 != D * M || D < 1 || v[1].len / 8 % D || v[3].len / 8 % D)
+    const int64_t D = M ? (v[6].len / 4) / M : 0;
+    const int64_t P = D ? v[1].len / 2 / D : 0, B = D ? v[2].len / 8 / D : 0;
+    if (M == 0 || v[6].len / 4 != D * M || D < 1 || v[1].len / 2 % D || v[5].len / 8 % D
+        || B < 1 || v[2].len / 8 != D * B || v[3].len / 8 != D * B)
         fail(&e, "sh_assemble: inconsistent shapes");
-    if (!e.failed && has_order && v[5].len / 8 != v[1].len / 8 / D)
-        fail(&e, "sh_assemble: order length is not the kept count");
+    if (!e.failed && has_classes && v[7].len / 8 != P)
+        fail(&e, "sh_assemble: classes length is not the kept count");
     if (!e.failed) {
-        const int64_t P = v[1].len / 8 / D, K = v[3].len / 8 / D;
+        const int64_t K = v[5].len / 8 / D;
         Py_BEGIN_ALLOW_THREADS
-        sh_assemble_run(has_flags ? v[0].buf : NULL, v[1].buf, has_order ? v[5].buf : NULL, P, v[2].buf,
-                        nidx, v[3].buf, K, M, D, v[4].buf, &e);
+        sh_assemble_run(has_flags ? v[0].buf : NULL, v[1].buf, v[2].buf, v[3].buf, B,
+                        has_classes ? v[7].buf : NULL, P, v[4].buf, nidx, v[5].buf, K, M, D,
+                        v[6].buf, &e);
         Py_END_ALLOW_THREADS
     }
-    for (int i = 0; i < 6; i++) if (v[i].obj) PyBuffer_Release(&v[i]);
+    for (int i = 0; i < 8; i++) if (v[i].obj) PyBuffer_Release(&v[i]);
     if (e.failed) return raise_err(&e);
     Py_RETURN_NONE;
 }

@@ -64,6 +64,8 @@ typedef struct {
     const int64_t *qmax;
     int64_t *iout;                           /* [C*L] without dequantisation */
     double *fout;                            /* [C*L] with */
+    uint16_t *uout;                          /* [C*L] symbols checked against qmax, not
+                                                dequantised (steps NULL, iout NULL) */
 } RBlocks;
 
 /* model_set.c: the 12 arrays of model_set_parse (9 of M models, counts, bins, levels). */

@@ -269,6 +269,10 @@ int rans_decode_run(const RTab *t, RState *s, const int64_t *mids, int64_t *out,
 
 typedef struct { int bad_k, bad_q, overrun; } BlockOut;
 
+/* What a block's loop writes: int64 values, float64 dequantised values, or uint16 symbols
+ * checked against 2^q - 1 (a kept SH set, dequantised later where it is transposed). */
+enum { DEQ_RAW = 0, DEQ_FLOAT = 1, DEQ_SYM16 = 2 };
+
 /* One block of a channel set: `len` symbols, all with one model (its LUT and present values
  * already offset to the model; klimit = how many present values follow).  Written branch-free
  * (renormalisation by arithmetic select); specialised on `deq` by the two wrappers below.
@@ -276,8 +280,8 @@ typedef struct { int bad_k, bad_q, overrun; } BlockOut;
 static inline __attribute__((always_inline)) void
 decode_block_body(const uint16_t *restrict lut, const uint32_t *restrict fc,
                   const int32_t *restrict val, int64_t klimit, unsigned n, RState *s, int64_t len,
-                  double *restrict fout, int64_t *restrict iout, double step, double l0,
-                  int64_t qm, const int deq, BlockOut *bo)
+                  double *restrict fout, int64_t *restrict iout, uint16_t *restrict uout,
+                  double step, double l0, int64_t qm, const int deq, BlockOut *bo)
 {
     static const uint8_t zero_word[2] = {0, 0};
     const uint64_t mask = ((uint64_t)1 << n) - 1;
@@ -304,10 +308,13 @@ decode_block_body(const uint16_t *restrict lut, const uint32_t *restrict fc,
         st[lane] = (int64_t)x;
         lane = lane + 1 == lanes ? 0 : lane + 1;
         const int64_t value = val[ki];
-        if (deq) {
+        if (deq == DEQ_FLOAT) {
             bad_q |= (value < 0) | (value > qm);
             const double prod = step * (double)value;
             fout[j] = prod + l0;
+        } else if (deq == DEQ_SYM16) {
+            bad_q |= (value < 0) | (value > qm);
+            uout[j] = (uint16_t)value;
         } else {
             iout[j] = value;
         }
@@ -324,14 +331,21 @@ decode_block_deq(const uint16_t *lut, const uint32_t *fc, const int32_t *val, in
                  unsigned n, RState *s, int64_t len, double *fout, double step, double l0,
                  int64_t qm, BlockOut *bo)
 {
-    decode_block_body(lut, fc, val, klimit, n, s, len, fout, NULL, step, l0, qm, 1, bo);
+    decode_block_body(lut, fc, val, klimit, n, s, len, fout, NULL, NULL, step, l0, qm, DEQ_FLOAT, bo);
+}
+
+static __attribute__((noinline)) void
+decode_block_sym16(const uint16_t *lut, const uint32_t *fc, const int32_t *val, int64_t klimit,
+                   unsigned n, RState *s, int64_t len, uint16_t *uout, int64_t qm, BlockOut *bo)
+{
+    decode_block_body(lut, fc, val, klimit, n, s, len, NULL, NULL, uout, 0.0, 0.0, qm, DEQ_SYM16, bo);
 }
 
 static __attribute__((noinline)) void
 decode_block_raw(const uint16_t *lut, const uint32_t *fc, const int32_t *val, int64_t klimit,
                  unsigned n, RState *s, int64_t len, int64_t *iout, BlockOut *bo)
 {
-    decode_block_body(lut, fc, val, klimit, n, s, len, NULL, iout, 0.0, 0.0, 0, 0, bo);
+    decode_block_body(lut, fc, val, klimit, n, s, len, NULL, iout, NULL, 0.0, 0.0, 0, DEQ_RAW, bo);
 }
 
 /* Block b of channel c (len symbols from element i0 on): one model for the whole block,
@@ -351,6 +365,9 @@ static int decode_one_block(const RTab *t, RState *s, const RBlocks *bl, int64_t
     if (bl->steps)
         decode_block_deq(t->lut + lb, t->fc + sb, t->val + sb, t->nsym - sb, n, s, len,
                          bl->fout + c * bl->L + i0, bl->steps[g], bl->lo[g], bl->qmax[g], &bo);
+    else if (bl->uout)
+        decode_block_sym16(t->lut + lb, t->fc + sb, t->val + sb, t->nsym - sb, n, s, len,
+                           bl->uout + c * bl->L + i0, bl->qmax[g], &bo);
     else
         decode_block_raw(t->lut + lb, t->fc + sb, t->val + sb, t->nsym - sb, n, s, len,
                          bl->iout + c * bl->L + i0, &bo);

@@ -365,6 +365,12 @@ def _part_vectors(sh1: bytes, lay2: bytes, add) -> None:
         "GSZ.md §8 exactly P flags set", "kept flags set")
     add("shvq_flags_two_models", with_shvq(sh1, 1, 1, kept=kept, flags=single_stream(2)),
         "GSZ.md §8 flag stream: one model (model id 0)", "2 models, more than the 1 its use can name")
+    # every vector kept, channel 1's symbols 2 in a 1-bit group (decoders that keep the kept set
+    # as symbols until they transpose it check them there)
+    kept_high = simple_set(9, m, single_stream(body=model_body([1] * 9, lo=[0, 2] + [0] * 7)))
+    add("shvq_kept_symbol_above_group_bits",
+        with_shvq(sh1, 0, m, kept=kept_high, flags=single_stream(body=model_body([1], lo=[1]))),
+        "GSZ.md §5 symbol within 0..2^bits-1 (kept SH set)", "quantisation symbol")
     _shcl_vectors(sh1, m, add)
 
 
