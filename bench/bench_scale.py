@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/bench_scale.py --scene bench/.cache/big_1.2M_sh3.ply --ratio 12 \
         [--variants single,tiled,ray] [--tile-gaussians 300000] [--eval] [--out bench/out/scale.json]
+    .venv/bin/python bench/bench_scale.py --scene ... --ratios 18,12,8 --eval   # cost of tiling
 
 Generate the scenes with bench/big_scene.py (e.g. ``--gaussians 1.2M --sh 3 [--noise]``).
 Every variant runs ``gsz-encode SCENE --ratio R --json`` in its own process under
@@ -54,19 +55,20 @@ def decode_speed(path: Path, native: bool) -> float:
     return best
 
 
-def run_variant(name: str, scene: Path, args, out_dir: Path) -> dict:
-    out = out_dir / f"{scene.stem}_{name}.gsz"
+def run_variant(name: str, scene: Path, ratio: float, args, out_dir: Path) -> dict:
+    # one ratio: the name the decode benchmark reads; several: each ratio's own file
+    out = out_dir / f"{scene.stem}_{name}{f'_{ratio:g}x' if args.ratios else ''}.gsz"
     extra = {"single": ["--tile-gaussians", "0"],
              "tiled": ["--tile-gaussians", str(args.tile_gaussians)],
              "ray": ["--tile-gaussians", str(args.tile_gaussians), "--executor", "ray"]}[name]
-    cmd = [str(BIN / "gsz-encode"), str(scene), "-o", str(out), "--ratio", str(args.ratio), "--json", "-w", *extra]
+    cmd = [str(BIN / "gsz-encode"), str(scene), "-o", str(out), "--ratio", f"{ratio:g}", "--json", "-w", *extra]
     print(f"[{name}] {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
     p, t = timed(cmd)
     if p.returncode != 0:
         raise SystemExit(f"{name}: gsz-encode failed:\n{p.stderr[-2000:]}")
     r = json.loads(p.stdout)
     data = out.read_bytes()
-    row = {"variant": name, **t, "bytes": r["bytes"], "target": r.get("target_bytes"),
+    row = {"variant": name, "ratio": ratio, **t, "bytes": r["bytes"], "target": r.get("target_bytes"),
            "of_target_pct": round(100 * r["bytes"] / r["target_bytes"], 2) if r.get("target_bytes") else None,
            "reserve": r.get("reserve"), "depth": r.get("depth"), "train_psnr": r.get("train_psnr"),
            "voxels": r.get("voxels"),
@@ -89,6 +91,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scene", required=True, type=Path)
     p.add_argument("--ratio", type=float, default=12.0)
+    p.add_argument("--ratios", default=None, help="comma-separated ratios, each run for every variant "
+                   "(default: --ratio alone)")
     p.add_argument("--variants", default="single,tiled")
     p.add_argument("--tile-gaussians", type=int, default=300_000)
     p.add_argument("--eval", action="store_true")
@@ -97,7 +101,9 @@ def main(argv=None) -> int:
     out_dir = ROOT / "bench" / ".cache" / "scale"
     out_dir.mkdir(parents=True, exist_ok=True)
     uptime = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
-    rows = [run_variant(v.strip(), a.scene, a, out_dir) for v in a.variants.split(",") if v.strip()]
+    ratios = [float(x) for x in a.ratios.split(",")] if a.ratios else [a.ratio]
+    rows = [run_variant(v.strip(), a.scene, ratio, a, out_dir)
+            for ratio in ratios for v in a.variants.split(",") if v.strip()]
     commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip()
     res = {"scene": str(a.scene), "ratio": a.ratio, "tile_gaussians": a.tile_gaussians, "commit": commit,
@@ -105,7 +111,7 @@ def main(argv=None) -> int:
            "command": "bench/bench_scale.py " + " ".join(argv if argv is not None else sys.argv[1:])}
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(res, indent=1) + "\n")
-    cols = ["variant", "tiles", "wall_s", "cpu_s", "peak_rss_mb", "bytes", "of_target_pct", "reserve", "depth",
+    cols = ["variant", "ratio", "tiles", "wall_s", "cpu_s", "peak_rss_mb", "bytes", "of_target_pct", "reserve", "depth",
             "train_psnr", "test_psnr", "decode_native_gps", "decode_numpy_gps", "sha256"]
     print("| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
     for r in rows:

@@ -516,14 +516,20 @@ def page_scale(sets: list) -> str:
                    [dict(json=name, command=s.get("command"), commit=s.get("commit"),
                          machine=f"{s['cores']} cores" if s.get("cores") else None, when=_uptimes(s))
                     for name, s in sets])
-    cols = [(f"{Path(s['scene']).stem} {r['variant']}", r) for _, s in sets for r in s["rows"]]
+    ratio = (lambda s, r: r.get("ratio", s["ratio"]))
+    cols = [(f"{Path(s['scene']).stem} {r['variant']}"
+             + (f" {ratio(s, r):g}×" if len({ratio(s, x) for x in s["rows"]}) > 1 else ""), r)
+            for _, s in sets for r in s["rows"]]
     lines += table(["scene, variant", "ratio", "tiles", "bytes (of target)", "τ", "depth", "voxels", "train dB",
-                    "wall s", "CPU s", "peak RSS MB", "decode native / NumPy MG/s", "sha256"],
-                   [[f"`{Path(s['scene']).stem}`, {r['variant']}", f"{s['ratio']:g}×", r.get("tiles", "–"),
+                    "test dB / SSIM", "wall s", "CPU s", "peak RSS MB", "decode native / NumPy MG/s", "sha256"],
+                   [[f"`{Path(s['scene']).stem}`, {r['variant']}", f"{ratio(s, r):g}×", r.get("tiles", "–"),
                      f"{n(r['bytes'])} ({r['of_target_pct']:.2f} %)", r["reserve"], r["depth"], n(r["voxels"]),
-                     f2(r["train_psnr"]), f1(r["wall_s"]), f1(r["cpu_s"]), n(r["peak_rss_mb"]),
+                     f2(r["train_psnr"]),
+                     "–" if r.get("test_psnr") is None else f"{r['test_psnr']:.2f} / {r['test_ssim']:.4f}",
+                     f1(r["wall_s"]), f1(r["cpu_s"]), n(r["peak_rss_mb"]),
                      f"{r['decode_native_gps'] / 1e6:.2f} / {r['decode_numpy_gps'] / 1e6:.2f}", code(r["sha256"])]
                     for _, s in sets for r in s["rows"]])
+    lines += _tiling_cost(sets)
     stages = []
     for _, r in cols:
         stages += [k for k in r["stage_seconds"] if k not in stages]
@@ -536,6 +542,26 @@ def page_scale(sets: list) -> str:
     lines += ["Scenes: `.venv/bin/python bench/big_scene.py --gaussians 1.2M --sh 3 -o bench/.cache/big_1.2M_sh3.ply` "
               "(3M likewise).  Why and where tiles: [docs/design/tiles.md](../design/tiles.md).", ""]
     return "\n".join(lines)
+
+
+def _tiling_cost(sets: list) -> list:
+    """The cost of tiling read off the RD curves of sets that ran single and tiled at several
+    ratios with test PSNR: bytes the tiled curve needs for each single-tile point's test PSNR."""
+    from rd import bytes_at_psnr
+    rows = []
+    for _, s in sets:
+        curve = {v: sorted((r["bytes"], r["test_psnr"]) for r in s["rows"]
+                           if r["variant"] == v and r.get("test_psnr") is not None) for v in ("single", "tiled")}
+        if len(curve["tiled"]) < 2:
+            continue
+        for b, psnr in curve["single"]:
+            need, kind = bytes_at_psnr(curve["tiled"], psnr)
+            mark = {"interpolated": "", "at_most": "≤ ", "more_than": "> "}[kind]
+            rows.append([f"`{Path(s['scene']).stem}`", n(b), f2(psnr), f"{mark}{n(need)}", f"{mark}{need / b:.3f}"])
+    if not rows:
+        return []
+    return (["## Cost of tiling (test PSNR, 8 views at 800 px; issue 17: ≤ 1.02)", ""]
+            + table(["scene", "single-tile bytes", "its test dB", "tiled bytes for that dB", "ratio"], rows))
 
 
 def page_golden(gold: dict) -> str:
