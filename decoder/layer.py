@@ -358,13 +358,11 @@ def _decode_layer_threaded(chunks: dict, header, state: LayerState, gh) -> Gauss
 
 class _GeometryJob:
     """The worker's part of one layer before the join: the octree (then ``codes_ready`` is
-    set), the ATTR chunk's streams and scales, and the RAHT tree of the voxels.  ``helper``
-    lets the calling thread join the octree traversal once its own work is done
-    (``_native.octree_help``).  Returns (tree, (dc, ac), (scales, scales finite))."""
+    set) and the RAHT tree of its voxels.  ``helper`` lets the calling thread join the octree
+    traversal once its own work is done (``_native.octree_help``).  Returns the tree."""
 
-    def __init__(self, gh, attr_chunk):
+    def __init__(self, gh):
         self.gh = gh
-        self.attr_chunk = attr_chunk
         self.codes = None
         self.codes_ready = threading.Event()
         self.helper = native.module().octree_helper()
@@ -376,8 +374,7 @@ class _GeometryJob:
         finally:
             native.module().octree_helper_close(self.helper)  # also when it never started
             self.codes_ready.set()
-        dc, ac, direct = parse_attributes(self.attr_chunk, self.gh.num_points)
-        return native_tree(self.codes, self.gh.depth), (dc, ac), native_scales(direct)
+        return native_tree(self.codes, self.gh.depth)
 
 
 class _ColourJob:
@@ -403,26 +400,29 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
     """decode_layer on two threads (native path), the same arrays bit for bit:
 
     worker                              calling thread
-    octree -> codes                     SH (+ finiteness), then helps with the octree's
-                                        context ids and neighbour rows
-    attributes, scales (+ finiteness)   positions (+ finiteness), once the codes are there
-    RAHT tree
+    octree -> codes                     attributes, scales (+ finiteness), SH (+ finiteness),
+                                        then helps with the octree's context ids and
+                                        neighbour rows
+    RAHT tree                           positions (+ finiteness), once the codes are there
     RAHT opacity + DC, float32          RAHT angles -> half angles, cos (NumPy's)
     sin (NumPy's) of the half angles    quaternions
 
-    (The SH streams are the largest part of a file: the attributes go to the worker so that
-    both threads finish their entropy decoding at about the same time.)  Errors keep the
-    sequential order: geometry, attributes, SH, then the first non-finite field in FIELDS
-    order."""
+    (Every entropy-coded stream but the octree's is on the calling thread, which joins the
+    octree's parallel phases when done: the octree's own decoding is the one sequential chain.)
+    Errors keep the sequential order: geometry, attributes, SH, then the first non-finite
+    field in FIELDS order."""
     m = gh.num_points
     pool = _worker()
-    job = _GeometryJob(gh, chunks[CHUNK_ATTR])
+    job = _GeometryJob(gh)
     pending = pool.submit(native.carry(job))
     try:
+        dc, ac, direct = parse_attributes(chunks[CHUNK_ATTR], m)
+        scales, ok_scales = native_scales(direct)
+        del direct
         sh_rest, codebook = _read_sh(chunks, header, state, m)
     except BaseException:
         if pending.exception() is not None:
-            raise pending.exception() from None        # geometry's and attributes' errors first
+            raise pending.exception() from None        # the geometry's error comes first
         raise
     nat = native.module()
     ok_sh = nat.all_finite(sh_rest)
@@ -431,7 +431,7 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
     if job.codes is None:
         pending.result()                               # raises the geometry's error
     positions, ok_pos = gh.native_positions(job.codes)
-    tree, (dc, ac), (scales, ok_scales) = pending.result()
+    tree = pending.result()
     colour = _ColourJob(tree, dc, ac)
     pending = pool.submit(native.carry(colour))
     try:
