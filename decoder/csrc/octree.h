@@ -49,6 +49,11 @@ typedef struct {
     int ucnt_f[8][NUM_T], ucnt_o[8][NUM_T];          /* unknown neighbours (>= k) in that node */
     int child_par[8][NUM_T], child_idx[8][NUM_T];    /* neighbour table derivation */
     uint8_t cp8[8][NUM_T], ci8[8][NUM_T];            /* the same as bytes */
+    /* child k's 26-neighbours among the children of its parent's neighbours: the nno[k]
+     * parent-level offsets nto[k][q] (its octant, the parent included) and, per offset, the
+     * child bits that are neighbours of child k (nmask; child k itself excluded) */
+    int nno[8];
+    uint8_t nto[8][8], nmask[8][NUM_T];
     uint8_t *p16m;                                   /* [65536] P16_TO_MODEL as bytes */
     /* ctx_lut[(k * 8 + q) * 256 + w]: contribution of the q-th node of child k's octant, whose
      * context byte is w (bit 7 = node present, bits 0..6 = child bits decoded so far; child 7
@@ -112,7 +117,7 @@ typedef struct {
 #define CTX_BLOCK 2048      /* nodes per context block */
 #define BUILD_BLOCK 1024    /* parents per neighbour-table block */
 
-enum { PHASE_CTX = 1, PHASE_BUILD = 2 };
+enum { PHASE_CTX = 1, PHASE_BUILD = 2, PHASE_ROWS = 3 };
 
 typedef struct {
     int kind;
@@ -124,13 +129,21 @@ typedef struct {
     const int32_t *coded;        /* k == 7: the coded nodes, else NULL (all nodes) */
     int32_t *fix;
     int k, lb;
-    /* PHASE_BUILD: children of parents [r0, r1): codes and neighbour rows */
+    /* PHASE_BUILD: children of parents [r0, r1): codes and neighbour rows, or (prow) codes and
+     * each child's parent row, parents then being the rows (ranks) of the nodes in the tree */
     const int64_t *start;
     const uint64_t *codes;
     uint64_t *ncodes;
     int32_t *nnbr;
+    int32_t *prow;
     int64_t total;
-    int last;
+    int last, ranks;
+    /* the level's nodes in the tree (direct coding): row r holds node keep[r] (NULL: node r);
+     * PHASE_CTX: compact = rows are the plane's positions (crow NULL) or crow[i] */
+    const int32_t *keep, *crow;
+    int compact;
+    /* PHASE_ROWS: rows of the level's nodes in the tree from their parents' (parent level's
+     * rows `nbr`, start `start`; this level's codes, child parent rows prow, count total) */
 #if GSZ_HELPER
     _Atomic uint8_t *done;       /* per block */
     _Atomic int64_t ndone;

@@ -73,11 +73,14 @@ static void ctx_block(const Phase *p, int64_t a, int64_t b)
     const unsigned below = (1u << k) - 1u;
     const int32_t fine_k = k * (7 * 7 * 21 * 21), fine_lb = p->lb * (NUM_FINE / NUM_LB);
     const uint8_t *occ = p->occ;
-    const int32_t *nbr = p->nbr, *coded = p->coded;
+    const int32_t *nbr = p->nbr, *coded = p->coded, *crow = p->crow;
+    const int compact = p->compact;
     int32_t *restrict fix = p->fix;
     for (int64_t i = a; i < b; i++) {
         const int64_t node = coded ? coded[i] : i;
-        const int32_t *nb = nbr + node * NUM_T;
+        /* rows of a level with direct nodes are those of its tree nodes only (see walk_level) */
+        const int64_t row = crow ? crow[i] : compact ? i : node;
+        const int32_t *nb = nbr + row * NUM_T;
         /* 8 octant nodes (padded with zero-contribution entries), unrolled with their offsets
          * in registers */
         const uint32_t acc = lut[occ[nb[t0]]] + lut[256 + occ[nb[t1]]]
@@ -90,6 +93,54 @@ static void ctx_block(const Phase *p, int64_t a, int64_t b)
          * + lb (OCTREE.md); its record is stored level-bucket-major so that the contexts of one
          * level share cache lines (the coarse id follows from it: FINE_TO_COARSE) */
         fix[i] = fine_lb + (fine_k + (int32_t)(acc & 0xFFFF)) * NUM_SIB + sib;
+    }
+}
+
+/* PHASE_BUILD in prow mode: the children of the tree nodes of rows [j0, j1) -- codes, and
+ * (unless last) each child's parent row, from which PHASE_ROWS derives the rows of the
+ * children left in the tree once their level's direct flags are known. */
+static void prow_block(const Phase *p, int64_t j0, int64_t j1)
+{
+    const uint8_t *occ = p->occ;
+    const int32_t *keep = p->keep;
+    const uint64_t *codes = p->codes;
+    uint64_t *ncodes = p->ncodes;
+    int32_t *prow = p->last ? NULL : p->prow;
+    int64_t c = p->start[keep ? keep[j0] : j0] >> 8;
+    for (int64_t j = j0; j < j1; j++) {
+        const int64_t r = keep ? keep[j] : j;
+        const unsigned o = occ[r];
+        for (int k = 0; k < 8; k++) {
+            if (!((o >> k) & 1)) continue;
+            ncodes[c] = (codes[r] << 3) | (uint64_t)k;
+            if (prow) prow[c] = (int32_t)j;
+            c++;
+        }
+    }
+}
+
+/* PHASE_ROWS: the neighbour rows of this level's tree nodes of rows [a, b) (node keep[j], or
+ * j), each derived from its parent's row as build_block does. */
+static void rows_block(const Phase *p, int64_t a, int64_t b)
+{
+    const OctTables *tb = p->tb;
+    const int32_t *keep = p->keep, *prow = p->prow, *nbr = p->nbr;
+    const int64_t *start = p->start;
+    const uint64_t *codes = p->codes;
+    int32_t *nnbr = p->nnbr;
+    const int32_t absent = (int32_t)p->total;
+    for (int64_t j = a; j < b; j++) {
+        const int64_t i = keep ? keep[j] : j;
+        const int k = (int)(codes[i] & 7);
+        const int32_t *nb = nbr + (int64_t)prow[i] * NUM_T;
+        const uint8_t *cpk = tb->cp8[k], *cik = tb->ci8[k];
+        int32_t *dst = nnbr + j * NUM_T;
+        for (int t = 0; t < NUM_T; t++) {
+            const int64_t kv = start[nb[cpk[t]]];
+            const int32_t idx = (int32_t)(kv >> 8) + CHILD_RANK[((int32_t)(kv & 0xFF) << 3) + cik[t]];
+            dst[t] = idx < absent ? idx : absent;
+        }
+        dst[SELF_T] = (int32_t)i;
     }
 }
 
@@ -141,6 +192,8 @@ static void run_block(const Phase *p, int64_t b)
 {
     const int64_t a = b * p->block, e = a + p->block < p->items ? a + p->block : p->items;
     if (p->kind == PHASE_CTX) ctx_block(p, a, e);
+    else if (p->kind == PHASE_ROWS) rows_block(p, a, e);
+    else if (p->ranks) prow_block(p, a, e);
     else build_block(p, a, e);
 }
 
@@ -344,7 +397,10 @@ typedef struct {
     uint64_t *pts;           /* the direct points' leaf codes, level after level */
     int64_t npts;
     uint32_t dcnt[2 * NUM_DIRECT];
-    size_t cap_pop, cap_keep, cap_pts;
+    uint8_t *dmark;          /* per node of the level: went direct */
+    int32_t *prow;           /* per node of the level: its parent's row (levels >= the direct one) */
+    int32_t *crow;           /* bit-plane 7's coded nodes' rows (a level with direct nodes) */
+    size_t cap_pop, cap_keep, cap_pts, cap_dmark, cap_prow, cap_crow;
 } Walk;
 
 /* The buffers of level 0 (the root, no neighbours) and the counts. */
@@ -376,7 +432,7 @@ static void walk_free(Walk *w)
     free(w->cc); free(w->ff); free(w->codes); free(w->ncodes); free(w->nbr); free(w->nnbr);
     free(w->occ); free(w->pbit); free(w->coded); free(w->start); free(w->fixa);
     free(w->ff_touched); free(w->mbuf); free(w->bbuf); free(w->list.v); free(w->carry.v);
-    free(w->par_pop); free(w->keep); free(w->pts);
+    free(w->par_pop); free(w->keep); free(w->pts); free(w->dmark); free(w->prow); free(w->crow);
 }
 
 /* The models of chunk [s, end) of bit-plane k into mbuf, all from the counts before the
@@ -465,16 +521,22 @@ static int walk_plane(Walk *w, const OctTables *tb, int64_t n, const int32_t *ke
                       SymOut *out, Helper *h, Err *e)
 {
     int64_t cnt = keep ? nkeep : n;
-    const int32_t *coded = keep;
+    const int32_t *coded = keep, *crow = NULL;
     if (k == 7) {
         /* a node with no child among 0..6 has child 7 for free (not coded) */
         cnt = 0;
         for (int64_t j = 0; j < (keep ? nkeep : n); j++) {
             const int64_t i = keep ? keep[j] : j;
-            if (w->occ[i] & 0x7F) { w->coded[cnt++] = (int32_t)i; w->pbit[i] = 0; }
-            else w->pbit[i] = 1;
+            if (w->occ[i] & 0x7F) {
+                if (keep) w->crow[cnt] = (int32_t)j;       /* its row: its rank in keep */
+                w->coded[cnt++] = (int32_t)i;
+                w->pbit[i] = 0;
+            } else {
+                w->pbit[i] = 1;
+            }
         }
         coded = w->coded;
+        crow = keep ? w->crow : NULL;
     }
     /* the bit-plane's context ids, as blocks (computed ahead by a helper, if any) */
     Phase *ph = phase_next(h, PHASE_CTX, cnt, CTX_BLOCK);
@@ -483,6 +545,8 @@ static int walk_plane(Walk *w, const OctTables *tb, int64_t n, const int32_t *ke
     ph->occ = w->occ;
     ph->nbr = w->nbr;
     ph->coded = coded;
+    ph->crow = crow;
+    ph->compact = keep != NULL;
     ph->fix = w->fixa;
     ph->k = k;
     ph->lb = lb;
@@ -547,7 +611,8 @@ static int walk_halve(Walk *w, const OctTables *tb, uint8_t tag, Err *e)
  * (index of node i's first child) << 8 | occupancy of node i (start[n] = 0: the absent node
  * has no children), one load per neighbour when building the rows.  *n becomes its size. */
 static int walk_next_level(Walk *w, const OctTables *tb, Helper *h, int level, int depth,
-                           int64_t num_points, int64_t *n, Err *e)
+                           int64_t num_points, const DirectIn *di, const int32_t *keep,
+                           int64_t nkeep, int64_t *n, Err *e)
 {
     const int64_t nd = w->npts;
     const int64_t nn = *n;
@@ -571,12 +636,17 @@ static int walk_next_level(Walk *w, const OctTables *tb, Helper *h, int level, i
         return -1;
     }
     const int last = (level + 1 == depth);
+    /* from the direct level on, a level's rows are made once its direct flags are known, for
+     * the nodes left in the tree only (walk_level): here only each child's parent row */
+    const int ranks = di->from && level + 1 >= di->from;
     if (ensure((void **)&w->ncodes, &w->cap_ncodes, (size_t)total * sizeof *w->ncodes + 8, e) < 0)
         return -1;
-    if (!last && ensure((void **)&w->nnbr, &w->cap_nnbr,
-                        (size_t)total * NUM_T * sizeof *w->nnbr + 4, e) < 0)
+    if (!last && !ranks && ensure((void **)&w->nnbr, &w->cap_nnbr,
+                                  (size_t)total * NUM_T * sizeof *w->nnbr + 4, e) < 0)
         return -1;
-    Phase *ph = phase_next(h, PHASE_BUILD, nn, BUILD_BLOCK);
+    if (!last && ranks && ensure((void **)&w->prow, &w->cap_prow, (size_t)total * sizeof *w->prow + 4, e) < 0)
+        return -1;
+    Phase *ph = phase_next(h, PHASE_BUILD, ranks && keep ? nkeep : nn, BUILD_BLOCK);
     if (!ph) return fail_nomem(e);
     ph->tb = tb;
     ph->occ = w->occ;
@@ -585,13 +655,16 @@ static int walk_next_level(Walk *w, const OctTables *tb, Helper *h, int level, i
     ph->codes = w->codes;
     ph->ncodes = w->ncodes;
     ph->nnbr = w->nnbr;
+    ph->prow = w->prow;
+    ph->keep = keep;
+    ph->ranks = ranks;
     ph->total = total;
     ph->last = last;
     phase_publish(h);
     phase_finish(h, 1);
     { uint64_t *t = w->codes; w->codes = w->ncodes; w->ncodes = t; }
     { size_t ct = w->cap_codes; w->cap_codes = w->cap_ncodes; w->cap_ncodes = ct; }
-    if (!last) {
+    if (!last && !ranks) {
         int32_t *t = w->nbr; w->nbr = w->nnbr; w->nnbr = t;
         size_t ct = w->cap_nbr; w->cap_nbr = w->cap_nnbr; w->cap_nnbr = ct;
     }
@@ -621,9 +694,16 @@ static int walk_direct(Walk *w, const OctTables *tb, int level, int depth, int l
     for (int64_t i = 0; i < nn; i++) {
         const int pp = w->par_pop[i];
         if (!first && pp <= 1) continue;       /* holds what its parent held: two voxels or more */
-        const int32_t *nb = w->nbr + i * NUM_T;
+        /* its present 26-neighbours: the children of its parent's octant (parent level: rows
+         * w->nbr, occupancy in the low byte of w->start) that neighbour child k */
+        const int k = (int)(w->codes[i] & 7);
+        const int32_t *pnb = w->nbr + (int64_t)w->prow[i] * NUM_T;
+        const uint8_t *mk = tb->nmask[k];
         int present = 0;
-        for (int t = 0; t < NUM_T; t++) present += (t != SELF_T) & (nb[t] != (int32_t)nn);
+        for (int q = 0; q < tb->nno[k]; q++) {
+            const int o = tb->nto[k][q];
+            present += POP8[(unsigned)(w->start[pnb[o]] & 0xFF) & mk[o]];
+        }
         coded[cnt] = (int32_t)i;
         ctx[cnt++] = ((present < 7 ? present : 7) * 4 + (pp < 4 ? pp : 4) - 1) * NUM_LB + lb;
     }
@@ -731,12 +811,32 @@ static int walk_level(Walk *w, const OctTables *tb, int level, int depth, int64_
     int64_t nkeep = -1;
     uint8_t *dmark = NULL;
     if (di->from && level >= di->from) {
-        /* the start array (8 bytes per node) is free until walk_next_level */
-        if (ensure((void **)&w->start, &w->cap_start, ((size_t)nn + 1) * sizeof *w->start, e) < 0)
+        if (ensure((void **)&w->dmark, &w->cap_dmark, (size_t)nn + 1, e) < 0
+            || ensure((void **)&w->crow, &w->cap_crow, (size_t)nn * sizeof *w->crow + 4, e) < 0)
             return -1;
-        dmark = (uint8_t *)w->start;
+        dmark = w->dmark;
         if (walk_direct(w, tb, level, depth, lb, nn, mode, dec, di, out, dmark, &nkeep, e) < 0)
             return -1;
+        /* the rows of the nodes left in the tree (row j: node keep[j]), from their parents'
+         * (w->nbr, w->start and w->prow still describe the parent level); a direct node's row
+         * would never be read, and the first direct levels hold mostly direct nodes */
+        const int64_t rows = nkeep >= 0 ? nkeep : nn;
+        if (ensure((void **)&w->nnbr, &w->cap_nnbr, (size_t)rows * NUM_T * sizeof *w->nnbr + 4, e) < 0)
+            return -1;
+        Phase *ph = phase_next(h, PHASE_ROWS, rows, BUILD_BLOCK);
+        if (!ph) return fail_nomem(e);
+        ph->tb = tb;
+        ph->keep = nkeep >= 0 ? w->keep : NULL;
+        ph->prow = w->prow;
+        ph->nbr = w->nbr;
+        ph->start = w->start;
+        ph->codes = w->codes;
+        ph->nnbr = w->nnbr;
+        ph->total = nn;
+        phase_publish(h);
+        phase_finish(h, 1);
+        int32_t *t = w->nbr; w->nbr = w->nnbr; w->nnbr = t;
+        size_t ct = w->cap_nbr; w->cap_nbr = w->cap_nnbr; w->cap_nnbr = ct;
     }
     const int32_t *keep = nkeep >= 0 ? w->keep : NULL;
     for (int k = 0; k < 8; k++)
@@ -746,7 +846,7 @@ static int walk_level(Walk *w, const OctTables *tb, int level, int depth, int64_
     if (keep)       /* a direct node has no children in the tree */
         for (int64_t i = 0; i < nn; i++) if (dmark[i]) w->occ[i] = 0;
     if (walk_halve(w, tb, tag, e) < 0) return -1;
-    return walk_next_level(w, tb, h, level, depth, num_points, n, e);
+    return walk_next_level(w, tb, h, level, depth, num_points, di, keep, nkeep, n, e);
 }
 
 /* par_pop of the level just built: each node's parent's child count. */
@@ -885,6 +985,17 @@ static int oct_tables_octant(OctTables *tb, const OctTableArgs *a, int k, Err *e
         tb->cp8[k][t] = (uint8_t)par;
         tb->ci8[k][t] = (uint8_t)idx;
         if (kf | ko | uf | uo) tb->t[k][tb->nt[k]++] = t;
+    }
+    memset(tb->nmask[k], 0, sizeof tb->nmask[k]);
+    tb->nno[k] = 0;
+    for (int t = 0; t < NUM_T; t++) {
+        if (t == SELF_T) continue;
+        const int o = tb->cp8[k][t];
+        if (!tb->nmask[k][o]) {
+            if (tb->nno[k] == 8) return fail_value(e, "octree plan: a child's neighbours span more than 8 nodes");
+            tb->nto[k][tb->nno[k]++] = (uint8_t)o;
+        }
+        tb->nmask[k][o] |= (uint8_t)(1u << tb->ci8[k][t]);
     }
     /* the context ranges (kn_f + unk_f <= 6, kn_o + unk_o <= 20) hold for every occupancy,
      * so the count arrays are never indexed out of range */
