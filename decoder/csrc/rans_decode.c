@@ -348,6 +348,70 @@ decode_block_raw(const uint16_t *lut, const uint32_t *fc, const int32_t *val, in
     decode_block_body(lut, fc, val, klimit, n, s, len, NULL, iout, NULL, 0.0, 0.0, 0, DEQ_RAW, bo);
 }
 
+/* decode_block_body without its per-symbol checks, for a block whose checks are settled
+ * before it starts: at least `len` words left (a symbol reads at most one), every value of the
+ * model within 0..qmax, and the LUT's entries index the model's present values (so they do by
+ * construction, rans_tables_fill).  Fewer live values: the loop keeps them in registers. */
+static inline __attribute__((always_inline)) void
+decode_block_fast_body(const uint16_t *restrict lut, const uint32_t *restrict fc,
+                       const int32_t *restrict val, unsigned n, RState *s, int64_t len,
+                       double *restrict fout, uint16_t *restrict uout, double step, double l0,
+                       const int deq)
+{
+    const uint64_t mask = ((uint64_t)1 << n) - 1;
+    int64_t *restrict st = s->st;
+    const int64_t lanes = s->lanes;
+    const uint8_t *restrict words = s->words;
+    int64_t lane = s->lane, w = s->w;
+    for (int64_t j = 0; j < len; j++) {
+        uint64_t x = (uint64_t)st[lane];
+        const uint64_t slot = x & mask;
+        const int64_t ki = lut[slot];
+        const uint32_t ent = fc[ki];
+        x = (uint64_t)((ent & 0xFFFF) + 1) * (x >> n) + slot - (ent >> 16);
+        const uint64_t need = x < 65536u;
+        /* x or (x << 16 | next word) by masks: no branch (taken about every other symbol,
+         * unpredictably) and no shift by a variable count (cl is the precision's) */
+        const uint64_t take = 0 - need;
+        x = (((x << 16) | rd_u16(words + 2 * w)) & take) | (x & ~take);
+        w += (int64_t)need;
+        st[lane] = (int64_t)x;
+        lane = lane + 1 == lanes ? 0 : lane + 1;
+        if (deq == DEQ_FLOAT) {
+            const double prod = step * (double)val[ki];
+            fout[j] = prod + l0;
+        } else {
+            uout[j] = (uint16_t)val[ki];
+        }
+    }
+    s->lane = lane;
+    s->w = w;
+}
+
+static __attribute__((noinline)) void
+decode_block_deq_fast(const uint16_t *lut, const uint32_t *fc, const int32_t *val, unsigned n,
+                      RState *s, int64_t len, double *fout, double step, double l0)
+{
+    decode_block_fast_body(lut, fc, val, n, s, len, fout, NULL, step, l0, DEQ_FLOAT);
+}
+
+static __attribute__((noinline)) void
+decode_block_sym16_fast(const uint16_t *lut, const uint32_t *fc, const int32_t *val, unsigned n,
+                        RState *s, int64_t len, uint16_t *uout)
+{
+    decode_block_fast_body(lut, fc, val, n, s, len, NULL, uout, 0.0, 0.0, DEQ_SYM16);
+}
+
+/* Whether every present value of model m (sym_base[m] .. the next model's) lies in 0..qm. */
+static int model_within(const RTab *t, int64_t m, int64_t sb, int64_t qm)
+{
+    const int64_t end = m + 1 < t->nmodels ? t->sbase[m + 1] : t->nsym;
+    if (end < sb || end > t->nsym) return 0;
+    for (int64_t i = sb; i < end; i++)
+        if (t->val[i] < 0 || t->val[i] > qm) return 0;
+    return 1;
+}
+
 /* Block b of channel c (len symbols from element i0 on): one model for the whole block,
  * checked once, then a tight loop. */
 static int decode_one_block(const RTab *t, RState *s, const RBlocks *bl, int64_t c, int64_t b,
@@ -362,7 +426,15 @@ static int decode_one_block(const RTab *t, RState *s, const RBlocks *bl, int64_t
     if (lb < 0 || lb + (int64_t)mask >= t->lut_len || sb < 0 || sb >= t->nsym)
         return fail(e, "rANS: decoding table index out of range");
     BlockOut bo = {0, 0, 0};
-    if (bl->steps)
+    const int fast = (bl->steps || bl->uout) && s->w + len <= s->nwords
+                     && model_within(t, m, sb, bl->qmax[g]);
+    if (fast && bl->steps)
+        decode_block_deq_fast(t->lut + lb, t->fc + sb, t->val + sb, n, s, len,
+                              bl->fout + c * bl->L + i0, bl->steps[g], bl->lo[g]);
+    else if (fast)
+        decode_block_sym16_fast(t->lut + lb, t->fc + sb, t->val + sb, n, s, len,
+                                bl->uout + c * bl->L + i0);
+    else if (bl->steps)
         decode_block_deq(t->lut + lb, t->fc + sb, t->val + sb, t->nsym - sb, n, s, len,
                          bl->fout + c * bl->L + i0, bl->steps[g], bl->lo[g], bl->qmax[g], &bo);
     else if (bl->uout)
