@@ -348,68 +348,66 @@ decode_block_raw(const uint16_t *lut, const uint32_t *fc, const int32_t *val, in
     decode_block_body(lut, fc, val, klimit, n, s, len, NULL, iout, NULL, 0.0, 0.0, 0, DEQ_RAW, bo);
 }
 
-/* decode_block_body without its per-symbol checks, for a block whose checks are settled
- * before it starts: at least `len` words left (a symbol reads at most one), every value of the
- * model within 0..qmax, and the LUT's entries index the model's present values (so they do by
- * construction, rans_tables_fill).  Fewer live values: the loop keeps them in registers. */
+/* the shortest run decode_one_block hands to the fast loop (below it: the checked loop) */
+#define FAST_MIN_RUN 256
+
+/* decode_block_body for a block with at least `len` words left (a symbol reads at most one):
+ * no clamp of the word position and no overrun flag, and the LUT's entries index the model's
+ * present values by construction (rans_tables_fill), so only the symbols' range is checked.
+ * Fewer live values: the loop keeps them in registers. */
 static inline __attribute__((always_inline)) void
 decode_block_fast_body(const uint16_t *restrict lut, const uint32_t *restrict fc,
                        const int32_t *restrict val, unsigned n, RState *s, int64_t len,
                        double *restrict fout, uint16_t *restrict uout, double step, double l0,
-                       const int deq)
+                       int64_t qm, const int deq, BlockOut *bo)
 {
     const uint64_t mask = ((uint64_t)1 << n) - 1;
     int64_t *restrict st = s->st;
     const int64_t lanes = s->lanes;
     const uint8_t *restrict words = s->words;
     int64_t lane = s->lane, w = s->w;
+    const uint32_t qmax = (uint32_t)qm;
+    uint32_t bad_q = 0;
     for (int64_t j = 0; j < len; j++) {
         uint64_t x = (uint64_t)st[lane];
         const uint64_t slot = x & mask;
         const int64_t ki = lut[slot];
         const uint32_t ent = fc[ki];
         x = (uint64_t)((ent & 0xFFFF) + 1) * (x >> n) + slot - (ent >> 16);
-        const uint64_t need = x < 65536u;
         /* x or (x << 16 | next word) by masks: no branch (taken about every other symbol,
          * unpredictably) and no shift by a variable count (cl is the precision's) */
-        const uint64_t take = 0 - need;
+        const uint64_t need = x < 65536u, take = 0 - need;
         x = (((x << 16) | rd_u16(words + 2 * w)) & take) | (x & ~take);
         w += (int64_t)need;
         st[lane] = (int64_t)x;
         lane = lane + 1 == lanes ? 0 : lane + 1;
+        const uint32_t value = (uint32_t)val[ki];     /* a negative value wraps above qmax */
+        bad_q |= value > qmax;
         if (deq == DEQ_FLOAT) {
-            const double prod = step * (double)val[ki];
+            const double prod = step * (double)(int32_t)value;
             fout[j] = prod + l0;
         } else {
-            uout[j] = (uint16_t)val[ki];
+            uout[j] = (uint16_t)value;
         }
     }
     s->lane = lane;
     s->w = w;
+    bo->bad_q |= (int)bad_q;
 }
 
 static __attribute__((noinline)) void
 decode_block_deq_fast(const uint16_t *lut, const uint32_t *fc, const int32_t *val, unsigned n,
-                      RState *s, int64_t len, double *fout, double step, double l0)
+                      RState *s, int64_t len, double *fout, double step, double l0, int64_t qm,
+                      BlockOut *bo)
 {
-    decode_block_fast_body(lut, fc, val, n, s, len, fout, NULL, step, l0, DEQ_FLOAT);
+    decode_block_fast_body(lut, fc, val, n, s, len, fout, NULL, step, l0, qm, DEQ_FLOAT, bo);
 }
 
 static __attribute__((noinline)) void
 decode_block_sym16_fast(const uint16_t *lut, const uint32_t *fc, const int32_t *val, unsigned n,
-                        RState *s, int64_t len, uint16_t *uout)
+                        RState *s, int64_t len, uint16_t *uout, int64_t qm, BlockOut *bo)
 {
-    decode_block_fast_body(lut, fc, val, n, s, len, NULL, uout, 0.0, 0.0, DEQ_SYM16);
-}
-
-/* Whether every present value of model m (sym_base[m] .. the next model's) lies in 0..qm. */
-static int model_within(const RTab *t, int64_t m, int64_t sb, int64_t qm)
-{
-    const int64_t end = m + 1 < t->nmodels ? t->sbase[m + 1] : t->nsym;
-    if (end < sb || end > t->nsym) return 0;
-    for (int64_t i = sb; i < end; i++)
-        if (t->val[i] < 0 || t->val[i] > qm) return 0;
-    return 1;
+    decode_block_fast_body(lut, fc, val, n, s, len, NULL, uout, 0.0, 0.0, qm, DEQ_SYM16, bo);
 }
 
 /* Block b of channel c (len symbols from element i0 on): one model for the whole block,
@@ -426,23 +424,35 @@ static int decode_one_block(const RTab *t, RState *s, const RBlocks *bl, int64_t
     if (lb < 0 || lb + (int64_t)mask >= t->lut_len || sb < 0 || sb >= t->nsym)
         return fail(e, "rANS: decoding table index out of range");
     BlockOut bo = {0, 0, 0};
-    const int fast = (bl->steps || bl->uout) && s->w + len <= s->nwords
-                     && model_within(t, m, sb, bl->qmax[g]);
-    if (fast && bl->steps)
-        decode_block_deq_fast(t->lut + lb, t->fc + sb, t->val + sb, n, s, len,
-                              bl->fout + c * bl->L + i0, bl->steps[g], bl->lo[g]);
-    else if (fast)
-        decode_block_sym16_fast(t->lut + lb, t->fc + sb, t->val + sb, n, s, len,
-                                bl->uout + c * bl->L + i0);
-    else if (bl->steps)
-        decode_block_deq(t->lut + lb, t->fc + sb, t->val + sb, t->nsym - sb, n, s, len,
-                         bl->fout + c * bl->L + i0, bl->steps[g], bl->lo[g], bl->qmax[g], &bo);
-    else if (bl->uout)
-        decode_block_sym16(t->lut + lb, t->fc + sb, t->val + sb, t->nsym - sb, n, s, len,
-                           bl->uout + c * bl->L + i0, bl->qmax[g], &bo);
-    else
-        decode_block_raw(t->lut + lb, t->fc + sb, t->val + sb, t->nsym - sb, n, s, len,
-                         bl->iout + c * bl->L + i0, &bo);
+    const uint16_t *lut = t->lut + lb;
+    const uint32_t *fc = t->fc + sb;
+    const int32_t *val = t->val + sb;
+    const int64_t at = c * bl->L + i0;
+    int64_t done = 0;
+    if (bl->steps || bl->uout) {
+        /* runs of at most as many symbols as words are left go without the word checks (near
+         * the stream's end the runs shrink; the last few symbols take the checked loop) */
+        for (;;) {
+            int64_t f = len - done;
+            if (f > s->nwords - s->w) f = s->nwords - s->w;
+            if (f < FAST_MIN_RUN && f < len - done) break;
+            if (f <= 0) break;
+            if (bl->steps)
+                decode_block_deq_fast(lut, fc, val, n, s, f, bl->fout + at + done, bl->steps[g],
+                                      bl->lo[g], bl->qmax[g], &bo);
+            else
+                decode_block_sym16_fast(lut, fc, val, n, s, f, bl->uout + at + done, bl->qmax[g], &bo);
+            done += f;
+        }
+    }
+    const int64_t rest = len - done;
+    if (rest && bl->steps)
+        decode_block_deq(lut, fc, val, t->nsym - sb, n, s, rest, bl->fout + at + done, bl->steps[g],
+                         bl->lo[g], bl->qmax[g], &bo);
+    else if (rest && bl->uout)
+        decode_block_sym16(lut, fc, val, t->nsym - sb, n, s, rest, bl->uout + at + done, bl->qmax[g], &bo);
+    else if (rest)
+        decode_block_raw(lut, fc, val, t->nsym - sb, n, s, rest, bl->iout + at + done, &bo);
     if (bo.overrun) return fail(e, "rANS: payload truncated (word stream exhausted)");
     if (bo.bad_k) fail(e, "rANS: decoding table entry out of range");
     if (!e->failed && bo.bad_q) fail(e, "quantisation symbol outside 0..2^q - 1 of its group");
