@@ -562,6 +562,33 @@ def test_rans_hostile_streams_same_outcome():
     assert [k for k, _ in both(lambda: decode_stream(blob, empty_mids))] == ["error", "error"]
 
 
+@needs_native
+def test_channel_set_symbols_and_range_checks_in_every_loop():
+    """A channel set decodes to the same values as symbols (dequantised later, the SH path) and
+    dequantised (the attributes): and a symbol above its group's width is rejected by the loop
+    without per-symbol word checks (a group far from the stream's end), by the checked loop
+    (the last group) and by the NumPy path alike."""
+    from gsz.decoder.bytesio import Reader
+    from gsz.decoder.groups import read_channel_set, read_channel_set_symbols
+    from gsz.encoder.groups import write_channel_set
+    rng = np.random.default_rng(11)
+    x = (rng.standard_normal((3, 20000)) * 0.1).astype(np.float32)
+    data, _ = write_channel_set(x, 4, 8)
+    sym, steps, lo = read_channel_set_symbols(Reader(data), max_length=20000)
+    values = read_channel_set(Reader(data), max_length=20000)
+    assert sym.dtype == np.uint16
+    blocks = np.repeat(np.arange(8), 2500)
+    np.testing.assert_array_equal(lo[:, blocks] + steps[:, blocks] * sym, values)
+    for group in (8 + 0, 3 * 8 - 1):        # channel 1's first group; the last group
+        bad = bytearray(data)
+        bad[8 + group] = 2                  # width 4 -> 2: most of its symbols exceed 3
+        res = both(lambda: read_channel_set(Reader(bytes(bad)), max_length=20000))
+        assert [k for k, _ in res] == ["error", "error"]
+        assert all("quantisation symbol" in str(e) for _, e in res)
+        with pytest.raises(GszFormatError, match="quantisation symbol"):
+            read_channel_set_symbols(Reader(bytes(bad)), max_length=20000)
+
+
 # ------------------------------------------------------------------ encoder: identical bytes
 @needs_native
 @pytest.mark.parametrize("case", range(5))
