@@ -51,8 +51,6 @@ NOTES = {
     "search_above_ceiling.json": dict(command=".venv/bin/python bench/bench_search.py --scenes "
                                       "measuring_jug_sh3 --ratios 4,6 --noise", commit="fb9cefb",
                                       machine=VM + ", idle", when="2026-12-02 02:54-03:04 UTC"),
-    "search_above_ceiling_2c45cc2.json": dict(command="the same command", commit="2c45cc2",
-                                              machine=VM + ", idle", when="2026-12-02 03:00 UTC"),
     "stream.json": dict(command=".venv/bin/python bench/bench_stream.py", commit="71b11a3",
                         machine=VM + ", a test run beside it for ~3 min", when="2026-12-02 05:15-05:29 UTC"),
     "golden.json": dict(command="golden.py's usage: `.venv/bin/python bench/golden.py --write bench/out/golden.json`",
@@ -95,14 +93,15 @@ def code(s) -> str:
 
 
 def cell(name: str, key: str, recorded) -> str:
-    """A provenance cell: the recorded value, else 'not recorded' (+ what the notes said)."""
+    """A provenance cell: the recorded value, else what the notes said ('... (notes)'), else
+    'not recorded'."""
     if recorded:
         # a command's --out path says nothing about the run (the JSON is named beside it)
         return code(re.sub(r" --out \S+", "", recorded)) if key == "command" else str(recorded)
     noted = NOTES.get(name, {}).get(key)
     if not noted:
         return NA
-    return f"{NA} (notes: " + (code(noted) if key == "command" and noted.startswith(".venv") else noted) + ")"
+    return (code(noted) if key == "command" and noted.startswith(".venv") else noted) + " (notes)"
 
 
 def header(title: str, what: str, sources: list) -> list:
@@ -116,8 +115,8 @@ def header(title: str, what: str, sources: list) -> list:
         label = code("bench/out/" + name) + (f" ({s['label']})" if s.get("label") else "")
         rows.append([label] + [cell(name, k, s.get(k)) for k in ("command", "commit", "machine", "when")])
     lines += table(["JSON", "command", "commit", "machine", "run"], rows)
-    if any("(notes: " in c for r in rows for c in r):
-        lines += ["Notes: bench/RESULTS.md (git history) or the cell.", ""]
+    if any(c.endswith(" (notes)") for r in rows for c in r):
+        lines += ["(notes): not recorded in the JSON; from bench/RESULTS.md (git history).", ""]
     return lines
 
 
@@ -270,7 +269,7 @@ def _monotone(rs: list) -> bool:
     return all(b["psnr"] >= a["psnr"] for a, b in zip(rs, rs[1:]))
 
 
-def page_search(rd: dict, scaling, above, above_old) -> str:
+def page_search(rd: dict, scaling, above) -> str:
     meta = rd["meta"]
     g = [r for r in rd["rows"] if r["codec"] == "gsz" and "depth" in r]
     src = _rd_sources(rd, "gsz")
@@ -278,13 +277,10 @@ def page_search(rd: dict, scaling, above, above_old) -> str:
         src.append(dict(json="search_scaling.json"))
     if above is not None:
         src.append(dict(json="search_above_ceiling.json"))
-    if above_old is not None:
-        src.append(dict(json="search_above_ceiling_2c45cc2.json"))
     lines = header("Size search", "`encode_to_budget` (what `gsz-encode --size/--ratio` runs) at every budget of "
                    "the RD benchmark: how close to the budget, what it chose, how long it took.", src)
     so = meta.get("search_options", {})
-    lines += ["Options (the run's `SearchOptions`): " + ", ".join(f"{k} {so[k]}" for k in sorted(so)
-                                                                if not isinstance(so[k], (list, dict))) + ".", ""]
+    lines += ["Options: the run's `SearchOptions`, in `bench/out/rd.json` (`meta.search_options`).", ""]
     tol = so.get("tolerance", 0.005)
     over = sum(1 for r in g if r["bytes"] > r["target"])
     within = sum(1 for r in g if r["bytes"] >= r["target"] * (1 - tol))
@@ -335,16 +331,10 @@ def page_search(rd: dict, scaling, above, above_old) -> str:
         lines += ["## Budgets above the 8-bit SH ceiling (measuring_jug_sh3)", "",
                   "A budget above the best file the scene allows gives that file, smaller than the budget "
                   "(the report's note says so).", ""]
-        old = {(r["variant"], r["ratio_target"]): r for r in (above_old or [])}
-        rows = []
-        for r in above:
-            o = old.get((r["variant"], r["ratio_target"]))
-            rows.append([r["variant"], f"{r['ratio_target']:g}×", n(r["target"]),
-                         f"{n(r['bytes'])} ({pct(r['deviation'])})", f2(r["psnr"]), r["depth"], n(r["sh_keep"]),
-                         f1(r["search_seconds"])]
-                        + ([f"{n(o['bytes'])} ({pct(o['deviation'])})", f2(o["psnr"]), o["depth"]] if o else []))
-        lines += table(["variant", "budget", "target B", "bytes", "test dB", "depth", "kept SH", "search s"]
-                       + (["2c45cc2 bytes", "2c45cc2 dB", "2c45cc2 depth"] if above_old else []), rows)
+        rows = [[r["variant"], f"{r['ratio_target']:g}×", n(r["target"]), f"{n(r['bytes'])} ({pct(r['deviation'])})",
+                 f2(r["psnr"]), r["depth"], n(r["sh_keep"]), f1(r["search_seconds"])] for r in above]
+        lines += table(["variant", "budget", "target B", "bytes", "test dB", "depth", "kept SH", "search s"], rows)
+        lines += ["Before the SH spend (2c45cc2): [docs/design/sh-spend.md](../design/sh-spend.md).", ""]
     lines += ["Reproduce: `.venv/bin/python bench/rd.py --skip-peers` (every point; `--report` prints the "
               "tables), `.venv/bin/python bench/bench_search.py --scaling` and "
               "`--scenes measuring_jug_sh3 --ratios 4,6 --noise`.", ""]
@@ -464,11 +454,13 @@ def page_decode(d: dict) -> str:
                                                    machine=d.get("machine"), when=_uptimes(d))])
     stages = ["geometry", "attributes", "sh", "finish"]     # (the container parse: ~0 s)
     rows = []
-    for r in sorted(d["results"], key=lambda r: scene_key(Path(r["file"]).name.split("_r0")[0])):
+    # bench_decode's cached files: SCENE_reserve_08_bits_12_..._SIZE_MTIME.gsz -> SCENE
+    name = (lambda r: Path(r["file"]).name.split("_reserve_")[0].removesuffix(".gsz"))
+    for r in sorted(d["results"], key=lambda r: scene_key(name(r))):
         for path in ("numpy", "native"):
             p = r["paths"].get(path)
             if p:
-                rows.append([Path(r["file"]).name.split("_r0")[0].removesuffix(".gsz"), n(p["gaussians"]),
+                rows.append([name(r), n(p["gaussians"]),
                              mb(r["bytes"]), path,
                              f"{p['seconds']:.3f}", f"{p['cpu_seconds']:.3f}", f2(p["gaussians_per_second"] / 1e6)]
                             + [f"{p['stages'].get(s, 0):.3f}" for s in stages])
@@ -517,18 +509,29 @@ def page_scale(sets: list) -> str:
                          machine=f"{s['cores']} cores" if s.get("cores") else None, when=_uptimes(s))
                     for name, s in sets])
     ratio = (lambda s, r: r.get("ratio", s["ratio"]))
-    cols = [(f"{Path(s['scene']).stem} {r['variant']}"
-             + (f" {ratio(s, r):g}×" if len({ratio(s, x) for x in s["rows"]}) > 1 else ""), r)
-            for _, s in sets for r in s["rows"]]
-    lines += table(["scene, variant", "ratio", "tiles", "bytes (of target)", "τ", "depth", "voxels", "train dB",
-                    "test dB / SSIM", "wall s", "CPU s", "peak RSS MB", "decode native / NumPy MG/s", "sha256"],
+    # a run at several ratios is there for its RD points (_tiling_cost): its rows go to a
+    # shorter table, its stages are not tabled below
+    multi = [s for _, s in sets if len({ratio(s, r) for r in s["rows"]}) > 1]
+    single_ratio = [s for _, s in sets if not any(s is m for m in multi)]
+    # stages per column (a Ray run's are its tiled run's, elsewhere)
+    cols = [(f"{Path(s['scene']).stem} {r['variant']}", r) for s in single_ratio for r in s["rows"]
+            if r["variant"] != "ray"]
+    test_db = (lambda r: "–" if r.get("test_psnr") is None else f"{r['test_psnr']:.2f} / {r['test_ssim']:.4f}")
+    lines += table(["scene, variant", "ratio", "tiles", "bytes (of target)", "τ / depth", "train dB",
+                    "test dB / SSIM", "wall s", "CPU s", "peak RSS MB", "sha256"],
                    [[f"`{Path(s['scene']).stem}`, {r['variant']}", f"{ratio(s, r):g}×", r.get("tiles", "–"),
-                     f"{n(r['bytes'])} ({r['of_target_pct']:.2f} %)", r["reserve"], r["depth"], n(r["voxels"]),
-                     f2(r["train_psnr"]),
-                     "–" if r.get("test_psnr") is None else f"{r['test_psnr']:.2f} / {r['test_ssim']:.4f}",
-                     f1(r["wall_s"]), f1(r["cpu_s"]), n(r["peak_rss_mb"]),
-                     f"{r['decode_native_gps'] / 1e6:.2f} / {r['decode_numpy_gps'] / 1e6:.2f}", code(r["sha256"])]
-                    for _, s in sets for r in s["rows"]])
+                     f"{n(r['bytes'])} ({r['of_target_pct']:.2f} %)", f"{r['reserve']} / {r['depth']}",
+                     f2(r["train_psnr"]), test_db(r), f1(r["wall_s"]), f1(r["cpu_s"]), n(r["peak_rss_mb"]),
+                     code(r["sha256"])]
+                    for s in single_ratio for r in s["rows"]])
+    if multi:
+        lines += ["## Single tile vs tiles at several budgets", ""]
+        lines += table(["scene", "ratio", "variant", "tiles", "bytes (of target)", "τ / depth", "train dB",
+                        "test dB / SSIM", "peak RSS MB"],
+                       [[f"`{Path(s['scene']).stem}`", f"{ratio(s, r):g}×", r["variant"], r.get("tiles", "–"),
+                         f"{n(r['bytes'])} ({r['of_target_pct']:.2f} %)", f"{r['reserve']} / {r['depth']}",
+                         f2(r["train_psnr"]), test_db(r), n(r["peak_rss_mb"])]
+                        for s in multi for r in s["rows"]])
     lines += _tiling_cost(sets)
     stages = []
     for _, r in cols:
@@ -621,12 +624,11 @@ def build(json_dir: Path = JSON_DIR) -> dict:
     rd = load("rd.json", json_dir)
     if rd:
         add("rd.md", "rate–distortion vs SOG, SPZ, compressed.ply", ["rd.json"], page_rd(rd, json_dir))
-        sc, ab, ab0 = (load(x, json_dir) for x in ("search_scaling.json", "search_above_ceiling.json",
-                                                    "search_above_ceiling_2c45cc2.json"))
+        sc, ab = (load(x, json_dir) for x in ("search_scaling.json", "search_above_ceiling.json"))
         add("search.md", "the size search at every RD point, scaling with N, budgets above the ceiling",
             ["rd.json"] + [x for x, d in (("search_scaling.json", sc), ("search_above_ceiling.json", ab),
-                                          ("search_above_ceiling_2c45cc2.json", ab0)) if d is not None],
-            page_search(rd, sc, ab, ab0))
+                                          ) if d is not None],
+            page_search(rd, sc, ab))
     ev = [(x, d) for x in ("eval_views_640_400.json", "eval_views.json", "eval_views_losses.json")
           if (d := load(x, json_dir)) is not None]
     if ev:
