@@ -59,6 +59,13 @@ def _attributes_from_planes(v: np.ndarray, direct: np.ndarray) -> Attributes:
 def parse_attributes(data, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Entropy-decode an ATTR chunk of ``m`` points (no geometry needed yet): returns the RAHT
     DC float64 [R], AC float64 [R, m - 1] (stream order) and direct channels float64 [3, m]."""
+    dc, ac, r = parse_raht_part(data, m)
+    return dc, ac, parse_direct_part(r, m)
+
+
+def parse_raht_part(data, m: int) -> tuple[np.ndarray, np.ndarray, Reader]:
+    """:func:`parse_attributes` up to the direct channel set: (DC, AC, the reader at the direct
+    set), so that another thread can decode that set (:func:`parse_direct_part`)."""
     r = Reader(data, "ATTR chunk")
     mode = r.u8()
     r.check(mode == ROTATION_EULER_ZYX, f"unknown rotation mode {mode}")
@@ -67,9 +74,15 @@ def parse_attributes(data, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     dc = r.array(np.float64, nr)
     r.check(bool(np.all(np.isfinite(dc))), "non-finite RAHT DC coefficient")
     ac = read_channel_set(r, max_length=m, shape=(nr, m - 1), name="RAHT AC set")
+    return dc, ac, r
+
+
+def parse_direct_part(r: Reader, m: int) -> np.ndarray:
+    """The rest of :func:`parse_attributes` from ``r`` (:func:`parse_raht_part`'s reader): the
+    direct channels float64 [3, m], then nothing after them."""
     direct = read_channel_set(r, max_length=m, shape=(len(DIRECT_CHANNELS), m), name="direct channel set")
     r.expect_end()
-    return dc, ac, direct
+    return direct
 
 
 def attributes_from_coefficients(dc: np.ndarray, ac: np.ndarray, direct: np.ndarray,

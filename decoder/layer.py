@@ -18,7 +18,8 @@ import numpy as np
 
 from . import native
 from .attributes import (attributes_from_coefficients, native_half_angles, native_opacity_dc,
-                         native_rotations, native_scales, native_tree, parse_attributes)
+                         native_rotations, native_scales, native_tree, parse_attributes,
+                         parse_direct_part, parse_raht_part)
 from .cloud import GaussianCloud
 from .container import DEFAULT_MAX_GAUSSIANS, LAYER_SHIFT, TILE_SHIFT, Chunk
 from .errors import GszError, GszFormatError, GszLimitError
@@ -358,14 +359,18 @@ def _decode_layer_threaded(chunks: dict, header, state: LayerState, gh) -> Gauss
 
 class _GeometryJob:
     """The worker's part of one layer before the join: the octree (then ``codes_ready`` is
-    set) and the RAHT tree of its voxels.  ``helper`` lets the calling thread join the octree
-    traversal once its own work is done (``_native.octree_help``).  Returns the tree."""
+    set), the RAHT tree of its voxels, then the ATTR chunk's direct set (log-scales) once the
+    calling thread has decoded the chunk up to it (``raht_part``; None if that failed).
+    ``helper`` lets the calling thread join the octree traversal once its own work is done
+    (``_native.octree_help``).  Returns (tree, (scales, scales finite) or None)."""
 
     def __init__(self, gh):
         self.gh = gh
         self.codes = None
         self.codes_ready = threading.Event()
         self.helper = native.module().octree_helper()
+        self.raht_part = None
+        self.raht_part_ready = threading.Event()
 
     def __call__(self):
         try:
@@ -374,7 +379,11 @@ class _GeometryJob:
         finally:
             native.module().octree_helper_close(self.helper)  # also when it never started
             self.codes_ready.set()
-        return native_tree(self.codes, self.gh.depth)
+        tree = native_tree(self.codes, self.gh.depth)
+        self.raht_part_ready.wait()
+        if self.raht_part is None:     # the calling thread's ATTR error is reported there
+            return tree, None
+        return tree, native_scales(parse_direct_part(self.raht_part[2], self.gh.num_points))
 
 
 class _ColourJob:
@@ -400,29 +409,31 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
     """decode_layer on two threads (native path), the same arrays bit for bit:
 
     worker                              calling thread
-    octree -> codes                     attributes, scales (+ finiteness), SH (+ finiteness),
+    octree -> codes                     ATTR up to its direct set (RAHT AC), SH (+ finiteness),
                                         then helps with the octree's context ids and
                                         neighbour rows
-    RAHT tree                           positions (+ finiteness), once the codes are there
+    RAHT tree, direct set -> scales     positions (+ finiteness), once the codes are there
     RAHT opacity + DC, float32          RAHT angles -> half angles, cos (NumPy's)
     sin (NumPy's) of the half angles    quaternions
 
-    (Every entropy-coded stream but the octree's is on the calling thread, which joins the
-    octree's parallel phases when done: the octree's own decoding is the one sequential chain.)
-    Errors keep the sequential order: geometry, attributes, SH, then the first non-finite
-    field in FIELDS order."""
+    (The calling thread decodes the larger streams while the octree decodes, and joins its
+    parallel phases when done: the octree's own decoding is the one sequential chain; the
+    scales even the two threads out.)  Errors keep the sequential order: geometry, attributes,
+    SH, then the first non-finite field in FIELDS order."""
     m = gh.num_points
     pool = _worker()
     job = _GeometryJob(gh)
     pending = pool.submit(native.carry(job))
     try:
-        dc, ac, direct = parse_attributes(chunks[CHUNK_ATTR], m)
-        scales, ok_scales = native_scales(direct)
-        del direct
+        try:
+            job.raht_part = parse_raht_part(chunks[CHUNK_ATTR], m)
+        finally:
+            job.raht_part_ready.set()                  # never leave the worker waiting
+        dc, ac, _ = job.raht_part
         sh_rest, codebook = _read_sh(chunks, header, state, m)
     except BaseException:
         if pending.exception() is not None:
-            raise pending.exception() from None        # the geometry's error comes first
+            raise pending.exception() from None        # the geometry's or scales' error first
         raise
     nat = native.module()
     ok_sh = nat.all_finite(sh_rest)
@@ -431,7 +442,7 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
     if job.codes is None:
         pending.result()                               # raises the geometry's error
     positions, ok_pos = gh.native_positions(job.codes)
-    tree = pending.result()
+    tree, (scales, ok_scales) = pending.result()       # raises the direct set's error
     colour = _ColourJob(tree, dc, ac)
     pending = pool.submit(native.carry(colour))
     try:

@@ -258,6 +258,43 @@ def test_fuzzed_files_overlapped_decode_same_outcome(monkeypatch):
 
 
 @needs_native
+def test_overlapped_decode_reports_the_scales_error_before_the_sh_error(monkeypatch):
+    """The overlapped decode decodes the ATTR chunk's direct set (scales) on the worker, after
+    the octree, while the calling thread decodes the SH: a file broken in both reports the
+    scales' error, as the sequential decode and the NumPy path do."""
+    import struct
+    from gsz.decoder.container import read_container
+    from gsz.decoder.layout import KNOWN_CHUNKS
+    D = sys.modules["gsz.decoder.layer"]
+    if D._cores() < 2:
+        pytest.skip("the overlap needs two CPUs")
+    data = encoded("sh3", 6000).data
+    c = read_container(data, known_types=KNOWN_CHUNKS)
+    attr = next(x for x in c.chunks if x.type == b"ATTR")
+    shvq = next(x for x in c.chunks if x.type == b"SHVQ")
+    # the direct set follows the AC set: u8 C, u32 L, u16 B, u8 mode, bits, mins, maxs, u64 n, n bytes
+    off = 2 + 56
+    cc, _, b = struct.unpack_from("<BIH", attr.data, off)
+    off += 8 + 9 * cc * b
+    off += 8 + struct.unpack_from("<Q", attr.data, off)[0]
+    buf = bytearray(data)
+    buf[attr.offset + off] = 2                     # the direct set: 2 channels instead of 3
+    only_scales = _fix_crcs(bytearray(buf))
+    struct.pack_into("<H", buf, shvq.offset + 8, 10)   # SH vector length 10: wrong too
+    both_broken = _fix_crcs(buf)
+    for broken, want in ((only_scales, "direct channel set has 2 channels"),
+                         (both_broken, "direct channel set has 2 channels")):
+        monkeypatch.setattr(D, "OVERLAP_MIN_POINTS", 1 << 40)
+        sequential = _decode_outcome(broken)
+        monkeypatch.setattr(D, "OVERLAP_MIN_POINTS", 1)
+        overlapped = _decode_outcome(broken)
+        with native.numpy_only():
+            reference = _decode_outcome(broken)
+        assert sequential == overlapped == reference
+        assert overlapped[0] == "error" and want in overlapped[1]
+
+
+@needs_native
 @pytest.mark.parametrize("overlap", [False, True])
 def test_non_finite_fields_reported_in_order(monkeypatch, overlap):
     """Hostile parameters that overflow float32 (a huge grid origin, huge RAHT DC
