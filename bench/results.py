@@ -36,9 +36,6 @@ NOTES = {
                         when="2026-12-02 06:50 UTC"),
     "eval_views.json": dict(command=".venv/bin/python bench/bench_eval_views.py", machine=VM + ", idle",
                             when="2026-12-02"),
-    "eval_views_640_400.json": dict(command=".venv/bin/python bench/bench_eval_views.py --search-width 640 "
-                                    "--importance-width 400 --out bench/out/eval_views_640_400.json",
-                                    machine=VM + ", idle", when="2026-12-02"),
     "eval_views_losses.json": dict(command=".venv/bin/python bench/bench_eval_views.py --points "
                                    "showroom_lacadiere_crop_sh0:noised:12,houseplant_sh0:grid:40,"
                                    "measuring_jug_sh3:noised:12", machine=VM + ", idle", when="2026-12-02"),
@@ -513,9 +510,10 @@ def page_scale(sets: list) -> str:
     # shorter table, its stages are not tabled below
     multi = [s for _, s in sets if len({ratio(s, r) for r in s["rows"]}) > 1]
     single_ratio = [s for _, s in sets if not any(s is m for m in multi)]
-    # stages per column (a Ray run's are its tiled run's, elsewhere)
+    # stages per column: the grid scenes' local runs (a Ray run's and a noised scene's stages
+    # are like their local / grid twin's; their peaks are in the table above)
     cols = [(f"{Path(s['scene']).stem} {r['variant']}", r) for s in single_ratio for r in s["rows"]
-            if r["variant"] != "ray"]
+            if r["variant"] != "ray" and "noised" not in Path(s["scene"]).stem]
     test_db = (lambda r: "–" if r.get("test_psnr") is None else f"{r['test_psnr']:.2f} / {r['test_ssim']:.4f}")
     lines += table(["scene, variant", "ratio", "tiles", "bytes (of target)", "τ / depth", "train dB",
                     "test dB / SSIM", "wall s", "CPU s", "peak RSS MB", "sha256"],
@@ -629,7 +627,7 @@ def build(json_dir: Path = JSON_DIR) -> dict:
             ["rd.json"] + [x for x, d in (("search_scaling.json", sc), ("search_above_ceiling.json", ab),
                                           ) if d is not None],
             page_search(rd, sc, ab))
-    ev = [(x, d) for x in ("eval_views_640_400.json", "eval_views.json", "eval_views_losses.json")
+    ev = [(x, d) for x in ("eval_views.json", "eval_views_losses.json")
           if (d := load(x, json_dir)) is not None]
     if ev:
         add("eval_views.md", "which train views judge the search's candidates", [x for x, _ in ev], page_eval_views(ev))
