@@ -181,9 +181,6 @@ def _make_plan():
 
 PLAN_KNOWN, PLAN_UNKNOWN = _make_plan()
 POPCOUNT8 = np.array([bin(v).count("1") for v in range(256)], dtype=np.int64)
-#: RANK8[j, o] = number of set bits of byte o below bit j
-RANK8 = np.array([[bin(o & ((1 << j) - 1)).count("1") for o in range(256)] for j in range(8)],
-                 dtype=np.int64)
 
 
 def _make_child_plan():
@@ -207,52 +204,100 @@ _OCTANT = [[int(o) for o in np.unique(CHILD_PAR[k])] for k in range(8)]
 _NOT_SELF = [t for t in range(27) if t != SELF]
 
 
-def _child_neighbour_table(nbr: np.ndarray, col: np.ndarray | None, occ: np.ndarray):
-    """27-neighbour table of the next level, derived from the current one without any search.
-
-    nbr, col: the current level's table (see below) and its column of every node (None: column
-    = Morton index); occ: uint8 [N] the level's final occupancy bytes.
-    Returns (table, col) of the C children: ``table[t, p]`` = Morton index of the neighbour at
-    offset t of the child in column p, -1 where absent (int32 where it fits; row SELF is not
-    filled), and ``col`` int64 [C] the column of every child.
-    Columns are grouped by child index k (the children with index k of ascending parents):
-    within a group the parent-level offset and child index of each neighbour are scalars, and
-    writing whole column runs beats scattering into Morton columns (every cache line of every
-    row touched 8 times).  A neighbour of child c lies in a neighbour (or self) of c's parent,
-    so it exists iff that node exists and has the corresponding child bit.
-    """
-    n = occ.shape[0]
-    start = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(POPCOUNT8[occ], out=start[1:])
-    c = int(start[n])
-    # int32 where it fits: the table is the decoder's largest array, and fresh memory costs
-    # page faults on every level
-    dt = np.int32 if c < (1 << 31) else np.int64
-    # ch[j, p + 1]: Morton index of child j of node p, -1 if absent; column 0 (the absent node
-    # that nbr's -1 entries reach once shifted by one) all -1, so that every lookup index is
-    # non-negative (take's "clip" mode is ~2x faster than "wrap").  j-major: a group's lookups
-    # for one neighbour read one row, in ascending parent order (cache-resident)
-    ch = np.full((8, n + 1), -1, dtype=dt)
-    for j in range(8):
-        np.copyto(ch[j, 1:], start[:n] + RANK8[j].take(occ), where=(occ & np.uint8(1 << j)) > 0,
-                  casting="unsafe")
-    table = np.empty((27, c), dtype=dt)
-    new_col = np.empty(c, dtype=np.int64)
-    g0 = 0
+#: NEIGHBOUR_COUNT[k][o]: per occupancy byte of the parent-level node at offset o, how many of
+#: its children are 26-neighbours of child k (the present-neighbour count of a child is the sum
+#: over the 8 nodes of its octant, _ChildLevel.present)
+def _make_neighbour_count():
+    masks = np.zeros((8, 27), dtype=np.int64)
     for k in range(8):
-        r = np.flatnonzero(occ & np.uint8(1 << k))
-        if r.size == 0:
-            continue
-        g1 = g0 + r.size
-        new_col[ch[k, r + 1]] = np.arange(g0, g1)
-        rc = r if col is None else col.take(r)
-        # the 8 parent-level nodes of k's octant, plus one (0 where absent): ch's columns
-        par = {o: r + 1 if o == SELF else np.add(nbr[o][rc], 1, dtype=np.intp) for o in _OCTANT[k]}
         for t in _NOT_SELF:
-            np.take(ch[int(CHILD_IDX[k, t])], par[int(CHILD_PAR[k, t])], out=table[t, g0:g1],
-                    mode="clip")
-        g0 = g1
-    return table, new_col
+            masks[k, CHILD_PAR[k, t]] |= 1 << int(CHILD_IDX[k, t])
+    return POPCOUNT8[np.arange(256)[None, None, :] & masks[:, :, None]].astype(np.uint8)
+
+
+NEIGHBOUR_COUNT = _make_neighbour_count()
+
+
+class _ChildLevel:
+    """The next level's nodes as the children of this one, from which their 27-neighbour table
+    is derived without any search: for all of them, or (scheme 1, from the direct level on)
+    only for those left in the tree once the level's direct flags are known -- the direct ones
+    (most nodes of the first direct levels) are never coded, so their rows are never read.
+
+    nbr, col: this level's table (see :meth:`table`; col None: column = Morton index);
+    occ: uint8 [N] the level's final occupancy bytes; bits: int64 [C] the set bits of ``occ``
+    (8 p + j for child j of node p), in order -- the children in Morton order.  A neighbour of child c lies in a
+    neighbour (or self) of c's parent, so it exists iff that node exists and has the
+    corresponding child bit.
+    """
+
+    def __init__(self, nbr: np.ndarray, col: np.ndarray | None, occ: np.ndarray, bits: np.ndarray):
+        n = occ.shape[0]
+        self.num = bits.shape[0]
+        # int32 where it fits: the table is the decoder's largest array, and fresh memory costs
+        # page faults on every level
+        self.dtype = np.int32 if self.num < (1 << 31) else np.int64
+        # ch[j, p + 1]: Morton index of child j of node p, -1 if absent; column 0 (the absent
+        # node that nbr's -1 entries reach once shifted by one) all -1, so that every lookup
+        # index is non-negative (take's "clip" mode is ~2x faster than "wrap").  j-major: a
+        # group's lookups for one neighbour read one row, in ascending parent order.  Filled
+        # by one scatter of the children (the first direct levels have far fewer than nodes)
+        ch = np.full((8, n + 1), -1, dtype=self.dtype)
+        ch.reshape(-1)[(bits & 7) * (n + 1) + (bits >> 3) + 1] = np.arange(self.num, dtype=self.dtype)
+        self.ch, self.nbr, self.col, self.occ = ch, nbr, col, occ
+        # per child index k, the parents holding child k (ascending)
+        self.parents = [np.flatnonzero(occ & np.uint8(1 << k)) for k in range(8)]
+
+    def _octant(self, k: int, r: np.ndarray) -> dict:
+        """The 8 parent-level nodes of child k's octant of parents ``r``, plus one (0 where
+        absent): ``ch``'s columns."""
+        rc = r if self.col is None else self.col.take(r)
+        return {o: r + 1 if o == SELF else np.add(self.nbr[o][rc], 1, dtype=np.intp)
+                for o in _OCTANT[k]}
+
+    def present(self) -> np.ndarray:
+        """int64 [C] the number of present 26-neighbours of every child, in Morton order: per
+        octant node the count of its children among them (NEIGHBOUR_COUNT), no table needed."""
+        occ1 = np.zeros(self.occ.shape[0] + 1, dtype=np.uint8)
+        occ1[1:] = self.occ
+        out = np.empty(self.num, dtype=np.int64)
+        for k, r in enumerate(self.parents):
+            if r.size == 0:
+                continue
+            cnt = np.zeros(r.size, dtype=np.uint8)
+            for o, p in self._octant(k, r).items():
+                cnt += NEIGHBOUR_COUNT[k, o].take(occ1.take(p))
+            out[self.ch[k, r + 1]] = cnt
+        return out
+
+    def table(self, keep: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(table, col) of the children (``keep``: bool [C], only those it marks).
+        ``table[t, p]`` = Morton index of the neighbour at offset t of the child in column p,
+        -1 where absent (int32 where it fits; row SELF is not filled), and ``col`` int64 [C]
+        the column of every (kept) child.  Columns are grouped by child index k (the children
+        with index k of ascending parents): within a group the parent-level offset and child
+        index of each neighbour are scalars, and writing whole column runs beats scattering
+        into Morton columns (every cache line of every row touched 8 times)."""
+        ch = self.ch
+        groups = []
+        for k, r in enumerate(self.parents):
+            if keep is not None and r.size:
+                r = r[keep[ch[k, r + 1]]]
+            groups.append(r)
+        table = np.empty((27, sum(r.size for r in groups)), dtype=self.dtype)
+        new_col = np.zeros(self.num, dtype=np.int64) if keep is not None else np.empty(self.num, dtype=np.int64)
+        g0 = 0
+        for k, r in enumerate(groups):
+            if r.size == 0:
+                continue
+            g1 = g0 + r.size
+            new_col[ch[k, r + 1]] = np.arange(g0, g1)
+            par = self._octant(k, r)
+            for t in _NOT_SELF:
+                np.take(ch[int(CHILD_IDX[k, t])], par[int(CHILD_PAR[k, t])], out=table[t, g0:g1],
+                        mode="clip")
+            g0 = g1
+        return table, new_col
 
 
 def _make_plane_tables(level_bucket: int) -> list:
@@ -333,17 +378,19 @@ _GATHER_PLAN = _make_gather_plan()
 
 
 def plane_contexts(k: int, state: np.ndarray, nbr: np.ndarray, col: np.ndarray | None,
-                   level_bucket: int, held: dict) -> np.ndarray:
-    """Packed context ids ``coarse << 32 | fine`` of child ``k`` of every node of a level.
+                   level_bucket: int, held: dict, nodes: np.ndarray | None = None) -> np.ndarray:
+    """Packed context ids ``coarse << 32 | fine`` of child ``k`` of the nodes of a level.
 
     state: uint16 [N + 1] per node 256 | occupancy bits decoded so far (bits < k), slot N = 0
-    (absent; the -1 entries of ``nbr`` reach it); nbr, col: from :func:`_child_neighbour_table`;
+    (absent; the -1 entries of ``nbr`` reach it); nbr: from :meth:`_ChildLevel.table` (one
+    column per node asked for); col: the column of each node asked for, in order (None: the
+    column is its position); nodes: the Morton indices of the nodes asked for (None: all N);
     held: the neighbour states gathered and presence masks made by earlier planes of the
     level (``_GATHER_PLAN``, in column order), empty at k = 0, updated.
-    Returns int64 [N] in Morton order.
+    Returns int64 [len(nodes) or N] in the order of ``nodes`` (Morton order).
     """
     ts, tab = _PLANE_TABLES[level_bucket][k]
-    n = state.shape[0] - 1
+    n = nbr.shape[1]
     acc = np.zeros(n, dtype=np.int64)
     tmp = np.empty(n, dtype=np.int64)
     for i, (t, how, last) in enumerate(_GATHER_PLAN[k], start=1):
@@ -365,7 +412,7 @@ def plane_contexts(k: int, state: np.ndarray, nbr: np.ndarray, col: np.ndarray |
             held[t] = g
     if col is not None:
         acc = acc.take(col)                               # columns -> Morton order
-    np.take(tab[0], state[:n], out=tmp, mode="clip")
+    np.take(tab[0], state[:n] if nodes is None else state.take(nodes), out=tmp, mode="clip")
     acc += tmp
     return acc
 
@@ -423,7 +470,8 @@ def walk_octree(depth: int, num_points: int, bits: BitSource, direct_from: int |
     ff_n = np.zeros(NUM_FINE, dtype=np.int64)
     marks = None
     codes = np.zeros(1, dtype=np.uint64)
-    nbr, col = np.full((27, 1), -1, dtype=np.int64), None    # the root has no neighbours
+    root = (np.full((27, 1), -1, dtype=np.int64), None)       # the root has no neighbours
+    children = None         # _ChildLevel: the level's nodes as the children of the one above
     # fine contexts that may exceed COUNT_LIMIT after a level: those used in it and those still
     # above the limit after the previous halving (scanning all 2.8 M pairs per level cost more
     # than the traversal itself on small files)
@@ -449,7 +497,8 @@ def walk_octree(depth: int, num_points: int, bits: BitSource, direct_from: int |
         held = {}
         kept = None         # the level's nodes left to code (None: all)
         if direct_from is not None and level >= direct_from:
-            direct = _direct_flags(level, direct_from, lb, nbr, col, par_pop, df_n, bits)
+            direct = _direct_flags(level, direct_from, lb, children.present(), par_pop, df_n,
+                                   bits)
             decided += direct.shape[0]
             if direct.any():
                 dn = np.flatnonzero(direct)
@@ -460,16 +509,25 @@ def walk_octree(depth: int, num_points: int, bits: BitSource, direct_from: int |
                 # its one child, known: neighbours' contexts see it; it is not coded
                 state[dn] = np.uint16(256) | (np.uint16(1) << (low >> np.uint64(w - 3)).astype(np.uint16))
                 kept = np.flatnonzero(~direct)
+        # the neighbour table of the coded nodes only (a direct node is never coded)
+        nbr, col = root if children is None else children.table(None if kept is None else ~direct)
+        children = None
+        order = col if kept is None or col is None else col.take(kept)
         for k in range(8):
-            ctx = plane_contexts(k, state, nbr, col, lb, held)
+            ctx = plane_contexts(k, state, nbr, order, lb, held, kept)
             coded = kept
             if k == 7:
-                free = (state[:n] & 127) == 0   # no child yet: child 7 for free, not coded
-                coded = np.flatnonzero(~free if kept is None else ~free & ~direct)
-                state[:n][free] |= np.uint16(128)
-                ctx = ctx[coded]
-            elif kept is not None:
-                ctx = ctx[kept]
+                # no child yet: child 7 for free, not coded (a direct node has its child)
+                if kept is None:
+                    free = (state[:n] & 127) == 0
+                    coded = np.flatnonzero(~free)
+                    state[:n][free] |= np.uint16(128)
+                    ctx = ctx[coded]
+                else:
+                    free = (state.take(kept) & 127) == 0
+                    coded = kept[~free]
+                    state[kept[free]] |= np.uint16(128)
+                    ctx = ctx[~free]
             # every count total is at most the number of decisions so far (halving never
             # increases one)
             decided += ctx.shape[0]
@@ -498,7 +556,7 @@ def walk_octree(depth: int, num_points: int, bits: BitSource, direct_from: int |
         nz = np.flatnonzero(np.unpackbits(occ, bitorder="little"))
         codes = (codes[nz >> 3] << np.uint64(3)) | (nz & 7).astype(np.uint64)
         if level + 1 < depth:
-            nbr, col = _child_neighbour_table(nbr, col, occ)
+            children = _ChildLevel(nbr, col, occ, nz)
             if direct_from is not None and level + 1 >= direct_from:
                 par_pop = np.repeat(pop, pop)
     if codes.shape[0] + num_direct != num_points:
@@ -509,16 +567,12 @@ def walk_octree(depth: int, num_points: int, bits: BitSource, direct_from: int |
     return codes
 
 
-def _direct_flags(level: int, direct_from: int, lb: int, nbr: np.ndarray, col: np.ndarray | None,
+def _direct_flags(level: int, direct_from: int, lb: int, present: np.ndarray,
                   par_pop: np.ndarray, df_n: np.ndarray, bits: BitSource) -> np.ndarray:
-    """The direct flags of a level's nodes (OCTREE.md section 4.1), bool [N] in Morton order.
+    """The direct flags of a level's nodes (OCTREE.md section 4.1), bool [N] in Morton order;
+    present: int64 [N] each node's present neighbours (of 26).
     Below ``direct_from`` a node whose parent has one child holds what its parent held (two
     voxels or more): its flag is 0, not coded."""
-    present = np.zeros(nbr.shape[1], dtype=np.int64)
-    for t in _NOT_SELF:
-        present += nbr[t] >= 0
-    if col is not None:
-        present = present.take(col)                        # columns -> Morton order
     ctx = (np.minimum(present, 7) * 4 + np.minimum(par_pop, 4) - 1) * NUM_LEVEL_BUCKETS + lb
     coded = np.arange(ctx.shape[0]) if level == direct_from else np.flatnonzero(par_pop > 1)
     ctx = ctx[coded]
