@@ -787,8 +787,10 @@ class RansDecoder:
         """Number of symbols decoded so far."""
         return self._pos
 
-    def decode(self, model_ids: np.ndarray) -> np.ndarray:
-        """Decode the next ``len(model_ids)`` symbols (model_ids: int array); returns int64."""
+    def decode(self, model_ids: np.ndarray, values: np.ndarray | None = None) -> np.ndarray:
+        """Decode the next ``len(model_ids)`` symbols (model_ids: int array); returns int64.
+        ``values`` (NumPy row loop only, :meth:`decode_runs`): one entry per symbol of every
+        model, in :meth:`ModelSet.build` order, returned instead of the symbols' values."""
         mids = np.asarray(model_ids).ravel()
         if mids.size and not np.issubdtype(mids.dtype, np.integer):
             raise GszFormatError("rANS: model ids must be integers")
@@ -810,7 +812,9 @@ class RansDecoder:
             return out
         self._check_models(mids)
         binary = "binary_f0" in self._t and self._lanes >= SCALAR_LANES
-        out = np.empty(count, dtype=np.bool_ if binary else np.int64)
+        if values is not None and (binary or self._lanes < SCALAR_LANES):
+            raise ValueError("decode(values=) needs the NumPy row loop of a non-binary set")
+        out = np.empty(count, dtype=np.bool_ if binary else np.int64 if values is None else values.dtype)
         # work in chunks of whole rows (~256k symbols) so the per-symbol arrays stay in cache
         chunk = max(1, (1 << 18) // self._lanes) * self._lanes
         j = 0
@@ -819,7 +823,7 @@ class RansDecoder:
             if binary:
                 self._decode_chunk_binary(mids[j:end], out[j:end])
             else:
-                self._decode_chunk(mids[j:end], out[j:end])
+                self._decode_chunk(mids[j:end], out[j:end], values=values)
             j = end
         return out.astype(np.int64) if binary else out
 
@@ -831,30 +835,90 @@ class RansDecoder:
         if self._t["has_empty"] and np.any(self._t["total"][mids] == 0):
             raise GszFormatError("rANS: symbol refers to an empty model")
 
-    def decode_runs(self, run_models: np.ndarray, run_lengths: np.ndarray) -> np.ndarray:
+    def _runs_direct(self, run_lengths: np.ndarray) -> bool:
+        """Whether :meth:`decode_runs` decodes these runs one by one with their models' own
+        LUTs (long runs on the NumPy row loop), not through :meth:`decode`."""
+        return not (self._native or "binary_f0" in self._t or self._lanes < SCALAR_LANES
+                    or int(run_lengths.sum()) < (1 << 14) * run_lengths.size)
+
+    def runs_within(self, run_models: np.ndarray, run_lengths: np.ndarray, hi: np.ndarray) -> bool:
+        """True (NumPy path) when every value the model of each non-empty run can give lies in
+        0 .. hi[run] (valid, non-empty models): then no decoded symbol can fail a 0..hi range
+        check, and :meth:`decode_runs` may map the symbols to floats as it decodes them
+        (``scale``/``offset``).  False says nothing."""
+        rm = np.asarray(run_models, dtype=np.int64).ravel()
+        rl = np.asarray(run_lengths, dtype=np.int64).ravel()
+        if self._native:
+            return False
+        used = rl > 0
+        m = rm[used]
+        if m.size == 0 or m.min() < 0 or m.max() >= self._models.num_models:
+            return False
+        t = self._t
+        if np.any(t["sym_count"][m] == 0):
+            return False
+        if "value_range" not in t:          # per non-empty model its smallest and largest value
+            some = t["sym_count"] > 0
+            lo = np.zeros(self._models.num_models, np.int64)
+            high = np.zeros(self._models.num_models, np.int64)
+            lo[some] = np.minimum.reduceat(t["value"], t["sym_start"][some])
+            high[some] = np.maximum.reduceat(t["value"], t["sym_start"][some])
+            t["value_range"] = (lo, high)
+        lo, high = t["value_range"]
+        return bool(np.all(lo[m] >= 0) and np.all(high[m] <= np.asarray(hi).ravel()[used]))
+
+    def decode_runs(self, run_models: np.ndarray, run_lengths: np.ndarray, scale=None,
+                    offset=None, dtype=np.float64) -> np.ndarray:
         """``decode(np.repeat(run_models, run_lengths))`` (same symbols, checks and errors);
         long runs (a channel set's groups) are decoded with their model's scalars and own LUT
         (:meth:`ModelSet.model_slot_symbols`), no per-symbol model-id array and no LUT of the
-        whole set."""
+        whole set.  With ``scale`` and ``offset`` (float64 per run) each symbol k of run r
+        comes out as ``dtype(scale[r] * k + offset[r])`` (float64 products and sums, rounded
+        once to ``dtype``): the models' value tables are mapped instead of every symbol."""
         rm = np.asarray(run_models, dtype=np.int64).ravel()
         rl = np.asarray(run_lengths, dtype=np.int64).ravel()
         count = int(rl.sum())
-        if (self._native or "binary_f0" in self._t or self._lanes < SCALAR_LANES
-                or count < (1 << 14) * rm.size):
-            return self.decode(np.repeat(rm, rl))
+        if not self._runs_direct(rl):
+            mids = np.repeat(rm, rl)
+            if scale is None:
+                return self.decode(mids)
+            used = rl > 0
+            m = rm[used]
+            if (not self._native and "binary_f0" not in self._t and self._lanes >= SCALAR_LANES
+                    and m.size and m.min() >= 0 and m.max() < self._models.num_models
+                    and np.unique(m).size == m.size):
+                # every model serves one run (one model per group): its value table mapped
+                # once, and the row loop writes the floats
+                t = self._t
+                s, o = np.zeros(self._models.num_models), np.zeros(self._models.num_models)
+                s[m] = np.asarray(scale, dtype=np.float64)[used]
+                o[m] = np.asarray(offset, dtype=np.float64)[used]
+                v = t["value"].astype(np.float64)
+                v *= np.repeat(s, t["sym_count"])
+                v += np.repeat(o, t["sym_count"])
+                return self.decode(mids, values=v.astype(dtype, copy=False))
+            vals = self.decode(mids)
+            out = np.repeat(np.asarray(scale, dtype=np.float64), rl) * vals
+            out += np.repeat(np.asarray(offset, dtype=np.float64), rl)
+            return out.astype(dtype, copy=False)
         if self._pos + count > self._n:
             raise GszFormatError(f"rANS: asked for {self._pos + count} symbols, "
                                  f"stream has {self._n}")
         self._check_models(rm[rl > 0])
-        out = np.empty(count, dtype=np.int64)
+        out = np.empty(count, dtype=np.int64 if scale is None else dtype)
         own = {}                 # model -> its LUT and tables (runs of one channel share models)
         j = 0
-        for m, length in zip(rm.tolist(), rl.tolist()):
+        for r, (m, length) in enumerate(zip(rm.tolist(), rl.tolist())):
             if length:
                 # the model's slots numbered from 0: mask and shift of its precision, base 0
                 if m not in own:
                     own[m] = self._models.model_slot_symbols(m)
                 lut, tables = own[m]
+                if scale is not None:
+                    v = tables["value"].astype(np.float64)
+                    v *= scale[r]
+                    v += offset[r]
+                    tables = dict(tables, value=v.astype(dtype, copy=False))
                 self._wpos = _decode_rows(out[j:j + length], int(self._t["mask"][m]),
                                           int(self._models.prec[m]), 0, lut, tables, self._words,
                                           self._states, self._lanes, self._pos, self._wpos)
@@ -880,9 +944,9 @@ class RansDecoder:
             int(channels), int(length), int(blocks), out, *args)
         self._pos += count
 
-    def _decode_chunk(self, mids: np.ndarray | None, out: np.ndarray, model=None) -> None:
+    def _decode_chunk(self, mids: np.ndarray | None, out: np.ndarray, model=None, values=None) -> None:
         """Decode len(out) symbols with models ``mids`` (or all with ``model``); writes their
-        values to ``out`` (int64)."""
+        values (or their entries of ``values``) to ``out``."""
         t = self._t
         count = out.size
         # per-symbol mask, shift and LUT base -- scalars where every model has one precision
@@ -909,7 +973,8 @@ class RansDecoder:
                                         self._pos, self._wpos)
             self._pos += count
             return
-        self._wpos = _decode_rows(out, mask, shift, base, self._models.slot_symbols(), t,
+        self._wpos = _decode_rows(out, mask, shift, base, self._models.slot_symbols(),
+                                  t if values is None else dict(t, value=values),
                                   self._words, self._states, lanes, self._pos, self._wpos)
         self._pos += count
 
@@ -965,6 +1030,7 @@ def _decode_rows(out, mask, shift, base, lut_symbol, tables, words, states, lane
     count = out.size
     freq, slot_start, value = tables["freq"], tables["slot_start"], tables["value"]
     arr = [isinstance(v, np.ndarray) for v in (mask, shift, base)]
+    with_base = arr[2] or base != 0          # decode_runs' own LUTs start at slot 0
     width = min(lanes, count)
     flag = np.empty(width, dtype=np.bool_)
     slot_row = np.empty(width, dtype=np.int64)
@@ -978,7 +1044,8 @@ def _decode_rows(out, mask, shift, base, lut_symbol, tables, words, states, lane
         slot, sym = slot_row[:k], sym_row[:k]
         # decode step: x = freq * (x >> n) + (slot - cum), slot - cum = global slot - slot_start
         np.bitwise_and(x, mask[sl] if arr[0] else mask, out=slot)
-        np.add(slot, base[sl] if arr[2] else base, out=slot)
+        if with_base:
+            np.add(slot, base[sl] if arr[2] else base, out=slot)
         np.right_shift(x, shift[sl] if arr[1] else shift, out=x)
         # slots are in range by construction (mask and base of a checked non-empty model), so
         # "clip" only skips take()'s buffered bounds check

@@ -101,7 +101,8 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
         return _assemble_native(r, m, k, d, p, kcb, codebook, classes), codebook
     kept = None
     if p:
-        kept = read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set")
+        # float32: the values the float32 output keeps (half the bytes to decode into and move)
+        kept = read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set", dtype=np.float32)
         flags = decode_stream_single(r.blob(), m)
         r.check(bool(np.all((flags == 0) | (flags == 1))), "kept flag outside 0/1")
         kept_mask = flags.astype(bool)
