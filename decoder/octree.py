@@ -563,7 +563,8 @@ def walk_octree(depth: int, num_points: int, bits: BitSource, direct_from: int |
         raise GszFormatError(f"octree decodes to {codes.shape[0] + num_direct} points, header "
                              f"declares {num_points}")
     if direct_points:
-        codes = np.sort(np.concatenate([codes, *direct_points]))
+        # sorted runs (the leaves, each level's direct points): the stable sort merges them
+        codes = np.sort(np.concatenate([codes, *direct_points]), kind="stable")
     return codes
 
 
@@ -580,7 +581,7 @@ def _direct_flags(level: int, direct_from: int, lb: int, present: np.ndarray,
     out = np.empty(ctx.shape[0], dtype=np.int64)
     for s, e in _chunk_bounds(ctx.shape[0]):
         c = ctx[s:e]
-        v = df_n[c]
+        v = df_n.take(c)
         c1 = v >> 32
         v &= _LOW32
         v += c1
@@ -588,8 +589,8 @@ def _direct_flags(level: int, direct_from: int, lb: int, present: np.ndarray,
         v += 2                                             # 2 (c0 + c1) + 2
         c1 <<= 17
         c1 += 1 << 16                                      # (2 c1 + 1) << 16
-        b = np.asarray(bits(level, FLAG_PLANE, coded[s:e], P16_TO_MODEL[c1 // v]), dtype=np.int64)
-        np.add.at(df_n, c, _INC[b])
+        b = np.asarray(bits(level, FLAG_PLANE, coded[s:e], P16_TO_MODEL.take(c1 // v)), dtype=np.int64)
+        np.add.at(df_n, c, _INC.take(b))
         out[s:e] = b
     flags[coded] = out > 0
     _halve_some(df_n, np.arange(NUM_DIRECT))
@@ -619,7 +620,7 @@ def _code_plane(level: int, k: int, ctx: np.ndarray, coded: np.ndarray | None,
     plane = np.empty(ctx.shape[0], dtype=np.int64)
     for s, e in _chunk_bounds(ctx.shape[0]):
         cc, ff = coarse[s:e], fine[s:e]
-        v = cc_n[cc]
+        v = cc_n.take(cc)                        # take: 2x faster than fancy indexing here
         c1 = v >> 32
         v &= _LOW32
         v += c1                                  # c0 + c1
@@ -628,7 +629,7 @@ def _code_plane(level: int, k: int, ctx: np.ndarray, coded: np.ndarray | None,
         c1 <<= 17
         c1 += 1 << 16
         pc = _floor_div(c1, v, exact_float)      # ((2 c1 + 1) << 16) // (2 (c0 + c1) + 2)
-        v = ff_n[ff]
+        v = ff_n.take(ff)
         f1 = v >> 32
         v &= _LOW32
         v += f1
@@ -638,8 +639,8 @@ def _code_plane(level: int, k: int, ctx: np.ndarray, coded: np.ndarray | None,
         pc += f1
         c1 = _floor_div(pc, v, exact_float)      # p16
         idx = np.arange(s, e) if coded is None else coded[s:e]
-        b = np.asarray(bits(level, k, idx, P16_TO_MODEL[c1]), dtype=np.int64)
-        inc = _INC[b]
+        b = np.asarray(bits(level, k, idx, P16_TO_MODEL.take(c1)), dtype=np.int64)
+        inc = _INC.take(b)
         np.add.at(cc_n, cc, inc)
         np.add.at(ff_n, ff, inc)
         plane[s:e] = b

@@ -1031,6 +1031,8 @@ def _decode_rows(out, mask, shift, base, lut_symbol, tables, words, states, lane
     freq, slot_start, value = tables["freq"], tables["slot_start"], tables["value"]
     arr = [isinstance(v, np.ndarray) for v in (mask, shift, base)]
     with_base = arr[2] or base != 0          # decode_runs' own LUTs start at slot 0
+    # scalars as 0-d int64 arrays: a Python int operand costs a ufunc call ~0.6 us more
+    mask, shift, base = (v if a else np.array(v, np.int64) for v, a in zip((mask, shift, base), arr))
     width = min(lanes, count)
     flag = np.empty(width, dtype=np.bool_)
     slot_row = np.empty(width, dtype=np.int64)
@@ -1062,7 +1064,7 @@ def _decode_rows(out, mask, shift, base, lut_symbol, tables, words, states, lane
 def _renormalise(x, flag, words, wpos: int) -> int:
     """Shift the next word into every state of the row ``x`` below 2**16, in lane order;
     ``flag``: a bool scratch array like x.  Returns the new word position."""
-    np.less(x, STATE_LOW, out=flag)
+    np.less(x, _STATE_LOW, out=flag)
     r = np.count_nonzero(flag)
     if r:
         if wpos + r > words.size:
@@ -1071,20 +1073,25 @@ def _renormalise(x, flag, words, wpos: int) -> int:
         # ~8-bit symbols renormalise half their lanes: masks cost 3x there)
         sel = flag if 16 * r < x.size else np.flatnonzero(flag)
         v = x[sel]
-        v <<= WORD_BITS
+        v <<= _WORD_BITS
         v |= words[wpos:wpos + r]
         x[sel] = v
     return wpos + r
+
+
+_STATE_LOW, _WORD_BITS = np.array(STATE_LOW, np.int64), np.array(WORD_BITS, np.int64)
 
 
 def _decode_rows_binary(out, f0, f1, n, words, states, lanes, pos, wpos) -> int:
     """_decode_rows for binary models of precision n: symbol 0 owns slots [0, f0), symbol 1
     [f0, 2**n) (f0, f1 = 2**n - f0: per symbol), so the decode step needs no LUT.  With
     q = x >> n and b = (x & (2**n - 1)) >= f0 the step freq * q + slot - cum is
-    x - (b ? f0 : f1) * (q + b) (expand x = q 2**n + slot).  Bits to ``out`` (bool)."""
+    x - (b ? f0 : f1) * (q + b) (expand x = q 2**n + slot), and q + b = (x + f1) >> n (the
+    slot plus f1 carries into bit n iff slot >= f0).  Bits to ``out`` (bool)."""
     count = out.size
     nwords = words.size
-    mask = (1 << n) - 1
+    # scalars as 0-d int64 arrays: a Python int operand costs a ufunc call ~0.6 us more
+    mask, n = np.array((1 << n) - 1, np.int64), np.array(n, np.int64)
     w = min(lanes, count)
     slot, q, flag = np.empty(w, np.int64), np.empty(w, np.int64), np.empty(w, np.bool_)
     j = 0
@@ -1092,24 +1099,24 @@ def _decode_rows_binary(out, f0, f1, n, words, states, lanes, pos, wpos) -> int:
         lane0 = (pos + j) % lanes
         k = min(lanes - lane0, count - j)
         x = states[lane0:lane0 + k]
-        b, lo = out[j:j + k], f0[j:j + k]
+        b, lo, hi = out[j:j + k], f0[j:j + k], f1[j:j + k]
         s, qq = (slot, q) if k == w else (slot[:k], q[:k])
         np.bitwise_and(x, mask, out=s)
         np.greater_equal(s, lo, out=b)
-        np.right_shift(x, n, out=qq)
-        qq += b
-        fr = np.where(b, lo, f1[j:j + k])
+        np.add(x, hi, out=qq)
+        np.right_shift(qq, n, out=qq)            # q + b
+        fr = np.where(b, lo, hi)
         fr *= qq
         x -= fr
         # _renormalise inlined (few states per row renormalise here: a mask is cheapest)
         fl = flag if k == w else flag[:k]
-        np.less(x, STATE_LOW, out=fl)
+        np.less(x, _STATE_LOW, out=fl)
         v = x[fl]
         r = v.size
         if r:
             if wpos + r > nwords:
                 raise GszFormatError("rANS: payload truncated (word stream exhausted)")
-            v <<= WORD_BITS
+            v <<= _WORD_BITS
             v |= words[wpos:wpos + r]
             x[fl] = v
             wpos += r
