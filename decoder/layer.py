@@ -18,7 +18,8 @@ import numpy as np
 
 from . import native
 from .attributes import (attributes_from_coefficients, native_half_angles, native_opacity_dc,
-                         native_rotations, native_scales, native_tree, parse_attributes)
+                         native_rotations, native_scales, native_tree, numpy_colour,
+                         numpy_rotations, parse_attributes)
 from .cloud import GaussianCloud
 from .container import DEFAULT_MAX_GAUSSIANS, LAYER_SHIFT, TILE_SHIFT, Chunk
 from .errors import GszError, GszFormatError, GszLimitError
@@ -353,7 +354,39 @@ def _decode_layer_threaded(chunks: dict, header, state: LayerState, gh) -> Gauss
             raise pending.exception() from None        # the geometry's error comes first
         raise
     codes, tree = pending.result()
-    return _finish_layer(gh, codes, decoded, header, state, tree)
+    return _finish_layer_threaded(gh, codes, tree, decoded, header, state)
+
+
+def _finish_layer_threaded(gh, codes: np.ndarray, tree, decoded: tuple, header,
+                           state: LayerState) -> GaussianCloud:
+    """:func:`_finish_layer` on two threads (NumPy path), the same arrays bit for bit: the
+    worker makes the positions and the opacity and DC colour (four RAHT channels), the calling
+    thread the rotations (three RAHT channels, cos/sin, quaternions) and the scales; the
+    finiteness checks report the first failing field in FIELDS order, as there."""
+    dc, ac, direct, sh_rest, codebook = decoded
+    state.codebook = codebook
+    finite = (lambda a: bool(np.isfinite(a).all()))
+    err = np.geterr()                   # errstate is per thread: the worker follows this one
+
+    def colour():
+        with np.errstate(**err):
+            positions = gh.positions(codes)
+            opacities, sh_dc = numpy_colour(dc, ac, tree)
+            return (positions, opacities, sh_dc,
+                    dict(positions=finite(positions), opacities=finite(opacities), sh_dc=finite(sh_dc)))
+    pending = _worker().submit(native.carry(colour))
+    try:
+        rotations = numpy_rotations(dc, ac, tree)
+        scales = np.ascontiguousarray(direct.T, dtype=np.float32)
+        ok = dict(scales=finite(scales), rotations=finite(rotations), sh_rest=finite(sh_rest))
+    except BaseException:
+        pending.exception()            # never leave the worker running on this layer
+        raise
+    positions, opacities, sh_dc, ok_colour = pending.result()
+    _check_finite({**ok, **ok_colour})
+    return GaussianCloud(positions=positions, scales=scales, rotations=rotations,
+                         opacities=opacities, sh_dc=sh_dc, sh_rest=sh_rest,
+                         sh_degree=header.sh_degree)
 
 
 class _GeometryJob:

@@ -142,15 +142,18 @@ def raht_inverse(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
     return np.ascontiguousarray(raht_inverse_planes(dc, ac.T, tree).T)
 
 
-def raht_inverse_planes(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
+def raht_inverse_planes(dc: np.ndarray, ac: np.ndarray, tree: RahtTree,
+                        channels=None) -> np.ndarray:
     """:func:`raht_inverse` channel-major: ac float [C, N-1] (stream order) -> float64 [C, N],
     the same values (every channel's butterflies are the same float64 operations, one
-    channel's row at a time)."""
+    channel's row at a time).  ``channels``: only these (indices), as rows in that order."""
     dc = np.asarray(dc, dtype=np.float64).reshape(-1)
     ac = np.asarray(ac, dtype=np.float64)
     n = tree.num_points
     if ac.ndim != 2 or ac.shape != (dc.shape[0], n - 1):
         raise GszFormatError(f"RAHT inverse: expected AC shape ({dc.shape[0]}, {n - 1}), got {ac.shape}")
+    if channels is not None:
+        dc, ac = dc[list(channels)], [ac[c] for c in channels]
     v = np.empty((dc.shape[0], n), dtype=np.float64)
     v[:, 0] = dc
     # the high-pass value of a pair is its AC coefficient, read in stream order: the right
