@@ -428,6 +428,9 @@ def _chunk_bounds(n: int):
 
 
 _LOW32 = np.int64(0xFFFFFFFF)
+# constants of the chunk arithmetic as 0-d int64 arrays (a Python int operand costs each
+# ufunc call ~0.6 us; a chunk holds at most 4096 symbols)
+_K1, _K16, _K32, _K2_15, _MIX = (np.array(v, np.int64) for v in (1, 16, 32, 1 << 15, MIX_WEIGHT))
 #: count increment of a decoded bit: counts are packed zeros | ones << 32 per context
 _INC = np.array([1, 1 << 32], dtype=np.int64)
 #: levels with at least this many nodes mark their used fine contexts in a flag array (cheaper
@@ -582,13 +585,13 @@ def _direct_flags(level: int, direct_from: int, lb: int, present: np.ndarray,
     for s, e in _chunk_bounds(ctx.shape[0]):
         c = ctx[s:e]
         v = df_n.take(c)
-        c1 = v >> 32
+        c1 = v >> _K32
         v &= _LOW32
         v += c1
-        v <<= 1
-        v += 2                                             # 2 (c0 + c1) + 2
-        c1 <<= 17
-        c1 += 1 << 16                                      # (2 c1 + 1) << 16
+        v += _K1                                           # c0 + c1 + 1
+        c1 <<= _K16
+        c1 += _K2_15                                       # (c1 << 16) + 2**15
+        # ((2 c1 + 1) << 16) // (2 (c0 + c1) + 2), both halved (the same quotient)
         b = np.asarray(bits(level, FLAG_PLANE, coded[s:e], P16_TO_MODEL.take(c1 // v)), dtype=np.int64)
         np.add.at(df_n, c, _INC.take(b))
         out[s:e] = b
@@ -621,21 +624,21 @@ def _code_plane(level: int, k: int, ctx: np.ndarray, coded: np.ndarray | None,
     for s, e in _chunk_bounds(ctx.shape[0]):
         cc, ff = coarse[s:e], fine[s:e]
         v = cc_n.take(cc)                        # take: 2x faster than fancy indexing here
-        c1 = v >> 32
+        c1 = v >> _K32
         v &= _LOW32
-        v += c1                                  # c0 + c1
-        v <<= 1
-        v += 2
-        c1 <<= 17
-        c1 += 1 << 16
-        pc = _floor_div(c1, v, exact_float)      # ((2 c1 + 1) << 16) // (2 (c0 + c1) + 2)
+        v += c1
+        v += _K1                                 # c0 + c1 + 1
+        c1 <<= _K16
+        c1 += _K2_15                             # (c1 << 16) + 2**15
+        # ((2 c1 + 1) << 16) // (2 (c0 + c1) + 2), both halved (the same quotient)
+        pc = _floor_div(c1, v, exact_float)
         v = ff_n.take(ff)
-        f1 = v >> 32
+        f1 = v >> _K32
         v &= _LOW32
         v += f1
-        v += MIX_WEIGHT                          # f0 + f1 + MIX_WEIGHT
-        pc *= MIX_WEIGHT
-        f1 <<= 16
+        v += _MIX                                # f0 + f1 + MIX_WEIGHT
+        pc *= _MIX
+        f1 <<= _K16
         pc += f1
         c1 = _floor_div(pc, v, exact_float)      # p16
         idx = np.arange(s, e) if coded is None else coded[s:e]
