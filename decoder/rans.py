@@ -1045,13 +1045,16 @@ def _decode_rows(out, mask, shift, base, lut_symbol, tables, words, states, lane
     flag = np.empty(width, dtype=np.bool_)
     slot_row = np.empty(width, dtype=np.int64)
     sym_row = np.empty(width, dtype=lut_symbol.dtype)
+    # the symbols as intp once per row: take() converts narrower indices on every call
+    wide = lut_symbol.dtype != np.intp
+    symi_row = np.empty(width, dtype=np.intp) if wide else sym_row
     j = 0
     while j < count:
         lane0 = (pos + j) % lanes
         k = min(lanes - lane0, count - j)
         sl = slice(j, j + k)
         x = states[lane0:lane0 + k]
-        slot, sym = slot_row[:k], sym_row[:k]
+        slot, sym, symi = slot_row[:k], sym_row[:k], symi_row[:k]
         # decode step: x = freq * (x >> n) + (slot - cum), slot - cum = global slot - slot_start
         np.bitwise_and(x, mask[sl] if arr[0] else mask, out=slot)
         if with_base:
@@ -1060,10 +1063,12 @@ def _decode_rows(out, mask, shift, base, lut_symbol, tables, words, states, lane
         # slots are in range by construction (mask and base of a checked non-empty model), so
         # "clip" only skips take()'s buffered bounds check
         lut_symbol.take(slot, out=sym, mode="clip")
-        np.multiply(x, freq.take(sym), out=x)
+        if wide:
+            np.copyto(symi, sym)
+        np.multiply(x, freq.take(symi), out=x)
         np.add(x, slot, out=x)
-        np.subtract(x, slot_start.take(sym), out=x)
-        value.take(sym, out=out[sl], mode="clip")
+        np.subtract(x, slot_start.take(symi), out=x)
+        value.take(symi, out=out[sl], mode="clip")
         wpos = _renormalise(x, flag[:k], words, wpos)
         j += k
     return wpos
