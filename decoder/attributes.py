@@ -63,13 +63,14 @@ def numpy_colour(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> tuple[np.nda
     return v[0].astype(np.float32), np.ascontiguousarray(v[1:4].T, dtype=np.float32)
 
 
-def numpy_rotations(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
-    """The rotations float32 [M, 4] of :func:`_attributes_from_planes`, from the inverse RAHT
-    of the three angle channels only (the same half angles, cos/sin and products)."""
+def numpy_half_angles(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
+    """The half angles float64 [3, M] (contiguous) of :func:`_attributes_from_planes`, from
+    the inverse RAHT of the three angle channels only; NumPy's cos and sin of this array (on
+    any thread, :func:`half_angle_trig`) and ``quaternion_f32_from_trig`` give its rotations."""
     ang = raht_inverse_planes(dc, ac, tree, channels=(1, 2, 3))
     half = np.where(np.isfinite(ang), ang, 0.0)
     half *= 0.5
-    return quaternion_f32_from_trig(*half_angle_trig(half))
+    return half
 
 
 def parse_attributes(data, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -19,7 +19,7 @@ import numpy as np
 from . import native
 from .attributes import (attributes_from_coefficients, native_half_angles, native_opacity_dc,
                          native_rotations, native_scales, native_tree, numpy_colour,
-                         numpy_rotations, parse_attributes)
+                         numpy_half_angles, parse_attributes)
 from .cloud import GaussianCloud
 from .container import DEFAULT_MAX_GAUSSIANS, LAYER_SHIFT, TILE_SHIFT, Chunk
 from .errors import GszError, GszFormatError, GszLimitError
@@ -28,6 +28,7 @@ from .io_util import check_input_file
 from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_TILE
 from .pages import small_pages
 from .raht import build_raht_tree
+from .rotation import quaternion_f32_from_trig
 from .sh import read_sh
 
 
@@ -359,30 +360,44 @@ def _decode_layer_threaded(chunks: dict, header, state: LayerState, gh) -> Gauss
 
 def _finish_layer_threaded(gh, codes: np.ndarray, tree, decoded: tuple, header,
                            state: LayerState) -> GaussianCloud:
-    """:func:`_finish_layer` on two threads (NumPy path), the same arrays bit for bit: the
-    worker makes the positions and the opacity and DC colour (four RAHT channels), the calling
-    thread the rotations (three RAHT channels, cos/sin, quaternions) and the scales; the
-    finiteness checks report the first failing field in FIELDS order, as there."""
+    """:func:`_finish_layer` on two threads (NumPy path), the same arrays bit for bit:
+
+    worker                                  calling thread
+    positions                               RAHT angle channels -> half angles
+    RAHT opacity + DC, float32              cos (NumPy's) of the half angles, scales
+    sin (NumPy's) of the half angles        quaternions
+
+    (as the native path splits it); the finiteness checks report the first failing field in
+    FIELDS order, as there."""
     dc, ac, direct, sh_rest, codebook = decoded
     state.codebook = codebook
     finite = (lambda a: bool(np.isfinite(a).all()))
     err = np.geterr()                   # errstate is per thread: the worker follows this one
+    published = threading.Event()
+    half = []                           # the calling thread's half angles, once published
 
     def colour():
         with np.errstate(**err):
             positions = gh.positions(codes)
             opacities, sh_dc = numpy_colour(dc, ac, tree)
-            return (positions, opacities, sh_dc,
-                    dict(positions=finite(positions), opacities=finite(opacities), sh_dc=finite(sh_dc)))
+            ok = dict(positions=finite(positions), opacities=finite(opacities), sh_dc=finite(sh_dc))
+            published.wait()
+            s = np.sin(half[0]) if half else None    # the whole array, as half_angle_trig
+            return positions, opacities, sh_dc, ok, s
     pending = _worker().submit(native.carry(colour))
     try:
-        rotations = numpy_rotations(dc, ac, tree)
+        try:
+            half.append(numpy_half_angles(dc, ac, tree))
+        finally:
+            published.set()             # never leave the worker waiting
+        c = np.cos(half[0])
         scales = np.ascontiguousarray(direct.T, dtype=np.float32)
-        ok = dict(scales=finite(scales), rotations=finite(rotations), sh_rest=finite(sh_rest))
+        positions, opacities, sh_dc, ok_colour, s = pending.result()
     except BaseException:
-        pending.exception()            # never leave the worker running on this layer
+        pending.exception()             # the worker is done with this layer before we leave
         raise
-    positions, opacities, sh_dc, ok_colour = pending.result()
+    rotations = quaternion_f32_from_trig(c, s)
+    ok = dict(scales=finite(scales), rotations=finite(rotations), sh_rest=finite(sh_rest))
     _check_finite({**ok, **ok_colour})
     return GaussianCloud(positions=positions, scales=scales, rotations=rotations,
                          opacities=opacities, sh_dc=sh_dc, sh_rest=sh_rest,
