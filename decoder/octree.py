@@ -226,9 +226,9 @@ class _ChildLevel:
 
     nbr, col: this level's table (see :meth:`table`; col None: column = Morton index);
     occ: uint8 [N] the level's final occupancy bytes; bits: int64 [C] the set bits of ``occ``
-    (8 p + j for child j of node p), in order -- the children in Morton order.  A neighbour of child c lies in a
-    neighbour (or self) of c's parent, so it exists iff that node exists and has the
-    corresponding child bit.
+    (8 p + j for child j of node p), in order -- the children in Morton order.  A neighbour
+    of child c lies in a neighbour (or self) of c's parent, so it exists iff that node exists
+    and has the corresponding child bit.
     """
 
     def __init__(self, nbr: np.ndarray, col: np.ndarray | None, occ: np.ndarray, bits: np.ndarray):
@@ -243,7 +243,8 @@ class _ChildLevel:
         # group's lookups for one neighbour read one row, in ascending parent order.  Filled
         # by one scatter of the children (the first direct levels have far fewer than nodes)
         ch = np.full((8, n + 1), -1, dtype=self.dtype)
-        ch.reshape(-1)[(bits & 7) * (n + 1) + (bits >> 3) + 1] = np.arange(self.num, dtype=self.dtype)
+        ch.reshape(-1)[(bits & 7) * (n + 1) + (bits >> 3) + 1] = np.arange(self.num,
+                                                                           dtype=self.dtype)
         self.ch, self.nbr, self.col, self.occ = ch, nbr, col, occ
         # per child index k, the parents holding child k (ascending)
         self.parents = [np.flatnonzero(occ & np.uint8(1 << k)) for k in range(8)]
@@ -285,7 +286,7 @@ class _ChildLevel:
                 r = r[keep[ch[k, r + 1]]]
             groups.append(r)
         table = np.empty((27, sum(r.size for r in groups)), dtype=self.dtype)
-        new_col = np.zeros(self.num, dtype=np.int64) if keep is not None else np.empty(self.num, dtype=np.int64)
+        new_col = (np.empty if keep is None else np.zeros)(self.num, dtype=np.int64)
         g0 = 0
         for k, r in enumerate(groups):
             if r.size == 0:
@@ -592,7 +593,8 @@ def _direct_flags(level: int, direct_from: int, lb: int, present: np.ndarray,
         c1 <<= _K16
         c1 += _K2_15                                       # (c1 << 16) + 2**15
         # ((2 c1 + 1) << 16) // (2 (c0 + c1) + 2), both halved (the same quotient)
-        b = np.asarray(bits(level, FLAG_PLANE, coded[s:e], P16_TO_MODEL.take(c1 // v)), dtype=np.int64)
+        b = np.asarray(bits(level, FLAG_PLANE, coded[s:e], P16_TO_MODEL.take(c1 // v)),
+                       dtype=np.int64)
         np.add.at(df_n, c, _INC.take(b))
         out[s:e] = b
     flags[coded] = out > 0
