@@ -247,13 +247,15 @@ class _ChildLevel:
                                                                            dtype=self.dtype)
         self.ch, self.nbr, self.col, self.occ = ch, nbr, col, occ
         # per child index k, the parents holding child k (ascending)
-        self.parents = [np.flatnonzero(occ & np.uint8(1 << k)) for k in range(8)]
+        # (bool arrays: NumPy's nonzero is ~7x faster on bools than on bytes)
+        self.parents = [np.flatnonzero(((occ >> np.uint8(k)) & np.uint8(1)).view(np.bool_))
+                        for k in range(8)]
 
     def _octant(self, k: int, r: np.ndarray) -> dict:
         """The 8 parent-level nodes of child k's octant of parents ``r``, plus one (0 where
         absent): ``ch``'s columns."""
         rc = r if self.col is None else self.col.take(r)
-        return {o: r + 1 if o == SELF else np.add(self.nbr[o][rc], 1, dtype=np.intp)
+        return {o: r + 1 if o == SELF else np.add(self.nbr[o].take(rc), 1, dtype=np.intp)
                 for o in _OCTANT[k]}
 
     def present(self) -> np.ndarray:
@@ -268,7 +270,7 @@ class _ChildLevel:
             cnt = np.zeros(r.size, dtype=np.uint8)
             for o, p in self._octant(k, r).items():
                 cnt += NEIGHBOUR_COUNT[k, o].take(occ1.take(p))
-            out[self.ch[k, r + 1]] = cnt
+            out[self.ch[k].take(r + 1)] = cnt
         return out
 
     def table(self, keep: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -283,7 +285,7 @@ class _ChildLevel:
         groups = []
         for k, r in enumerate(self.parents):
             if keep is not None and r.size:
-                r = r[keep[ch[k, r + 1]]]
+                r = r[keep.take(ch[k].take(r + 1))]
             groups.append(r)
         table = np.empty((27, sum(r.size for r in groups)), dtype=self.dtype)
         new_col = (np.empty if keep is None else np.zeros)(self.num, dtype=np.int64)
@@ -292,7 +294,7 @@ class _ChildLevel:
             if r.size == 0:
                 continue
             g1 = g0 + r.size
-            new_col[ch[k, r + 1]] = np.arange(g0, g1)
+            new_col[ch[k].take(r + 1)] = np.arange(g0, g1)
             par = self._octant(k, r)
             for t in _NOT_SELF:
                 np.take(ch[int(CHILD_IDX[k, t])], par[int(CHILD_PAR[k, t])], out=table[t, g0:g1],
@@ -526,7 +528,7 @@ def walk_octree(depth: int, num_points: int, bits: BitSource, direct_from: int |
                     free = (state[:n] & 127) == 0
                     coded = np.flatnonzero(~free)
                     state[:n][free] |= np.uint16(128)
-                    ctx = ctx[coded]
+                    ctx = ctx.take(coded)
                 else:
                     free = (state.take(kept) & 127) == 0
                     coded = kept[~free]
@@ -557,8 +559,9 @@ def walk_octree(depth: int, num_points: int, bits: BitSource, direct_from: int |
             what = f"{total} nodes" + (f" and {num_direct} direct points" if num_direct else "")
             raise GszFormatError(f"octree level {level + 1} decodes to {what}, more than "
                                  f"the {num_points} points declared")
-        nz = np.flatnonzero(np.unpackbits(occ, bitorder="little"))
-        codes = (codes[nz >> 3] << np.uint64(3)) | (nz & 7).astype(np.uint64)
+        # the bits as bools: NumPy's nonzero is ~7x faster on bools than on bytes
+        nz = np.flatnonzero(np.unpackbits(occ, bitorder="little").view(np.bool_))
+        codes = (codes.take(nz >> 3) << np.uint64(3)) | (nz & 7).astype(np.uint64)
         if level + 1 < depth:
             children = _ChildLevel(nbr, col, occ, nz)
             if direct_from is not None and level + 1 >= direct_from:
