@@ -285,11 +285,22 @@ def _read_attributes_and_sh(chunks: dict, header, state: LayerState, m: int):
     return (dc, ac, direct, *_read_sh(chunks, header, state, m))
 
 
-def _codes_and_tree(gh):
-    """The NumPy path's worker: the octree, then the RAHT tree of its voxels."""
-    with np.errstate(over="ignore", invalid="ignore"):   # errstate is per thread
-        codes = gh.decode_codes()
-        return codes, build_raht_tree(codes, gh.depth)
+class _CodesAndTree:
+    """The NumPy path's worker: the octree (then ``codes_ready`` is set: the calling thread
+    makes the positions meanwhile), then the RAHT tree of its voxels (returned)."""
+
+    def __init__(self, gh):
+        self.gh = gh
+        self.codes = None
+        self.codes_ready = threading.Event()
+
+    def __call__(self):
+        with np.errstate(over="ignore", invalid="ignore"):   # errstate is per thread
+            try:
+                self.codes = self.gh.decode_codes()
+            finally:
+                self.codes_ready.set()          # also on an error: never leave the caller waiting
+            return build_raht_tree(self.codes, self.gh.depth)
 
 
 def decode_layer(chunks: dict, header, state: LayerState, *, overlap: bool = True,
@@ -344,28 +355,35 @@ def _finish_layer(gh, codes: np.ndarray, decoded: tuple, header, state: LayerSta
 def _decode_layer_threaded(chunks: dict, header, state: LayerState, gh) -> GaussianCloud:
     """decode_layer's NumPy path on two threads, the same arrays bit for bit: the octree and
     its RAHT tree on the worker while the calling thread decodes the attribute and SH streams
-    (NumPy releases the GIL inside its array loops, so the two overlap).  Errors keep the
+    (NumPy releases the GIL inside its array loops, so the two overlap), then the positions
+    while the worker builds the tree, then :func:`_finish_layer_threaded`.  Errors keep the
     sequential order: the geometry's comes first."""
     # carry: the worker follows this thread's path (inside numpy_only() too)
-    pending = _worker().submit(native.carry(_codes_and_tree), gh)
+    job = _CodesAndTree(gh)
+    pending = _worker().submit(native.carry(job))
     try:
         decoded = _read_attributes_and_sh(chunks, header, state, gh.num_points)
     except BaseException:
         if pending.exception() is not None:
             raise pending.exception() from None        # the geometry's error comes first
         raise
-    codes, tree = pending.result()
-    return _finish_layer_threaded(gh, codes, tree, decoded, header, state)
+    job.codes_ready.wait()
+    if job.codes is None:
+        pending.result()                               # raises the geometry's error
+    positions = gh.positions(job.codes)                # while the worker builds the tree
+    tree = pending.result()
+    return _finish_layer_threaded(gh, job.codes, tree, positions, decoded, header, state)
 
 
-def _finish_layer_threaded(gh, codes: np.ndarray, tree, decoded: tuple, header,
-                           state: LayerState) -> GaussianCloud:
-    """:func:`_finish_layer` on two threads (NumPy path), the same arrays bit for bit:
+def _finish_layer_threaded(gh, codes: np.ndarray, tree, positions: np.ndarray, decoded: tuple,
+                           header, state: LayerState) -> GaussianCloud:
+    """:func:`_finish_layer` on two threads (NumPy path), the same arrays bit for bit, once the
+    calling thread has made the ``positions``:
 
     worker                                  calling thread
-    positions                               RAHT angle channels -> half angles
-    RAHT opacity + DC, float32              cos (NumPy's) of the half angles, scales
-    sin (NumPy's) of the half angles        quaternions
+    RAHT opacity + DC, float32              RAHT angle channels -> half angles
+    sin (NumPy's) of the half angles        cos (NumPy's) of the half angles, scales
+                                            quaternions
 
     (as the native path splits it); the finiteness checks report the first failing field in
     FIELDS order, as there."""
@@ -378,12 +396,11 @@ def _finish_layer_threaded(gh, codes: np.ndarray, tree, decoded: tuple, header,
 
     def colour():
         with np.errstate(**err):
-            positions = gh.positions(codes)
             opacities, sh_dc = numpy_colour(dc, ac, tree)
-            ok = dict(positions=finite(positions), opacities=finite(opacities), sh_dc=finite(sh_dc))
+            ok = dict(opacities=finite(opacities), sh_dc=finite(sh_dc))
             published.wait()
             s = np.sin(half[0]) if half else None    # the whole array, as half_angle_trig
-            return positions, opacities, sh_dc, ok, s
+            return opacities, sh_dc, ok, s
     pending = _worker().submit(native.carry(colour))
     try:
         try:
@@ -392,12 +409,13 @@ def _finish_layer_threaded(gh, codes: np.ndarray, tree, decoded: tuple, header,
             published.set()             # never leave the worker waiting
         c = np.cos(half[0])
         scales = np.ascontiguousarray(direct.T, dtype=np.float32)
-        positions, opacities, sh_dc, ok_colour, s = pending.result()
+        opacities, sh_dc, ok_colour, s = pending.result()
     except BaseException:
         pending.exception()             # the worker is done with this layer before we leave
         raise
     rotations = quaternion_f32_from_trig(c, s)
-    ok = dict(scales=finite(scales), rotations=finite(rotations), sh_rest=finite(sh_rest))
+    ok = dict(positions=finite(positions), scales=finite(scales), rotations=finite(rotations),
+              sh_rest=finite(sh_rest))
     _check_finite({**ok, **ok_colour})
     return GaussianCloud(positions=positions, scales=scales, rotations=rotations,
                          opacities=opacities, sh_dc=sh_dc, sh_rest=sh_rest,
