@@ -845,9 +845,12 @@ class RansDecoder:
 
     def _runs_direct(self, run_lengths: np.ndarray) -> bool:
         """Whether :meth:`decode_runs` decodes these runs one by one with their models' own
-        LUTs (long runs on the NumPy row loop), not through :meth:`decode`."""
+        LUTs (runs of 8192 symbols or more on average, on the NumPy row loop), not through
+        :meth:`decode`: each run costs a partial row, but no per-symbol model id and no LUT of
+        the whole set (fresh memory: a 7.5 M-symbol RAHT set's 100 MB cost more than its 560
+        partial rows)."""
         return not (self._native or "binary_f0" in self._t or self._lanes < SCALAR_LANES
-                    or int(run_lengths.sum()) < (1 << 14) * run_lengths.size)
+                    or int(run_lengths.sum()) < (1 << 13) * run_lengths.size)
 
     def runs_within(self, run_models: np.ndarray, run_lengths: np.ndarray, hi: np.ndarray) -> bool:
         """True (NumPy path) when every value the model of each non-empty run can give lies in
