@@ -56,6 +56,23 @@ def _attributes_from_planes(v: np.ndarray, direct: np.ndarray) -> Attributes:
                       scales=np.ascontiguousarray(direct.T, dtype=np.float32))
 
 
+def numpy_colour(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> tuple[np.ndarray, np.ndarray]:
+    """(opacities float32 [M], sh_dc float32 [M, 3]) of :func:`_attributes_from_planes`, from
+    the inverse RAHT of those four channels only (each channel's values are the same)."""
+    v = raht_inverse_planes(dc, ac, tree, channels=(0, 4, 5, 6))
+    return v[0].astype(np.float32), np.ascontiguousarray(v[1:4].T, dtype=np.float32)
+
+
+def numpy_half_angles(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
+    """The half angles float64 [3, M] (contiguous) of :func:`_attributes_from_planes`, from
+    the inverse RAHT of the three angle channels only; NumPy's cos and sin of this array (on
+    any thread, :func:`half_angle_trig`) and ``quaternion_f32_from_trig`` give its rotations."""
+    ang = raht_inverse_planes(dc, ac, tree, channels=(1, 2, 3))
+    half = np.where(np.isfinite(ang), ang, 0.0)
+    half *= 0.5
+    return half
+
+
 def parse_attributes(data, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Entropy-decode an ATTR chunk of ``m`` points (no geometry needed yet): returns the RAHT
     DC float64 [R], AC float64 [R, m - 1] (stream order) and direct channels float64 [3, m]."""

@@ -83,23 +83,35 @@ def _read_header(r: Reader, max_length: int, shape: tuple | None, name: str):
 
 
 def read_channel_set(r: Reader, *, max_length: int, shape: tuple | None = None,
-                     name: str = "channel set") -> np.ndarray:
+                     name: str = "channel set", dtype=np.float64) -> np.ndarray:
     """Parse one quantised channel set from ``r``; returns the dequantised float64 [C, L].
 
     shape   the (C, L) its use prescribes (GSZ.md §5): C, then L's bound ``max_length``, then
             L are checked as soon as they are read, before anything is allocated or decoded
-            (a hostile C or L would otherwise cost C * L symbols of work first)."""
+            (a hostile C or L would otherwise cost C * L symbols of work first)
+    dtype   np.float32: the float64 values rounded to float32 (what a float32 field keeps)"""
     c, length, b, mode, bits, mins, maxs, blob = _read_header(r, max_length, shape, name)
     if native.enabled():
-        return _decode_native(blob, c, length, b, bits, mins, maxs, mode)
+        return _decode_native(blob, c, length, b, bits, mins, maxs, mode).astype(dtype, copy=False)
     # decode_stream(blob, group_model_ids(...)) one group (a run of one model) at a time
     lengths = split_lengths(length, b)
     models, pos = read_model_set(blob, 0, max_models=model_count(c, b, mode), num_symbols=c * length)
     dec = RansDecoder(memoryview(blob)[pos:], c * length, models, use_native=False)
     table, _ = group_model_table(c, b, bits, mode)
-    symbols = dec.decode_runs(table.ravel(), np.tile(lengths, c)).reshape(c, length)
+    run_models, run_lengths = table.ravel(), np.tile(lengths, c)
+    qmax = (np.int64(1) << bits.astype(np.int64)) - 1
+    if dec.runs_within(run_models, run_lengths, qmax):
+        # no symbol can fail dequantize_groups' checks: every group's symbols come out of its
+        # model's value table mapped to m_g + s_g * k (the same float64 products and sums),
+        # no [C, L] integer array and no second pass over it
+        lo = np.asarray(mins, dtype=np.float32).astype(np.float64)
+        out = dec.decode_runs(run_models, run_lengths, step_sizes(mins, maxs, bits).ravel(),
+                              lo.ravel(), dtype).reshape(c, length)
+        dec.finish()
+        return out
+    symbols = dec.decode_runs(run_models, run_lengths).reshape(c, length)
     dec.finish()
-    return dequantize_groups(symbols, mins, maxs, bits, lengths)
+    return dequantize_groups(symbols, mins, maxs, bits, lengths).astype(dtype, copy=False)
 
 
 def _native_decoder(blob, c: int, length: int, b: int, bits, mins, maxs, mode: int):

@@ -18,8 +18,8 @@ import numpy as np
 
 from . import native
 from .attributes import (attributes_from_coefficients, native_half_angles, native_opacity_dc,
-                         native_rotations, native_scales, native_tree, parse_attributes,
-                         parse_direct_part, parse_raht_part)
+                         native_rotations, native_scales, native_tree, numpy_colour,
+                         numpy_half_angles, parse_attributes, parse_direct_part, parse_raht_part)
 from .cloud import GaussianCloud
 from .container import DEFAULT_MAX_GAUSSIANS, LAYER_SHIFT, TILE_SHIFT, Chunk
 from .errors import GszError, GszFormatError, GszLimitError
@@ -28,6 +28,7 @@ from .io_util import check_input_file
 from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_TILE
 from .pages import small_pages
 from .raht import build_raht_tree
+from .rotation import quaternion_f32_from_trig
 from .sh import read_sh
 
 
@@ -284,11 +285,22 @@ def _read_attributes_and_sh(chunks: dict, header, state: LayerState, m: int):
     return (dc, ac, direct, *_read_sh(chunks, header, state, m))
 
 
-def _codes_and_tree(gh):
-    """The NumPy path's worker: the octree, then the RAHT tree of its voxels."""
-    with np.errstate(over="ignore", invalid="ignore"):   # errstate is per thread
-        codes = gh.decode_codes()
-        return codes, build_raht_tree(codes, gh.depth)
+class _CodesAndTree:
+    """The NumPy path's worker: the octree (then ``codes_ready`` is set: the calling thread
+    makes the positions meanwhile), then the RAHT tree of its voxels (returned)."""
+
+    def __init__(self, gh):
+        self.gh = gh
+        self.codes = None
+        self.codes_ready = threading.Event()
+
+    def __call__(self):
+        with np.errstate(over="ignore", invalid="ignore"):   # errstate is per thread
+            try:
+                self.codes = self.gh.decode_codes()
+            finally:
+                self.codes_ready.set()          # also on an error: never leave the caller waiting
+            return build_raht_tree(self.codes, self.gh.depth)
 
 
 def decode_layer(chunks: dict, header, state: LayerState, *, overlap: bool = True,
@@ -343,18 +355,71 @@ def _finish_layer(gh, codes: np.ndarray, decoded: tuple, header, state: LayerSta
 def _decode_layer_threaded(chunks: dict, header, state: LayerState, gh) -> GaussianCloud:
     """decode_layer's NumPy path on two threads, the same arrays bit for bit: the octree and
     its RAHT tree on the worker while the calling thread decodes the attribute and SH streams
-    (NumPy releases the GIL inside its array loops, so the two overlap).  Errors keep the
+    (NumPy releases the GIL inside its array loops, so the two overlap), then the positions
+    while the worker builds the tree, then :func:`_finish_layer_threaded`.  Errors keep the
     sequential order: the geometry's comes first."""
     # carry: the worker follows this thread's path (inside numpy_only() too)
-    pending = _worker().submit(native.carry(_codes_and_tree), gh)
+    job = _CodesAndTree(gh)
+    pending = _worker().submit(native.carry(job))
     try:
         decoded = _read_attributes_and_sh(chunks, header, state, gh.num_points)
     except BaseException:
         if pending.exception() is not None:
             raise pending.exception() from None        # the geometry's error comes first
         raise
-    codes, tree = pending.result()
-    return _finish_layer(gh, codes, decoded, header, state, tree)
+    job.codes_ready.wait()
+    if job.codes is None:
+        pending.result()                               # raises the geometry's error
+    positions = gh.positions(job.codes)                # while the worker builds the tree
+    tree = pending.result()
+    return _finish_layer_threaded(gh, job.codes, tree, positions, decoded, header, state)
+
+
+def _finish_layer_threaded(gh, codes: np.ndarray, tree, positions: np.ndarray, decoded: tuple,
+                           header, state: LayerState) -> GaussianCloud:
+    """:func:`_finish_layer` on two threads (NumPy path), the same arrays bit for bit, once the
+    calling thread has made the ``positions``:
+
+    worker                                  calling thread
+    RAHT opacity + DC, float32              RAHT angle channels -> half angles
+    sin (NumPy's) of the half angles        cos (NumPy's) of the half angles, scales
+                                            quaternions
+
+    (as the native path splits it); the finiteness checks report the first failing field in
+    FIELDS order, as there."""
+    dc, ac, direct, sh_rest, codebook = decoded
+    state.codebook = codebook
+    finite = (lambda a: bool(np.isfinite(a).all()))
+    err = np.geterr()                   # errstate is per thread: the worker follows this one
+    published = threading.Event()
+    half = []                           # the calling thread's half angles, once published
+
+    def colour():
+        with np.errstate(**err):
+            opacities, sh_dc = numpy_colour(dc, ac, tree)
+            ok = dict(opacities=finite(opacities), sh_dc=finite(sh_dc))
+            published.wait()
+            s = np.sin(half[0]) if half else None    # the whole array, as half_angle_trig
+            return opacities, sh_dc, ok, s
+    pending = _worker().submit(native.carry(colour))
+    try:
+        try:
+            half.append(numpy_half_angles(dc, ac, tree))
+        finally:
+            published.set()             # never leave the worker waiting
+        c = np.cos(half[0])
+        scales = np.ascontiguousarray(direct.T, dtype=np.float32)
+        opacities, sh_dc, ok_colour, s = pending.result()
+    except BaseException:
+        pending.exception()             # the worker is done with this layer before we leave
+        raise
+    rotations = quaternion_f32_from_trig(c, s)
+    ok = dict(positions=finite(positions), scales=finite(scales), rotations=finite(rotations),
+              sh_rest=finite(sh_rest))
+    _check_finite({**ok, **ok_colour})
+    return GaussianCloud(positions=positions, scales=scales, rotations=rotations,
+                         opacities=opacities, sh_dc=sh_dc, sh_rest=sh_rest,
+                         sh_degree=header.sh_degree)
 
 
 class _GeometryJob:

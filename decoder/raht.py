@@ -99,27 +99,39 @@ def build_raht_tree(morton_codes: np.ndarray, depth: int) -> RahtTree:
     if n >= 1 << 31:
         raise GszFormatError(f"RAHT tree of {n} points: more than 2^31")
     # every node's slot and weight (both < 2^31) in one int64: slot << 32 | weight -- one
-    # gather and one compaction per level for both
+    # gather and one compaction per level for both.  The first m entries of ``codes`` (a copy,
+    # shifted in place) and ``node`` are the level's nodes: compacted in place, into memory
+    # already touched (fresh arrays per level cost page faults on 45 levels of ~N entries)
     node = (np.arange(n, dtype=np.int64) << 32) | 1
     low32 = np.int64(0xFFFFFFFF)
     levels = []
     one = np.uint64(1)
+    same = np.empty(max(n - 1, 0), dtype=bool)
+    keep = np.empty(n, dtype=bool)
+    m = n
     for level in range(3 * depth):
-        if codes.shape[0] == 1:
+        if m == 1:
             break
         # Sorted unique codes: siblings are adjacent, left one even, right one = left + 1.
-        parent = codes >> one
-        pos = np.flatnonzero(parent[:-1] == parent[1:])
+        parent = codes[:m]
+        np.right_shift(parent, one, out=parent)
+        eq = same[:m - 1]
+        np.equal(parent[:-1], parent[1:], out=eq)
+        pos = np.flatnonzero(eq)
         if pos.size:
-            a, b = node[pos], node[pos + 1]
+            nodes = node[:m]
+            a, b = nodes.take(pos), nodes.take(pos + 1)
             wl, wr = a & low32, b & low32
             levels.append(RahtLevel(level, a >> 32, b >> 32,
                                     wl.astype(np.float64), wr.astype(np.float64)))
-            node[pos] = a + wr                  # node is a fresh array from the last level
-            keep = np.ones(codes.shape[0], dtype=bool)
-            keep[pos + 1] = False
-            parent, node = parent[keep], node[keep]
-        codes = parent
+            nodes[pos] = a + wr
+            k = keep[:m]
+            k.fill(True)
+            k[pos + 1] = False
+            m -= pos.size
+            codes[:m] = parent[k]
+            node[:m] = nodes[k]
+    codes = codes[:m]
     if codes.shape[0] != 1:  # unreachable given the bit-length check; kept as a hard guard
         raise GszFormatError("RAHT tree did not reduce to a single root")
     ac_slots = (np.concatenate([lv.right for lv in reversed(levels)]) if levels
@@ -142,15 +154,18 @@ def raht_inverse(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
     return np.ascontiguousarray(raht_inverse_planes(dc, ac.T, tree).T)
 
 
-def raht_inverse_planes(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
+def raht_inverse_planes(dc: np.ndarray, ac: np.ndarray, tree: RahtTree,
+                        channels=None) -> np.ndarray:
     """:func:`raht_inverse` channel-major: ac float [C, N-1] (stream order) -> float64 [C, N],
     the same values (every channel's butterflies are the same float64 operations, one
-    channel's row at a time)."""
+    channel's row at a time).  ``channels``: only these (indices), as rows in that order."""
     dc = np.asarray(dc, dtype=np.float64).reshape(-1)
     ac = np.asarray(ac, dtype=np.float64)
     n = tree.num_points
     if ac.ndim != 2 or ac.shape != (dc.shape[0], n - 1):
         raise GszFormatError(f"RAHT inverse: expected AC shape ({dc.shape[0]}, {n - 1}), got {ac.shape}")
+    if channels is not None:
+        dc, ac = dc[list(channels)], [ac[c] for c in channels]
     v = np.empty((dc.shape[0], n), dtype=np.float64)
     v[:, 0] = dc
     # the high-pass value of a pair is its AC coefficient, read in stream order: the right

@@ -46,7 +46,10 @@ MAX_SH_CLASSES = 16
 def class_order(classes: np.ndarray) -> np.ndarray:
     """Coding order of the kept vectors [P] from their classes [P] (Morton order): class 0
     first, Morton order within a class (a stable sort)."""
-    return np.argsort(np.asarray(classes), kind="stable")
+    c = np.asarray(classes)
+    if c.size and c.dtype != np.uint8 and c.min() >= 0 and c.max() < 256:
+        c = c.astype(np.uint8)         # the same order: NumPy's stable sort of bytes is a radix sort (10x)
+    return np.argsort(c, kind="stable")
 
 
 def read_sh_classes(data, num_kept: int) -> np.ndarray:
@@ -59,13 +62,6 @@ def read_sh_classes(data, num_kept: int) -> np.ndarray:
     r.check(bool(np.all((classes >= 0) & (classes < q))), f"SH class outside 0..{q - 1}")
     r.expect_end()
     return classes
-
-
-def _stored_column(classes: np.ndarray | None, p: int) -> np.ndarray:
-    """[P] the stored column of each kept vector, in point order (class order when ``classes``)."""
-    col = np.empty(p, np.int64)
-    col[class_order(classes) if classes is not None else slice(None)] = np.arange(p)
-    return col
 
 
 def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None,
@@ -101,7 +97,8 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
         return _assemble_native(r, m, k, d, p, kcb, codebook, classes), codebook
     kept = None
     if p:
-        kept = read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set")
+        # float32: the values the float32 output keeps (half the bytes to decode into and move)
+        kept = read_channel_set(r, max_length=p, shape=(d, p), name="kept SH set", dtype=np.float32)
         flags = decode_stream_single(r.blob(), m)
         r.check(bool(np.all((flags == 0) | (flags == 1))), "kept flag outside 0/1")
         kept_mask = flags.astype(bool)
@@ -109,25 +106,31 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
     idx = decode_stream_single(r.blob(), m - p)
     r.check(idx.size == 0 or (idx.min() >= 0 and idx.max() < kcb), "codeword index out of range")
     r.expect_end()
-    # every Gaussian's vector is one row of [kept vectors; codebook] as float32 (the rounding
-    # the float32 output applies anyway): one contiguous gather, not two masked scatters; the
-    # rows are cast in place (no float32 copy of each part, then of their concatenation)
-    rows = np.empty((p + (kcb if idx.size else 0), d), np.float32)
-    if p:
-        rows[:p] = kept.T
-    if idx.size:
-        rows[p:] = codebook.T
-    # the row of [kept vectors as stored; codebook] each Gaussian takes (kept ones in point order)
-    if p and idx.size:
-        which = np.empty(m, np.int64)
-        which[kept_mask] = _stored_column(classes, p)
-        which[~kept_mask] = idx + p
-    else:
-        which = idx + p if idx.size else _stored_column(classes, m)
-    # rows as single 4*D-byte items: a 1-D take copies each row in one piece
+    # every Gaussian's vector as one 4*D-byte item of the float32 output: the kept vectors
+    # scattered to their Gaussians a block of stored columns at a time (the transposed block
+    # stays in cache; no [P, D] copy of the whole set), the codeword rows gathered
     item = np.dtype((np.void, 4 * d))
-    out = np.ascontiguousarray(rows).view(item)[:, 0].take(which).view(np.float32)
+    out = np.empty((m, d), np.float32)
+    items = out.view(item)[:, 0]
+    coded = None if idx.size == 0 else ~kept_mask if p else slice(None)
+    if p:
+        # the Gaussian of every stored column: kept Gaussians in Morton order, reordered by
+        # class when the kept set is stored by class (class_order)
+        dest = np.flatnonzero(kept_mask) if idx.size else np.arange(m)
+        if classes is not None:
+            dest = dest[class_order(classes)]
+        for j0 in range(0, p, _KEPT_BLOCK):
+            j1 = min(p, j0 + _KEPT_BLOCK)
+            block = np.ascontiguousarray(kept[:, j0:j1].T, dtype=np.float32)
+            items[dest[j0:j1]] = block.view(item)[:, 0]
+    if coded is not None:
+        rows = np.ascontiguousarray(codebook.T, dtype=np.float32)
+        items[coded] = rows.view(item)[:, 0].take(idx)
     return out.reshape(m, k, 3), codebook
+
+
+#: stored kept-SH columns transposed and scattered per step (a 45 x 8192 float32 block: 1.5 MB)
+_KEPT_BLOCK = 8192
 
 
 def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebook, classes):
