@@ -310,12 +310,12 @@ class BudgetSearch:
                 p, views, partial = self.judge.score(enc.cloud, rival)
             enc.release()
             if partial:
-                progress.log(f"{what}: {len(enc.data):,} bytes, {partial} hardest train views "
+                progress.log(f"{what}: {enc.size:,} bytes, {partial} hardest train views "
                              f"{EVAL_DROP_MARGIN_DB:g}+ dB below the best candidate's: dropped")
-                self.dropped.append({"reserve": tau, "depth": d, "bytes": len(enc.data), "views": partial,
+                self.dropped.append({"reserve": tau, "depth": d, "bytes": enc.size, "views": partial,
                                      "partial_psnr": p})
                 continue
-            progress.log(f"{what}: {len(enc.data):,} bytes, train PSNR {p:.2f} dB")
+            progress.log(f"{what}: {enc.size:,} bytes, train PSNR {p:.2f} dB")
             scored.append(Candidate(p, tau, d, fl, views, enc))
         if not paths:
             progress.log(f"tau {tau}: budget not reachable")
@@ -323,7 +323,18 @@ class BudgetSearch:
         self._note_lost_paths(paths, scored)
         if scored:
             # one candidate per (tau, depth, split): the better SH path as rendered
-            self.candidates.append(best_of(scored))
+            self.add_candidate(best_of(scored))
+
+    def add_candidate(self, cand: Candidate) -> None:
+        """Add ``cand``; of a single-layer search only the best candidate's file can be chosen
+        (layers.finalists), so the others drop their bytes (~120 MB each at 6 M Gaussians).
+        Layered files are chosen by when layer 0 arrives too: there every candidate keeps them."""
+        self.candidates.append(cand)
+        if self.sopts.layers == 1:
+            best = self.best()
+            for c in self.candidates:
+                if c is not best:
+                    c.encoded.drop_data()
 
     def _note_lost_paths(self, paths: list, scored: list) -> None:
         """An SH path that rendered PATH_LOST_MARGIN_DB or more below the best of a stage (or
@@ -390,7 +401,7 @@ class BudgetSearch:
         if flat.candidates and flat.best().train_psnr > best.train_psnr:
             self.progress.log(f"without SH rest: train PSNR {flat.best().train_psnr:.2f} dB "
                               f"> {best.train_psnr:.2f} dB with them")
-            self.candidates.append(flat.best())
+            self.add_candidate(flat.best())
 
     def _result(self) -> EncodeResult:
         if not self.candidates:
