@@ -250,7 +250,6 @@ class Layer:
     index      [M_l] int64 ascending indices into the stage's voxels (so Morton order)
     geometry_job  GEOM chunk payload of the layer, or a Future of it while a worker thread codes
                   it (read :attr:`geometry`)
-    tree       RAHT tree of the layer's voxels
     raht_dc    [7] float64 RAHT root coefficients (stored exactly)
     raht_ac    [7, M_l-1] float32 AC coefficients in stream (level) order
     scales     [3, M_l] float32 log-scales in Morton order
@@ -263,7 +262,6 @@ class Layer:
 
     index: np.ndarray
     geometry_job: object
-    tree: object
     raht_dc: np.ndarray
     raht_ac: np.ndarray
     scales: np.ndarray
@@ -282,6 +280,11 @@ class Layer:
     @property
     def num_points(self) -> int:
         return len(self.index)
+
+    @property
+    def depth(self) -> int:
+        """Octree depth of the part's grid (its RAHT tree's)."""
+        return self.grid[2]
 
 
 @dataclass
@@ -495,14 +498,15 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
 
 
 def _transform(ijk: np.ndarray, depth: int, rotations, opacities, sh_dc):
-    """Morton codes, RAHT tree, RAHT DC [7] and AC [7, M-1] (float32) of one part's voxels."""
+    """Morton codes, RAHT DC [7] and AC [7, M-1] (float32) of one part's voxels (the tree goes:
+    40 bytes a voxel, and the codes rebuild it where the NumPy decode path needs it)."""
     from .raht import raht_forward
     codes = morton_encode(ijk)
     tree = build_raht_tree(codes, depth)
     euler = quaternion_to_euler(rotations.astype(np.float64))
     attrs = np.concatenate([opacities.astype(np.float64)[:, None], euler, sh_dc.astype(np.float64)], axis=1)
     dc, ac = raht_forward(attrs, tree)
-    return codes, tree, dc, np.ascontiguousarray(ac.T, dtype=np.float32)
+    return codes, dc, np.ascontiguousarray(ac.T, dtype=np.float32)
 
 
 @dataclass
@@ -516,7 +520,7 @@ class PartJob:
 
 
 def code_part(job: PartJob):
-    """(GEOM payload, codes, tree, RAHT DC, RAHT AC) of one part: the executor's unit of work."""
+    """(GEOM payload, codes, RAHT DC, RAHT AC) of one part: the executor's unit of work."""
     origin, side, depth = job.grid
     geometry = write_geometry(job.ijk, origin, side, depth)
     return (geometry,) + _transform(job.ijk, depth, job.rotations, job.opacities, job.sh_dc)
@@ -545,8 +549,8 @@ def _prepare_part(vox, li: int, t: int, idx: np.ndarray, grid: tuple, tiles: int
             return write_geometry(job.ijk, *job.grid)
     geom = pool.submit(code_geometry) if pool is not None else code_geometry()
     with progress.stage("transform", ("Euler + RAHT, " + tag) if tag else "Euler + RAHT"):
-        codes, tree, dc, ac = _transform(job.ijk, grid[2], job.rotations, job.opacities, job.sh_dc)
-    return Layer(index=idx, geometry_job=geom, tree=tree, raht_dc=dc, raht_ac=ac,
+        codes, dc, ac = _transform(job.ijk, grid[2], job.rotations, job.opacities, job.sh_dc)
+    return Layer(index=idx, geometry_job=geom, raht_dc=dc, raht_ac=ac,
                  scales=np.ascontiguousarray(vox.cloud.scales[idx].T, dtype=np.float32), codes=codes,
                  layer=li, tile=t, grid=grid)
 
@@ -560,10 +564,10 @@ def _prepare_parts(vox, part_of: list, grids: list, layers: int, progress: Progr
     with progress.stage("tiles", f"geometry + transform of {len(part_of)} parts ({tiles} tiles) on "
                                  f"{executor.name} ({executor.workers} workers)"):
         done = executor.map(code_part, [_part_job(vox, idx, grids[t]) for _, t, idx in part_of])
-    return [Layer(index=idx, geometry_job=geom, tree=tree, raht_dc=dc, raht_ac=ac,
+    return [Layer(index=idx, geometry_job=geom, raht_dc=dc, raht_ac=ac,
                   scales=np.ascontiguousarray(vox.cloud.scales[idx].T, dtype=np.float32), codes=codes,
                   layer=li, tile=t, grid=grids[t])
-            for (li, t, idx), (geom, codes, tree, dc, ac) in zip(part_of, done)]
+            for (li, t, idx), (geom, codes, dc, ac) in zip(part_of, done)]
 
 
 @dataclass
@@ -573,7 +577,7 @@ class AttributeJob:
     raht_ac: np.ndarray
     scales: np.ndarray
     codes: np.ndarray
-    tree: object
+    depth: int
     raht_bits: object
     scale_bits: object
     blocks: int
@@ -599,9 +603,10 @@ def attribute_chunk(layer: Layer, raht_bits, scale_bits, blocks: int):
     if native.enabled():
         # the decoder's own C path (bit-identical to the NumPy one): the inverse RAHT and the
         # field conversions were ~1/4 of every calibration round of the size search
-        decoded = attributes_from_coefficients(layer.raht_dc, ac_rec, sc_rec, layer.codes, layer.tree.depth)
+        decoded = attributes_from_coefficients(layer.raht_dc, ac_rec, sc_rec, layer.codes, layer.depth)
     else:
-        decoded = attributes_from_channels(raht_inverse(layer.raht_dc, ac_rec.T, layer.tree), sc_rec)
+        tree = build_raht_tree(layer.codes, layer.depth)
+        decoded = attributes_from_channels(raht_inverse(layer.raht_dc, ac_rec.T, tree), sc_rec)
     return w.getvalue(), decoded, {"raht_bytes": len(ac_bytes), "scale_bytes": len(sc_bytes)}
 
 
@@ -612,7 +617,7 @@ def attribute_chunks(stage: Stage, bits, blocks: int):
     from ..decoder.attributes import Attributes
 
     payloads, parts, stats = [], [], {"raht_bytes": 0, "scale_bytes": 0}
-    jobs = (AttributeJob(layer.raht_dc, layer.raht_ac, layer.scales, layer.codes, layer.tree,
+    jobs = (AttributeJob(layer.raht_dc, layer.raht_ac, layer.scales, layer.codes, layer.depth,
                          *((bits, bits) if np.isscalar(bits) else bits[li]), b)
             for li, (layer, b) in enumerate(zip(stage.layers, stage.layer_blocks(blocks))))
     ex = stage.executor if stage.num_tiles > 1 else None
