@@ -734,7 +734,8 @@ class ShPayloads:
                                    else np.asarray(index, np.int64), assign)
         elif rest.any():
             near = np.zeros(m, np.int64)
-            near[rest] = assign(stage.sh[rest], codebook) if index is None else np.asarray(index)[rest]
+            near[rest] = (assign(stage.sh, codebook, rows=np.flatnonzero(rest)) if index is None
+                          else np.asarray(index)[rest])
         #: per tile: (voxels taking a codeword, the tile's reconstructed codebook [K_t, D]
         #: float32, each voxel's row in it): an [M, D] array per plan would be 216 MB at 1.2 M
         self._codewords = []
