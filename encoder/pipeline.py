@@ -290,11 +290,13 @@ class Layer:
 @dataclass
 class Stage:
     """Everything that depends on the reserve ratio, depth and layering but not on bit-widths.
+    It keeps only what coding needs of the voxel grid it was made from (the grid's other fields
+    and its coordinates are 100 bytes a voxel; the parts' Morton codes give the positions).
 
-    vox        the voxelised, merged cloud (M Gaussians, Morton order)
     layers     [Layer], importance order (layer 0 = most important voxels)
     sh         [M, D] float32 higher-degree SH vectors in voxel order (D = 0 for SH degree 0)
     importance [M] float64 merged importance in voxel order
+    kept       Gaussians kept by pruning (before merging into M voxels)
     source     [M] int64 index into the input cloud of the one Gaussian a voxel holds, -1 where
                several were merged (lets the size search reuse per-Gaussian work across taus)
     executor   where the per-tile work of a tiled stage runs (:mod:`gsz.encoder.executor`;
@@ -304,19 +306,24 @@ class Stage:
 
     reserve: float
     depth: int
-    vox: object
     layers: list
     sh: np.ndarray
     importance: np.ndarray
     sh_degree: int
     input_gaussians: int
+    kept: int
     source: np.ndarray | None = None
     executor: object = field(default=None, repr=False, compare=False)
     cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def num_points(self) -> int:
-        return len(self.vox.ijk)
+        return len(self.importance)
+
+    @property
+    def merged_fraction(self) -> float:
+        """Share of the kept Gaussians merged away (as Voxelized.merged_fraction)."""
+        return 1.0 - self.num_points / self.kept
 
     @property
     def geometry_bytes(self) -> int:
@@ -334,7 +341,8 @@ class Stage:
     def positions(self) -> np.ndarray:
         """float32 [M, 3] decoded positions in output order (each part on its own grid)."""
         from ..decoder.geometry import voxel_centres
-        return np.concatenate([voxel_centres(part_ijk(self.vox, l.index, l.grid), *l.grid).astype(np.float32)
+        from ..decoder.morton import morton_decode
+        return np.concatenate([voxel_centres(morton_decode(l.codes), *l.grid).astype(np.float32)
                                for l in self.layers])
 
     @property
@@ -492,9 +500,10 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
         [tile_grid(codes[lo:hi], vox.ijk[lo:hi], vox.origin, vox.side, d) for lo, hi in tiles]
     parts = _prepare_parts(vox, part_of, grids, layers, progress, pool, executor)
     c = vox.cloud
-    return Stage(reserve=float(reserve), depth=d, vox=vox, layers=parts,
+    return Stage(reserve=float(reserve), depth=d, layers=parts,
                  sh=np.ascontiguousarray(c.sh_rest.reshape(m, -1), dtype=np.float32), importance=vox.importance,
-                 sh_degree=cloud.sh_degree, input_gaussians=len(cloud), source=source, executor=executor)
+                 sh_degree=cloud.sh_degree, input_gaussians=len(cloud), kept=len(kept), source=source,
+                 executor=executor)
 
 
 def _transform(ijk: np.ndarray, depth: int, rotations, opacities, sh_dc):
@@ -1037,8 +1046,8 @@ def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, st
         codebook_size=sh_stats.get("codebook_size", 0), sh_keep=sh_stats.get("kept", 0), components=sizes,
         layers=layer_report(data), seconds=dict(progress.seconds), total_seconds=time.perf_counter() - starts[0],
         memory=progress.memory_report(), cpu_seconds=time.process_time() - starts[1],
-        fixed=FixedDetails(kept_after_prune=len(stage.vox.index_of_point),
-                           merged_fraction=stage.vox.merged_fraction, options=options_json))
+        fixed=FixedDetails(kept_after_prune=stage.kept,
+                           merged_fraction=stage.merged_fraction, options=options_json))
     return EncodeResult(data=data, cloud=out_cloud, report=report)
 
 
