@@ -57,7 +57,6 @@ def main(argv=None):
         return 0
     import gsz
     from gsz.decoder.cloud import GaussianCloud
-    from gsz.decoder.geometry import voxel_centres
     from gsz.encoder.bit_allocation import allocate
     from gsz.evaluation.cameras import load_cameras
     from gsz.evaluation.evaluate import evaluate, render_views
@@ -85,7 +84,7 @@ def main(argv=None):
         attr_bits = 8.0 * (budget_file - stage.geometry_bytes - sh_bytes - group_meta_bytes(shapes) - 600)
         m = stage.num_points
         order = stage.order
-        pos = voxel_centres(stage.vox.ijk[order], stage.vox.origin, stage.vox.side, stage.depth).astype(np.float32)
+        pos = stage.positions()                     # one tile: in output (= order) order
         k = stage.sh.shape[1] // 3
         sh_rest = stage.sh[order].reshape(m, k, 3)
         chan = np.concatenate([np.repeat(np.arange(c), b) + (7 if i % 2 else 0)

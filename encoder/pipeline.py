@@ -250,7 +250,6 @@ class Layer:
     index      [M_l] int64 ascending indices into the stage's voxels (so Morton order)
     geometry_job  GEOM chunk payload of the layer, or a Future of it while a worker thread codes
                   it (read :attr:`geometry`)
-    tree       RAHT tree of the layer's voxels
     raht_dc    [7] float64 RAHT root coefficients (stored exactly)
     raht_ac    [7, M_l-1] float32 AC coefficients in stream (level) order
     scales     [3, M_l] float32 log-scales in Morton order
@@ -263,7 +262,6 @@ class Layer:
 
     index: np.ndarray
     geometry_job: object
-    tree: object
     raht_dc: np.ndarray
     raht_ac: np.ndarray
     scales: np.ndarray
@@ -283,15 +281,22 @@ class Layer:
     def num_points(self) -> int:
         return len(self.index)
 
+    @property
+    def depth(self) -> int:
+        """Octree depth of the part's grid (its RAHT tree's)."""
+        return self.grid[2]
+
 
 @dataclass
 class Stage:
     """Everything that depends on the reserve ratio, depth and layering but not on bit-widths.
+    It keeps only what coding needs of the voxel grid it was made from (the grid's other fields
+    and its coordinates are 100 bytes a voxel; the parts' Morton codes give the positions).
 
-    vox        the voxelised, merged cloud (M Gaussians, Morton order)
     layers     [Layer], importance order (layer 0 = most important voxels)
     sh         [M, D] float32 higher-degree SH vectors in voxel order (D = 0 for SH degree 0)
     importance [M] float64 merged importance in voxel order
+    kept       Gaussians kept by pruning (before merging into M voxels)
     source     [M] int64 index into the input cloud of the one Gaussian a voxel holds, -1 where
                several were merged (lets the size search reuse per-Gaussian work across taus)
     executor   where the per-tile work of a tiled stage runs (:mod:`gsz.encoder.executor`;
@@ -301,19 +306,24 @@ class Stage:
 
     reserve: float
     depth: int
-    vox: object
     layers: list
     sh: np.ndarray
     importance: np.ndarray
     sh_degree: int
     input_gaussians: int
+    kept: int
     source: np.ndarray | None = None
     executor: object = field(default=None, repr=False, compare=False)
     cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def num_points(self) -> int:
-        return len(self.vox.ijk)
+        return len(self.importance)
+
+    @property
+    def merged_fraction(self) -> float:
+        """Share of the kept Gaussians merged away (as Voxelized.merged_fraction)."""
+        return 1.0 - self.num_points / self.kept
 
     @property
     def geometry_bytes(self) -> int:
@@ -331,7 +341,8 @@ class Stage:
     def positions(self) -> np.ndarray:
         """float32 [M, 3] decoded positions in output order (each part on its own grid)."""
         from ..decoder.geometry import voxel_centres
-        return np.concatenate([voxel_centres(part_ijk(self.vox, l.index, l.grid), *l.grid).astype(np.float32)
+        from ..decoder.morton import morton_decode
+        return np.concatenate([voxel_centres(morton_decode(l.codes), *l.grid).astype(np.float32)
                                for l in self.layers])
 
     @property
@@ -489,20 +500,22 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
         [tile_grid(codes[lo:hi], vox.ijk[lo:hi], vox.origin, vox.side, d) for lo, hi in tiles]
     parts = _prepare_parts(vox, part_of, grids, layers, progress, pool, executor)
     c = vox.cloud
-    return Stage(reserve=float(reserve), depth=d, vox=vox, layers=parts,
+    return Stage(reserve=float(reserve), depth=d, layers=parts,
                  sh=np.ascontiguousarray(c.sh_rest.reshape(m, -1), dtype=np.float32), importance=vox.importance,
-                 sh_degree=cloud.sh_degree, input_gaussians=len(cloud), source=source, executor=executor)
+                 sh_degree=cloud.sh_degree, input_gaussians=len(cloud), kept=len(kept), source=source,
+                 executor=executor)
 
 
 def _transform(ijk: np.ndarray, depth: int, rotations, opacities, sh_dc):
-    """Morton codes, RAHT tree, RAHT DC [7] and AC [7, M-1] (float32) of one part's voxels."""
+    """Morton codes, RAHT DC [7] and AC [7, M-1] (float32) of one part's voxels (the tree goes:
+    40 bytes a voxel, and the codes rebuild it where the NumPy decode path needs it)."""
     from .raht import raht_forward
     codes = morton_encode(ijk)
     tree = build_raht_tree(codes, depth)
     euler = quaternion_to_euler(rotations.astype(np.float64))
     attrs = np.concatenate([opacities.astype(np.float64)[:, None], euler, sh_dc.astype(np.float64)], axis=1)
     dc, ac = raht_forward(attrs, tree)
-    return codes, tree, dc, np.ascontiguousarray(ac.T, dtype=np.float32)
+    return codes, dc, np.ascontiguousarray(ac.T, dtype=np.float32)
 
 
 @dataclass
@@ -516,7 +529,7 @@ class PartJob:
 
 
 def code_part(job: PartJob):
-    """(GEOM payload, codes, tree, RAHT DC, RAHT AC) of one part: the executor's unit of work."""
+    """(GEOM payload, codes, RAHT DC, RAHT AC) of one part: the executor's unit of work."""
     origin, side, depth = job.grid
     geometry = write_geometry(job.ijk, origin, side, depth)
     return (geometry,) + _transform(job.ijk, depth, job.rotations, job.opacities, job.sh_dc)
@@ -545,8 +558,8 @@ def _prepare_part(vox, li: int, t: int, idx: np.ndarray, grid: tuple, tiles: int
             return write_geometry(job.ijk, *job.grid)
     geom = pool.submit(code_geometry) if pool is not None else code_geometry()
     with progress.stage("transform", ("Euler + RAHT, " + tag) if tag else "Euler + RAHT"):
-        codes, tree, dc, ac = _transform(job.ijk, grid[2], job.rotations, job.opacities, job.sh_dc)
-    return Layer(index=idx, geometry_job=geom, tree=tree, raht_dc=dc, raht_ac=ac,
+        codes, dc, ac = _transform(job.ijk, grid[2], job.rotations, job.opacities, job.sh_dc)
+    return Layer(index=idx, geometry_job=geom, raht_dc=dc, raht_ac=ac,
                  scales=np.ascontiguousarray(vox.cloud.scales[idx].T, dtype=np.float32), codes=codes,
                  layer=li, tile=t, grid=grid)
 
@@ -560,10 +573,10 @@ def _prepare_parts(vox, part_of: list, grids: list, layers: int, progress: Progr
     with progress.stage("tiles", f"geometry + transform of {len(part_of)} parts ({tiles} tiles) on "
                                  f"{executor.name} ({executor.workers} workers)"):
         done = executor.map(code_part, [_part_job(vox, idx, grids[t]) for _, t, idx in part_of])
-    return [Layer(index=idx, geometry_job=geom, tree=tree, raht_dc=dc, raht_ac=ac,
+    return [Layer(index=idx, geometry_job=geom, raht_dc=dc, raht_ac=ac,
                   scales=np.ascontiguousarray(vox.cloud.scales[idx].T, dtype=np.float32), codes=codes,
                   layer=li, tile=t, grid=grids[t])
-            for (li, t, idx), (geom, codes, tree, dc, ac) in zip(part_of, done)]
+            for (li, t, idx), (geom, codes, dc, ac) in zip(part_of, done)]
 
 
 @dataclass
@@ -573,7 +586,7 @@ class AttributeJob:
     raht_ac: np.ndarray
     scales: np.ndarray
     codes: np.ndarray
-    tree: object
+    depth: int
     raht_bits: object
     scale_bits: object
     blocks: int
@@ -599,9 +612,10 @@ def attribute_chunk(layer: Layer, raht_bits, scale_bits, blocks: int):
     if native.enabled():
         # the decoder's own C path (bit-identical to the NumPy one): the inverse RAHT and the
         # field conversions were ~1/4 of every calibration round of the size search
-        decoded = attributes_from_coefficients(layer.raht_dc, ac_rec, sc_rec, layer.codes, layer.tree.depth)
+        decoded = attributes_from_coefficients(layer.raht_dc, ac_rec, sc_rec, layer.codes, layer.depth)
     else:
-        decoded = attributes_from_channels(raht_inverse(layer.raht_dc, ac_rec.T, layer.tree), sc_rec)
+        tree = build_raht_tree(layer.codes, layer.depth)
+        decoded = attributes_from_channels(raht_inverse(layer.raht_dc, ac_rec.T, tree), sc_rec)
     return w.getvalue(), decoded, {"raht_bytes": len(ac_bytes), "scale_bytes": len(sc_bytes)}
 
 
@@ -612,7 +626,7 @@ def attribute_chunks(stage: Stage, bits, blocks: int):
     from ..decoder.attributes import Attributes
 
     payloads, parts, stats = [], [], {"raht_bytes": 0, "scale_bytes": 0}
-    jobs = (AttributeJob(layer.raht_dc, layer.raht_ac, layer.scales, layer.codes, layer.tree,
+    jobs = (AttributeJob(layer.raht_dc, layer.raht_ac, layer.scales, layer.codes, layer.depth,
                          *((bits, bits) if np.isscalar(bits) else bits[li]), b)
             for li, (layer, b) in enumerate(zip(stage.layers, stage.layer_blocks(blocks))))
     ex = stage.executor if stage.num_tiles > 1 else None
@@ -729,7 +743,8 @@ class ShPayloads:
                                    else np.asarray(index, np.int64), assign)
         elif rest.any():
             near = np.zeros(m, np.int64)
-            near[rest] = assign(stage.sh[rest], codebook) if index is None else np.asarray(index)[rest]
+            near[rest] = (assign(stage.sh, codebook, rows=np.flatnonzero(rest)) if index is None
+                          else np.asarray(index)[rest])
         #: per tile: (voxels taking a codeword, the tile's reconstructed codebook [K_t, D]
         #: float32, each voxel's row in it): an [M, D] array per plan would be 216 MB at 1.2 M
         self._codewords = []
@@ -1031,8 +1046,8 @@ def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, st
         codebook_size=sh_stats.get("codebook_size", 0), sh_keep=sh_stats.get("kept", 0), components=sizes,
         layers=layer_report(data), seconds=dict(progress.seconds), total_seconds=time.perf_counter() - starts[0],
         memory=progress.memory_report(), cpu_seconds=time.process_time() - starts[1],
-        fixed=FixedDetails(kept_after_prune=len(stage.vox.index_of_point),
-                           merged_fraction=stage.vox.merged_fraction, options=options_json))
+        fixed=FixedDetails(kept_after_prune=stage.kept,
+                           merged_fraction=stage.merged_fraction, options=options_json))
     return EncodeResult(data=data, cloud=out_cloud, report=report)
 
 

@@ -49,6 +49,8 @@ SEED_SAMPLE = 65536
 _CHUNK_ELEMS = 1 << 21
 #: From this K on, the argmin is done in two levels (see :func:`_nearest`).
 _TWO_LEVEL_MIN_K = 256
+#: vectors per block of :func:`assign` (about 12 MB of SH-3 vectors)
+ASSIGN_BLOCK_ROWS = 65536
 
 
 class VQError(GszError, ValueError):
@@ -160,24 +162,38 @@ def _assign_all(x: torch.Tensor, c: torch.Tensor, x_sq: torch.Tensor | None = No
     return idx, d2
 
 
-def assign(x: np.ndarray, codebook: np.ndarray, *, threads: int | None = DEFAULT_THREADS
-           ) -> np.ndarray:
+def assign(x: np.ndarray, codebook: np.ndarray, *, rows: np.ndarray | None = None,
+           threads: int | None = DEFAULT_THREADS) -> np.ndarray:
     """Index of the nearest codeword (squared L2) of every vector.
 
-    x [N, D] float32, codebook [K, D] float32 (K >= 1)  ->  [N] int32.
-    Ties go to the lower codeword index.
+    x [N, D] float32, codebook [K, D] float32 (K >= 1)  ->  [N] int32; with ``rows`` (int
+    indices) the index of each vector ``x[rows]`` ([len(rows)] int32).  Ties go to the lower
+    codeword index.  The vectors are taken ASSIGN_BLOCK_ROWS at a time (no [N, D] copy, no
+    [N, D] finiteness mask: 1.4 GB at 6 M SH-3 vectors), in blocks that hold whole chunks of
+    the nearest-codeword search, so the result is the one of a single pass.
     """
-    a = _check_x(x)
+    a = np.asarray(x)
+    if a.ndim != 2:
+        raise VQError(f"vectors must be a 2-D [N, D] array, got shape {a.shape}")
     cb = _check_x(codebook)
     if cb.shape[0] == 0:
         raise VQError("codebook is empty")
     if cb.shape[1] != a.shape[1]:
         raise VQError(f"dimension mismatch: vectors have D={a.shape[1]}, codebook D={cb.shape[1]}")
-    if a.shape[0] == 0:
-        return np.zeros(0, np.int32)
+    n = a.shape[0] if rows is None else len(rows)
+    out = np.empty(n, np.int32)
+    if n == 0:
+        return out
     with _threads(threads):
-        idx, _ = _assign_all(torch.from_numpy(a), torch.from_numpy(cb))
-    return idx.numpy().astype(np.int32)
+        p = _Prepared(torch.from_numpy(cb))
+        step = p.rows * max(1, ASSIGN_BLOCK_ROWS // p.rows)
+        for s in range(0, n, step):
+            xb = torch.from_numpy(_check_x(a[s:s + step] if rows is None else a[rows[s:s + step]]))
+            xb_sq = (xb * xb).sum(dim=1)
+            for t in range(0, xb.shape[0], p.rows):
+                idx, _ = _nearest(xb[t:t + p.rows], xb_sq[t:t + p.rows], p)
+                out[s + t:s + t + idx.shape[0]] = idx.numpy()
+    return out
 
 
 def weighted_distortion(x: np.ndarray, weights: np.ndarray | None, codebook: np.ndarray,

@@ -35,7 +35,7 @@ class Calibrated:
     def left_over(self, target: int, tolerance: float) -> bool:
         """Saturated and still more than ``tolerance`` below the target: bytes no attribute
         group can use."""
-        return self.saturated and len(self.best.data) < target * (1 - tolerance)
+        return self.saturated and self.best.size < target * (1 - tolerance)
 
 
 class _BudgetSteps:
@@ -160,15 +160,15 @@ def calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh
         if key not in tried:
             tried[key] = r.encode(pick, rnd)
         enc = tried[key]
-        actual = len(enc.data)
+        actual = enc.size
         history.append({"round": rnd + 1, "solver_budget_bytes": round(budget_bytes),
                         "predicted_bytes": round(enc.predicted_bytes), "actual_bytes": actual})
-        if actual <= target and (best is None or actual > len(best.data)):
+        if actual <= target and (best is None or actual > best.size):
             if best is not None:
-                best.release()               # only the best round's scene is rendered
+                best.drop_data()             # only the best round's file is kept (its size only grows)
             best = enc
         elif enc is not best:
-            enc.release()
+            enc.drop_data()
         if lo_ok <= actual <= target:
             break
         if actual > target:

@@ -15,7 +15,7 @@ from .tables import concat_bits
 class Encoded:
     """One real encode of a stage under one bit allocation."""
 
-    data: bytes
+    data: bytes | None            # the file; None once it can no longer be chosen (drop_data())
     cloud: GaussianCloud | None   # the decoded scene; released once scored (see release())
     pick: np.ndarray              # the solver's choice per group (bit-width - 1)
     layer_bits: list              # per layer (raht_bits [7, B_l], scale_bits [3, B_l])
@@ -37,11 +37,21 @@ class Encoded:
     num_points: int = 0           # Gaussians (voxels) in the file
     layer0_points: int = 0
     geometry_bytes: int = 0
+    size: int = -1                # len(data), kept when the bytes go
+
+    def __post_init__(self):
+        if self.size < 0:
+            self.size = len(self.data)
 
     def release(self) -> None:
         """Drop the decoded scene: a search keeps many encodes, and the file's bytes decode
         to it again where it is needed (the chosen one)."""
         self.cloud = None
+
+    def drop_data(self) -> None:
+        """Drop the decoded scene and the file's bytes (an encode that can no longer be chosen:
+        at 6 M Gaussians each file is ~120 MB, and a search makes dozens)."""
+        self.cloud = self.data = None
 
     @property
     def raht_bits(self) -> np.ndarray:
@@ -75,8 +85,13 @@ class Candidate:
         return (self.train_psnr, self.reserve)
 
     @property
-    def data(self) -> bytes:
+    def data(self) -> bytes | None:
         return self.encoded.data
+
+    @property
+    def size(self) -> int:
+        """The file's bytes (kept when the bytes themselves are dropped)."""
+        return self.encoded.size
 
 
 def best_of(candidates) -> Candidate:

@@ -100,28 +100,36 @@ PATH_LOST_MARGIN_DB = 0.1
 #: The SH paths as the search's log names them (tau.encode_tau).
 SH_PATH_NAMES = {"vq": "codebook", "classes": "classes", "scalar": "scalar"}
 
-#: Prepared stages and voxel grids the search keeps: the one being encoded and, for voxels, the
-#: one screened just before it (both are recomputed, identically, if asked for again).
+#: Prepared stages and voxel grids the search keeps: the stage being encoded, and the grid
+#: screened last (the stage made next needs it).  A stage keeps what it needs of its grid, so
+#: the grid goes once its stage is made, and a new grid means the stage before is done.  Both
+#: are recomputed, identically, if asked for again (at 6 M Gaussians a grid is 1.7 GB).
 STAGES_KEPT = 1
-VOXELIZED_KEPT = 2
+VOXELIZED_KEPT = 1
 
 
 class _Lru:
-    """The ``capacity`` most recently stored values by key."""
+    """The ``capacity`` most recently used values by key."""
 
     def __init__(self, capacity: int):
         self.capacity, self._items = capacity, OrderedDict()
 
-    def get(self, key):
+    def get_or_make(self, key, make):
+        """The value of ``key``, made by ``make()`` when missing -- after the least recently
+        used values beyond ``capacity - 1`` went, so that they are not held while it is made."""
         if key in self._items:
             self._items.move_to_end(key)
-        return self._items.get(key)
-
-    def put(self, key, value) -> None:
-        self._items[key] = value
-        self._items.move_to_end(key)
-        while len(self._items) > self.capacity:
+            return self._items[key]
+        while len(self._items) >= self.capacity:
             self._items.popitem(last=False)
+        self._items[key] = value = make()
+        return value
+
+    def pop(self, key) -> None:
+        self._items.pop(key, None)
+
+    def clear(self) -> None:
+        self._items.clear()
 
 
 class BudgetSearch:
@@ -162,12 +170,13 @@ class BudgetSearch:
     def vox_for(self, tau, d=None):
         """(kept, voxelized) of ``tau`` at depth ``d`` (default: the position-error depth)."""
         key = (tau, self.depth if d is None else d)
-        vox = self._voxelized.get(key)
-        if vox is None:
+
+        def make():
+            self._stages.clear()          # a new grid is for a new stage: the one before is done
             vox = voxelize_stage(self.cloud, self.importance, tau, depth=key[1], progress=self.progress)
-            self._voxelized.put(key, vox)
             self._merged[key] = vox[1].merged_fraction
-        return vox
+            return vox
+        return self._voxelized.get_or_make(key, make)
 
     def merged_fraction(self, tau, d) -> float:
         """Fraction of the Gaussians kept at ``tau`` that share a voxel at depth ``d``."""
@@ -179,14 +188,20 @@ class BudgetSearch:
         """The prepared stage (geometry coded) of ``tau`` at depth ``d`` with layer-0 share ``fl``."""
         d = self.depth if d is None else d
         fl = self.sopts.first_layer if fl is None else fl
-        stage = self._stages.get((tau, d, fl))
-        if stage is None:
+
+        def make():
             stage = prepare_stage(self.cloud, self.importance, tau, depth=d, layers=self.sopts.layers,
                                   first_layer=fl, progress=self.progress, voxelized=self.vox_for(tau, d),
                                   pool=self.geometry_pool, tile_gaussians=self.sopts.tile_gaussians,
                                   executor=self.executor)
-            self._stages.put((tau, d, fl), stage)
-        return stage
+            self._voxelized.pop((tau, d))     # the stage keeps what it needs of the grid
+            return stage
+        return self._stages.get_or_make((tau, d, fl), make)
+
+    def forget_stages(self) -> None:
+        """Drop the kept stage and grid (when the search moves on to work that needs neither)."""
+        self._stages.clear()
+        self._voxelized.clear()
 
     # --- the run ------------------------------------------------------------------------------
     def run(self, importance=None, cameras=None) -> EncodeResult:
@@ -310,12 +325,12 @@ class BudgetSearch:
                 p, views, partial = self.judge.score(enc.cloud, rival)
             enc.release()
             if partial:
-                progress.log(f"{what}: {len(enc.data):,} bytes, {partial} hardest train views "
+                progress.log(f"{what}: {enc.size:,} bytes, {partial} hardest train views "
                              f"{EVAL_DROP_MARGIN_DB:g}+ dB below the best candidate's: dropped")
-                self.dropped.append({"reserve": tau, "depth": d, "bytes": len(enc.data), "views": partial,
+                self.dropped.append({"reserve": tau, "depth": d, "bytes": enc.size, "views": partial,
                                      "partial_psnr": p})
                 continue
-            progress.log(f"{what}: {len(enc.data):,} bytes, train PSNR {p:.2f} dB")
+            progress.log(f"{what}: {enc.size:,} bytes, train PSNR {p:.2f} dB")
             scored.append(Candidate(p, tau, d, fl, views, enc))
         if not paths:
             progress.log(f"tau {tau}: budget not reachable")
@@ -323,7 +338,18 @@ class BudgetSearch:
         self._note_lost_paths(paths, scored)
         if scored:
             # one candidate per (tau, depth, split): the better SH path as rendered
-            self.candidates.append(best_of(scored))
+            self.add_candidate(best_of(scored))
+
+    def add_candidate(self, cand: Candidate) -> None:
+        """Add ``cand``; of a single-layer search only the best candidate's file can be chosen
+        (layers.finalists), so the others drop their bytes (~120 MB each at 6 M Gaussians).
+        Layered files are chosen by when layer 0 arrives too: there every candidate keeps them."""
+        self.candidates.append(cand)
+        if self.sopts.layers == 1:
+            best = self.best()
+            for c in self.candidates:
+                if c is not best:
+                    c.encoded.drop_data()
 
     def _note_lost_paths(self, paths: list, scored: list) -> None:
         """An SH path that rendered PATH_LOST_MARGIN_DB or more below the best of a stage (or
@@ -378,6 +404,7 @@ class BudgetSearch:
         if best.encoded.sh_keep:
             return                       # exact vectors kept: the SH are worth their bytes
         self.progress.log(f"no SH vector kept exact: trying the file without SH rest at tau {best.reserve}")
+        self.forget_stages()             # the search without SH makes its own
         flat = BudgetSearch(self.cloud.with_sh_degree(0), self.target, self.sopts, self.progress,
                             self.geometry_pool, self.executor)
         flat.importance, flat.depth, flat.judge = self.importance, best.depth, self.judge
@@ -390,11 +417,12 @@ class BudgetSearch:
         if flat.candidates and flat.best().train_psnr > best.train_psnr:
             self.progress.log(f"without SH rest: train PSNR {flat.best().train_psnr:.2f} dB "
                               f"> {best.train_psnr:.2f} dB with them")
-            self.candidates.append(flat.best())
+            self.add_candidate(flat.best())
 
     def _result(self) -> EncodeResult:
         if not self.candidates:
             raise BudgetError(self.target, self._smallest_file())
+        self.forget_stages()             # before the chosen file is decoded
         chosen = finalists(self.candidates, self.sopts)
         chosen.sort(key=lambda c: (-c.train_psnr, -c.reserve))
         from ...decoder import decode

@@ -23,7 +23,7 @@ def search_report(search, chosen: Candidate) -> EncodeReport:
         layer_blocks=[int(b.shape[1]) for b, _ in enc.layer_bits],
         calibration=enc.rounds, calibration_all=search.log, first_layer=chosen.first_layer,
         candidates=[{"reserve": c.reserve, "depth": c.depth, "first_layer": c.first_layer,
-                     "bytes": len(c.data), "train_psnr": c.train_psnr, "train_view_psnr": c.view_psnr,
+                     "bytes": c.size, "train_psnr": c.train_psnr, "train_view_psnr": c.view_psnr,
                      "layer0_too_late": c.layer0_too_late}
                     for c in sorted(search.candidates, key=lambda c: -c.reserve)],
         screened=search.screened, dropped=search.dropped, train_psnr=chosen.train_psnr,

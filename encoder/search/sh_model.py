@@ -3,6 +3,7 @@ codebook and the count of most important vectors kept exact, and the exact paylo
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +32,10 @@ class ShPlan:
     est_bytes: float
     est_loss: float
     payloads: ShPayloads      # the same with the kept vectors' widths open (calibration.spend_saturated)
+
+
+#: rows per step where a pass over every voxel's SH vector would otherwise gather [M, D] copies
+ROW_CHUNK = 65536
 
 
 def row_sse(x: np.ndarray, ref, step: int = 16384) -> np.ndarray:
@@ -109,7 +114,9 @@ class Assigner:
         n = len(cloud)
         self.sh = np.ascontiguousarray(cloud.sh_rest.reshape(n, -1), dtype=np.float32)
         self.known = {}                       # id(codebook) -> (codebook, index [N], known [N])
-        self._last = None                     # (source, x, reusable) of the last stage asked about
+        # (source, x, reusable) of the last stage asked about; weak references, so that the
+        # stage's SH rows (1 GB at 6 M voxels) go with the stage, not with the next one's models
+        self._last = None
 
     def _entry(self, codebook):
         entry = self.known.get(id(codebook))
@@ -122,11 +129,16 @@ class Assigner:
         """Voxels (ascending) whose vector is bit-identical to their single source Gaussian's
         (remembered for the last stage asked about: each stage asks once per codebook)."""
         last = self._last
-        if last is not None and last[0] is source and last[1] is x:
+        if last is not None and last[0]() is source and last[1]() is x:
             return last[2]
         single = np.flatnonzero(source >= 0)
-        out = single[np.all(x[single] == self.sh[source[single]], axis=1)]
-        self._last = (source, x, out)
+        same = np.empty(single.size, bool)
+        # in row chunks: two gathered [M, D] copies and their comparison were 2.4 GB at 6 M voxels
+        for s in range(0, single.size, ROW_CHUNK):
+            rows = single[s:s + ROW_CHUNK]
+            np.all(x[rows] == self.sh[source[rows]], axis=1, out=same[s:s + rows.size])
+        out = single[same]
+        self._last = (weakref.ref(source), weakref.ref(x), out)
         return out
 
     def _known(self, src: np.ndarray, codebook: np.ndarray) -> np.ndarray:
@@ -135,7 +147,7 @@ class Assigner:
         _, index, known = self._entry(codebook)
         need = src[~known[src]]
         if need.size:
-            index[need] = assign(self.sh[need], codebook)
+            index[need] = assign(self.sh, codebook, rows=need)
             known[need] = True
         return index[src]
 
@@ -157,7 +169,7 @@ class Assigner:
         fresh = np.ones(x.shape[0], bool)
         fresh[reuse] = False
         if fresh.any():
-            out[fresh] = assign(x[fresh], codebook)
+            out[fresh] = assign(x, codebook, rows=np.flatnonzero(fresh))
         return out
 
 

@@ -128,7 +128,7 @@ def _attributes_at_max(res: Calibrated, loss, rate) -> bool:
 
 def _finish(stage: Stage, res: Calibrated, saturated: bool, path: str, log: list) -> Encoded:
     """The calibrated encode with what the search reads about it."""
-    log.append({"reserve": stage.reserve, "depth": stage.depth, "bytes": len(res.best.data), "rounds": res.history,
+    log.append({"reserve": stage.reserve, "depth": stage.depth, "bytes": res.best.size, "rounds": res.history,
                 **({"sh_path": path} if res.sh_plan is not None else {})})
     plan = res.sh_plan
     return dataclasses.replace(res.best, rounds=res.history, attributes_saturated=saturated,
@@ -216,7 +216,7 @@ def spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fix
     for _ in range(2):
         if sh_plan.keep >= m or not res.left_over(target, sopts.tolerance):
             break
-        short = target * (1 - 0.5 * sopts.tolerance) - len(res.best.data)
+        short = target * (1 - 0.5 * sopts.tolerance) - res.best.size
         est_per_vector = max(1e-3, (sh_model.base.bits_per_kept - sh_model.index_bits) / 8)
         real_over_est = sum(map(len, sh_plan.chunk)) / max(1.0, sh_plan.est_bytes)
         keep = min(m, sh_plan.keep + max(1, int(short / (est_per_vector * real_over_est))))
@@ -224,7 +224,7 @@ def spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fix
                      f"keeping {keep:,} SH vectors exact instead of {sh_plan.keep:,}")
         plan = sh_model.encode(keep)
         more = calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, plan)
-        if more is None or len(more.best.data) <= len(res.best.data):
+        if more is None or more.best.size <= res.best.size:
             break
         sh_plan, res = plan, more
     if sh_plan.keep >= m and res.left_over(target, sopts.tolerance):
@@ -234,6 +234,6 @@ def spend_saturated(stage, target, sopts, progress, loss, rate, shapes, base_fix
             kept = kept_tables(sh_plan, 1.0 if weights is None else weights["sh"])
         more = calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_plan,
                          kept=kept)
-        if more is not None and len(more.best.data) > len(res.best.data):
+        if more is not None and more.best.size > res.best.size:
             res = more
     return res
