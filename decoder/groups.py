@@ -84,7 +84,8 @@ def _read_header(r: Reader, max_length: int, shape: tuple | None, name: str):
 
 def read_channel_set(r: Reader, *, max_length: int, shape: tuple | None = None,
                      name: str = "channel set", dtype=np.float64) -> np.ndarray:
-    """Parse one quantised channel set from ``r``; returns the dequantised float64 [C, L].
+    """Parse one quantised channel set from ``r``; returns the dequantised values [C, L]
+    (float64, or ``dtype``).
 
     shape   the (C, L) its use prescribes (GSZ.md §5): C, then L's bound ``max_length``, then
             L are checked as soon as they are read, before anything is allocated or decoded

@@ -48,7 +48,7 @@ def class_order(classes: np.ndarray) -> np.ndarray:
     first, Morton order within a class (a stable sort)."""
     c = np.asarray(classes)
     if c.size and c.dtype != np.uint8 and c.min() >= 0 and c.max() < 256:
-        c = c.astype(np.uint8)         # the same order: NumPy's stable sort of bytes is a radix sort (10x)
+        c = c.astype(np.uint8)         # the same order; NumPy sorts bytes by radix sort (10x)
     return np.argsort(c, kind="stable")
 
 
