@@ -287,6 +287,49 @@ class Layer:
         return self.grid[2]
 
 
+class SourcedRows:
+    """Read-only [M, D] float32 rows kept as references: row i is ``base[source[i]]`` where
+    ``source[i] >= 0`` (a voxel holding one input Gaussian keeps its vector bit for bit) and the
+    next row of ``own`` where it is -1 (merged voxels, in voxel order) -- a stage's SH vectors
+    without a copy of the input's (180 bytes a voxel at SH degree 3).  Indexing with an int
+    array, a bool mask or a slice gives the ndarray the materialised rows would; ``np.asarray``
+    materialises them."""
+
+    ndim = 2
+    dtype = np.dtype(np.float32)
+
+    def __init__(self, base: np.ndarray, source: np.ndarray, own: np.ndarray):
+        self.base, self.source, self.own = base, source, own
+        self.merged = np.flatnonzero(source < 0)          # voxel of each row of own
+        self.shape = (source.shape[0], base.shape[1])
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, key) -> np.ndarray:
+        src = self.source[key]
+        if src.ndim != 1:
+            raise IndexError("SourcedRows takes a slice, an int array or a bool mask of rows")
+        out = np.take(self.base, np.maximum(src, 0), axis=0)
+        neg = np.flatnonzero(src < 0)
+        if neg.size:
+            out[neg] = self.own[np.searchsorted(self.merged, self._voxels(key, neg))]
+        return out
+
+    def _voxels(self, key, at: np.ndarray) -> np.ndarray:
+        """The voxel indices of the rows ``at`` of the selection ``key``."""
+        if isinstance(key, slice):
+            start, _, step = key.indices(self.shape[0])
+            return start + step * at
+        key = np.asarray(key)
+        sel = np.flatnonzero(key)[at] if key.dtype == bool else key[at]
+        return np.where(sel < 0, sel + self.shape[0], sel)
+
+    def __array__(self, dtype=None, copy=None):
+        out = self[:]
+        return out if dtype is None else out.astype(dtype, copy=False)
+
+
 @dataclass
 class Stage:
     """Everything that depends on the reserve ratio, depth and layering but not on bit-widths.
@@ -294,7 +337,8 @@ class Stage:
     and its coordinates are 100 bytes a voxel; the parts' Morton codes give the positions).
 
     layers     [Layer], importance order (layer 0 = most important voxels)
-    sh         [M, D] float32 higher-degree SH vectors in voxel order (D = 0 for SH degree 0)
+    sh         [M, D] float32 higher-degree SH vectors in voxel order (D = 0 for SH degree 0): a
+               :class:`SourcedRows` on the input cloud's (index it, as an array's rows)
     importance [M] float64 merged importance in voxel order
     kept       Gaussians kept by pruning (before merging into M voxels)
     source     [M] int64 index into the input cloud of the one Gaussian a voxel holds, -1 where
@@ -307,7 +351,7 @@ class Stage:
     reserve: float
     depth: int
     layers: list
-    sh: np.ndarray
+    sh: SourcedRows
     importance: np.ndarray
     sh_degree: int
     input_gaussians: int
@@ -499,9 +543,9 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
     grids = [(vox.origin, vox.side, d)] if len(tiles) == 1 else \
         [tile_grid(codes[lo:hi], vox.ijk[lo:hi], vox.origin, vox.side, d) for lo, hi in tiles]
     parts = _prepare_parts(vox, part_of, grids, layers, progress, pool, executor)
-    c = vox.cloud
-    return Stage(reserve=float(reserve), depth=d, layers=parts,
-                 sh=np.ascontiguousarray(c.sh_rest.reshape(m, -1), dtype=np.float32), importance=vox.importance,
+    n = len(cloud)
+    sh = SourcedRows(cloud.sh_rest.reshape(n, -1), source, vox.cloud.sh_rest.reshape(m, -1)[source < 0])
+    return Stage(reserve=float(reserve), depth=d, layers=parts, sh=sh, importance=vox.importance,
                  sh_degree=cloud.sh_degree, input_gaussians=len(cloud), kept=len(kept), source=source,
                  executor=executor)
 
