@@ -607,6 +607,23 @@ static int walk_halve(Walk *w, const OctTables *tb, uint8_t tag, Err *e)
     return 0;
 }
 
+/* The next phase of blocks over the walk's level buffers (PHASE_BUILD or PHASE_ROWS): the
+ * description with the buffers filled in, or NULL when out of memory. */
+static Phase *walk_phase(const Walk *w, const OctTables *tb, Helper *h, int kind, int64_t items)
+{
+    Phase *ph = phase_next(h, kind, items, BUILD_BLOCK);
+    if (!ph) return NULL;
+    ph->tb = tb;
+    ph->occ = w->occ;
+    ph->nbr = w->nbr;
+    ph->start = w->start;
+    ph->codes = w->codes;
+    ph->ncodes = w->ncodes;
+    ph->nnbr = w->nnbr;
+    ph->prow = w->prow;
+    return ph;
+}
+
 /* The next level: children in Morton order (node-major, child index ascending); start[i] =
  * (index of node i's first child) << 8 | occupancy of node i (start[n] = 0: the absent node
  * has no children), one load per neighbour when building the rows.  *n becomes its size. */
@@ -646,16 +663,8 @@ static int walk_next_level(Walk *w, const OctTables *tb, Helper *h, int level, i
         return -1;
     if (!last && ranks && ensure((void **)&w->prow, &w->cap_prow, (size_t)total * sizeof *w->prow + 4, e) < 0)
         return -1;
-    Phase *ph = phase_next(h, PHASE_BUILD, ranks && keep ? nkeep : nn, BUILD_BLOCK);
+    Phase *ph = walk_phase(w, tb, h, PHASE_BUILD, ranks && keep ? nkeep : nn);
     if (!ph) return fail_nomem(e);
-    ph->tb = tb;
-    ph->occ = w->occ;
-    ph->nbr = w->nbr;
-    ph->start = w->start;
-    ph->codes = w->codes;
-    ph->ncodes = w->ncodes;
-    ph->nnbr = w->nnbr;
-    ph->prow = w->prow;
     ph->keep = keep;
     ph->ranks = ranks;
     ph->total = total;
@@ -823,15 +832,9 @@ static int walk_level(Walk *w, const OctTables *tb, int level, int depth, int64_
         const int64_t rows = nkeep >= 0 ? nkeep : nn;
         if (ensure((void **)&w->nnbr, &w->cap_nnbr, (size_t)rows * NUM_T * sizeof *w->nnbr + 4, e) < 0)
             return -1;
-        Phase *ph = phase_next(h, PHASE_ROWS, rows, BUILD_BLOCK);
+        Phase *ph = walk_phase(w, tb, h, PHASE_ROWS, rows);
         if (!ph) return fail_nomem(e);
-        ph->tb = tb;
         ph->keep = nkeep >= 0 ? w->keep : NULL;
-        ph->prow = w->prow;
-        ph->nbr = w->nbr;
-        ph->start = w->start;
-        ph->codes = w->codes;
-        ph->nnbr = w->nnbr;
         ph->total = nn;
         phase_publish(h);
         phase_finish(h, 1);
