@@ -669,19 +669,24 @@ def attribute_chunks(stage: Stage, bits, blocks: int):
     Attributes in output order, summed byte counts)."""
     from ..decoder.attributes import Attributes
 
-    payloads, parts, stats = [], [], {"raht_bytes": 0, "scale_bytes": 0}
+    payloads, stats = [], {"raht_bytes": 0, "scale_bytes": 0}
     jobs = (AttributeJob(layer.raht_dc, layer.raht_ac, layer.scales, layer.codes, layer.depth,
                          *((bits, bits) if np.isscalar(bits) else bits[li]), b)
             for li, (layer, b) in enumerate(zip(stage.layers, stage.layer_blocks(blocks))))
     ex = stage.executor if stage.num_tiles > 1 else None
+    fields_, out, end = ("opacities", "rotations", "sh_dc", "scales"), None, 0
     for data, dec, st in in_order(ex, code_attributes, jobs):
         payloads.append(data)
-        parts.append(dec)
+        if out is None:         # filled part by part: no list of parts beside their concatenation
+            out = {f: np.empty((stage.num_points,) + getattr(dec, f).shape[1:], getattr(dec, f).dtype)
+                   for f in fields_}
+        n = len(dec.opacities)
+        for f in fields_:
+            out[f][end:end + n] = getattr(dec, f)
+        end += n
         for k in stats:
             stats[k] += st[k]
-    decoded = Attributes(**{f: np.concatenate([getattr(p, f) for p in parts])
-                            for f in ("opacities", "rotations", "sh_dc", "scales")})
-    return payloads, decoded, stats
+    return payloads, Attributes(**out), stats
 
 
 def default_codebook_size(m: int, requested: int | None = None) -> int:

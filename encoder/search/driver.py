@@ -223,10 +223,10 @@ class BudgetSearch:
     def _set_up(self, cameras) -> tuple[float, float]:
         """Codebooks (worker thread) beside the largest tau's stage and its size bounds, the
         judge's references and the channel weights.  Returns the size bounds."""
-        kept_top, vox_top = self.vox_for(self.taus[0])
         codebooks = None
         if self.cloud.sh_degree > 0:
-            codebooks = Codebooks(self.sopts, kept_top, vox_top, self.assigner, self.progress)
+            # they keep the grid's SH rows only: the rest of the grid goes with the stage made next
+            codebooks = Codebooks(self.sopts, *self.vox_for(self.taus[0]), self.assigner, self.progress)
         with codebooks or contextlib.nullcontext():
             top = self.stage_for(self.taus[0])
             with self.progress.stage("tables", f"tau {self.taus[0]}: size bounds"):

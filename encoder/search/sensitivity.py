@@ -43,7 +43,7 @@ def channel_weights(cloud, cameras, *, seed: int = 0, base_images=None) -> dict:
         return GaussianCloud(**f)
 
     def noisy(a, col, sigma):
-        a = a.astype(np.float64).copy()
+        a = a.astype(np.float64)           # a copy
         a[:, col] += rng.normal(0, sigma, n)
         return a
 
@@ -52,8 +52,8 @@ def channel_weights(cloud, cameras, *, seed: int = 0, base_images=None) -> dict:
     raht.append(sensitivity(variant(opacities=cloud.opacities + rng.normal(0, sg, n)), sg, n))
     sg = _SENS_SIGMA["euler"]
     for k in range(3):
-        q = euler_to_quaternion(noisy(euler, k, sg))
-        raht.append(sensitivity(variant(rotations=q), sg, n))
+        raht.append(sensitivity(variant(rotations=euler_to_quaternion(noisy(euler, k, sg))), sg, n))
+    del euler                   # full-scene temporaries go once used (6 M Gaussians: 0.1-0.2 GB each)
     # Image channel k depends on DC colour channel k only (geometry, alpha and T do not involve
     # colour; the 0-clamp is per channel), so one render with all three perturbed gives each
     # channel's error image exactly as three renders would (the other channels' errors are
@@ -63,6 +63,7 @@ def channel_weights(cloud, cameras, *, seed: int = 0, base_images=None) -> dict:
     for k in range(3):
         dc[:, k] += rng.normal(0, sg, n)
     sq = [(render(variant(sh_dc=dc), c).image.astype(np.float64) - b) ** 2 for c, b in zip(cameras, base)]
+    del dc
     for k in range(3):
         only = []
         for e in sq:
