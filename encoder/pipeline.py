@@ -616,11 +616,12 @@ def _prepare_parts(vox, part_of: list, grids: list, layers: int, progress: Progr
                 for li, t, idx in part_of]
     with progress.stage("tiles", f"geometry + transform of {len(part_of)} parts ({tiles} tiles) on "
                                  f"{executor.name} ({executor.workers} workers)"):
-        done = executor.map(code_part, [_part_job(vox, idx, grids[t]) for _, t, idx in part_of])
-    return [Layer(index=idx, geometry_job=geom, raht_dc=dc, raht_ac=ac,
-                  scales=np.ascontiguousarray(vox.cloud.scales[idx].T, dtype=np.float32), codes=codes,
-                  layer=li, tile=t, grid=grids[t])
-            for (li, t, idx), (geom, codes, dc, ac) in zip(part_of, done)]
+        # coded here, each part's job is made in its turn (all at once: 56 bytes a voxel)
+        done = in_order(executor, code_part, (_part_job(vox, idx, grids[t]) for _, t, idx in part_of))
+        return [Layer(index=idx, geometry_job=geom, raht_dc=dc, raht_ac=ac,
+                      scales=np.ascontiguousarray(vox.cloud.scales[idx].T, dtype=np.float32), codes=codes,
+                      layer=li, tile=t, grid=grids[t])
+                for (li, t, idx), (geom, codes, dc, ac) in zip(part_of, done)]
 
 
 @dataclass
