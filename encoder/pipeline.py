@@ -303,6 +303,13 @@ class SourcedRows:
         self.merged = np.flatnonzero(source < 0)          # voxel of each row of own
         self.shape = (source.shape[0], base.shape[1])
 
+    @classmethod
+    def of_grid(cls, base: np.ndarray, source: np.ndarray, vox) -> "SourcedRows":
+        """The SH vectors of a voxel grid (Voxelized) whose Stage.source is ``source``, as rows
+        of the input cloud's SH ``base`` [N, D]."""
+        m = len(vox.ijk)
+        return cls(base, source, vox.cloud.sh_rest.reshape(m, -1)[source < 0])
+
     def __len__(self) -> int:
         return self.shape[0]
 
@@ -530,7 +537,6 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
                                    progress=progress)
     kept, vox = voxelized
     d = vox.depth
-    m = len(vox.ijk)
     source = stage_source(kept, vox)
     codes = morton_encode(vox.ijk)
     tiles = split_tiles(codes, d, tile_gaussians)
@@ -543,8 +549,7 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
     grids = [(vox.origin, vox.side, d)] if len(tiles) == 1 else \
         [tile_grid(codes[lo:hi], vox.ijk[lo:hi], vox.origin, vox.side, d) for lo, hi in tiles]
     parts = _prepare_parts(vox, part_of, grids, layers, progress, pool, executor)
-    n = len(cloud)
-    sh = SourcedRows(cloud.sh_rest.reshape(n, -1), source, vox.cloud.sh_rest.reshape(m, -1)[source < 0])
+    sh = SourcedRows.of_grid(cloud.sh_rest.reshape(len(cloud), -1), source, vox)
     return Stage(reserve=float(reserve), depth=d, layers=parts, sh=sh, importance=vox.importance,
                  sh_degree=cloud.sh_degree, input_gaussians=len(cloud), kept=len(kept), source=source,
                  executor=executor)
