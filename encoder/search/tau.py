@@ -40,6 +40,7 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
         return
     with progress.stage("sh-plan", "codebook size and keep-count vs bit allocation"):
         sh_model, keep, vq_total = choose_sh(sh_models, loss, rate, target - base_fixed, weights, min_keep)
+    sh_models = None        # the other codebooks' models go (16 bytes a voxel each)
     m, w_sh, keep_estimate = sh_model.m, 1.0 if weights is None else weights["sh"], keep
     # the codebook path is skipped (after it lost) only where the estimate keeps most vectors
     # exact: below that, which path renders better changes with the depth (flowers 12x: the
