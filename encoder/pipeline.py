@@ -226,11 +226,25 @@ class EncodeOptions(SceneOptions):
         return self
 
 
-@dataclass
 class EncodeResult:
-    data: bytes
-    cloud: GaussianCloud          # what the decoder will reconstruct (for reports / evaluation)
-    report: EncodeReport          # sizes, choices and costs (the same shape for both modes)
+    """The .gsz bytes (``data``), what the decoder will reconstruct from them (``cloud``, for
+    reports / evaluation) and the ``report`` (sizes, choices and costs; the same shape for both
+    modes).  Given no cloud, it is decoded from the bytes when first asked for: the size search
+    keeps none, and a 6 M-Gaussian decode at its end (2-3 GB with its transients) was the largest
+    peak of a gsz-encode that only writes the file."""
+
+    def __init__(self, data: bytes, cloud: GaussianCloud | None = None, report: EncodeReport | None = None):
+        self.data, self._cloud, self.report = data, cloud, report
+
+    @property
+    def cloud(self) -> GaussianCloud:
+        if self._cloud is None:
+            from ..decoder import decode
+            self._cloud = decode(self.data)
+        return self._cloud
+
+    def __repr__(self) -> str:
+        return f"EncodeResult({len(self.data):,} bytes)"
 
 
 def _top_k_mask(importance: np.ndarray, k: int) -> np.ndarray:
