@@ -226,11 +226,25 @@ class EncodeOptions(SceneOptions):
         return self
 
 
-@dataclass
 class EncodeResult:
-    data: bytes
-    cloud: GaussianCloud          # what the decoder will reconstruct (for reports / evaluation)
-    report: EncodeReport          # sizes, choices and costs (the same shape for both modes)
+    """The .gsz bytes (``data``), what the decoder will reconstruct from them (``cloud``, for
+    reports / evaluation) and the ``report`` (sizes, choices and costs; the same shape for both
+    modes).  Given no cloud, it is decoded from the bytes when first asked for: the size search
+    keeps none, and a 6 M-Gaussian decode at its end (2-3 GB with its transients) was the largest
+    peak of a gsz-encode that only writes the file."""
+
+    def __init__(self, data: bytes, cloud: GaussianCloud | None = None, report: EncodeReport | None = None):
+        self.data, self._cloud, self.report = data, cloud, report
+
+    @property
+    def cloud(self) -> GaussianCloud:
+        if self._cloud is None:
+            from ..decoder import decode
+            self._cloud = decode(self.data)
+        return self._cloud
+
+    def __repr__(self) -> str:
+        return f"EncodeResult({len(self.data):,} bytes)"
 
 
 def _top_k_mask(importance: np.ndarray, k: int) -> np.ndarray:
@@ -302,6 +316,13 @@ class SourcedRows:
         self.base, self.source, self.own = base, source, own
         self.merged = np.flatnonzero(source < 0)          # voxel of each row of own
         self.shape = (source.shape[0], base.shape[1])
+
+    @classmethod
+    def of_grid(cls, base: np.ndarray, source: np.ndarray, vox) -> "SourcedRows":
+        """The SH vectors of a voxel grid (Voxelized) whose Stage.source is ``source``, as rows
+        of the input cloud's SH ``base`` [N, D]."""
+        m = len(vox.ijk)
+        return cls(base, source, vox.cloud.sh_rest.reshape(m, -1)[source < 0])
 
     def __len__(self) -> int:
         return self.shape[0]
@@ -530,7 +551,6 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
                                    progress=progress)
     kept, vox = voxelized
     d = vox.depth
-    m = len(vox.ijk)
     source = stage_source(kept, vox)
     codes = morton_encode(vox.ijk)
     tiles = split_tiles(codes, d, tile_gaussians)
@@ -543,8 +563,7 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
     grids = [(vox.origin, vox.side, d)] if len(tiles) == 1 else \
         [tile_grid(codes[lo:hi], vox.ijk[lo:hi], vox.origin, vox.side, d) for lo, hi in tiles]
     parts = _prepare_parts(vox, part_of, grids, layers, progress, pool, executor)
-    n = len(cloud)
-    sh = SourcedRows(cloud.sh_rest.reshape(n, -1), source, vox.cloud.sh_rest.reshape(m, -1)[source < 0])
+    sh = SourcedRows.of_grid(cloud.sh_rest.reshape(len(cloud), -1), source, vox)
     return Stage(reserve=float(reserve), depth=d, layers=parts, sh=sh, importance=vox.importance,
                  sh_degree=cloud.sh_degree, input_gaussians=len(cloud), kept=len(kept), source=source,
                  executor=executor)
@@ -616,11 +635,12 @@ def _prepare_parts(vox, part_of: list, grids: list, layers: int, progress: Progr
                 for li, t, idx in part_of]
     with progress.stage("tiles", f"geometry + transform of {len(part_of)} parts ({tiles} tiles) on "
                                  f"{executor.name} ({executor.workers} workers)"):
-        done = executor.map(code_part, [_part_job(vox, idx, grids[t]) for _, t, idx in part_of])
-    return [Layer(index=idx, geometry_job=geom, raht_dc=dc, raht_ac=ac,
-                  scales=np.ascontiguousarray(vox.cloud.scales[idx].T, dtype=np.float32), codes=codes,
-                  layer=li, tile=t, grid=grids[t])
-            for (li, t, idx), (geom, codes, dc, ac) in zip(part_of, done)]
+        # coded here, each part's job is made in its turn (all at once: 56 bytes a voxel)
+        done = in_order(executor, code_part, (_part_job(vox, idx, grids[t]) for _, t, idx in part_of))
+        return [Layer(index=idx, geometry_job=geom, raht_dc=dc, raht_ac=ac,
+                      scales=np.ascontiguousarray(vox.cloud.scales[idx].T, dtype=np.float32), codes=codes,
+                      layer=li, tile=t, grid=grids[t])
+                for (li, t, idx), (geom, codes, dc, ac) in zip(part_of, done)]
 
 
 @dataclass

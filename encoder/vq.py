@@ -163,19 +163,43 @@ def _assign_all(x: torch.Tensor, c: torch.Tensor, x_sq: torch.Tensor | None = No
     return idx, d2
 
 
+def _nearest_blocks(a, p: _Prepared, rows: np.ndarray | None = None):
+    """(start, block [B, D] float32, idx [B] int64, d2 [B] f32) over the vectors ``a`` (or
+    ``a[rows]``), ASSIGN_BLOCK_ROWS at a time in blocks of whole ``p.rows`` chunks: the same
+    chunks, and so the same results, as one pass over all of them, without their [N, D] copy
+    (``a`` may be rows indexed like an array, pipeline.SourcedRows) or finiteness mask."""
+    n = a.shape[0] if rows is None else len(rows)
+    step = p.rows * max(1, ASSIGN_BLOCK_ROWS // p.rows)
+    for s in range(0, n, step):
+        blk = _check_x(a[s:s + step] if rows is None else a[rows[s:s + step]])
+        xb = torch.from_numpy(blk)
+        xb_sq = (xb * xb).sum(dim=1)           # each row's own sum: the same in any block
+        idx = torch.empty(xb.shape[0], dtype=torch.int64)
+        d2 = torch.empty(xb.shape[0], dtype=torch.float32)
+        for t in range(0, xb.shape[0], p.rows):
+            idx[t:t + p.rows], d2[t:t + p.rows] = _nearest(xb[t:t + p.rows], xb_sq[t:t + p.rows], p)
+        yield s, blk, idx, d2
+
+
+def _vectors(x):
+    """The vectors as assign and train_codebook take them: rows indexed like an [N, D] array
+    (pipeline.SourcedRows: a stage's SH without a copy) as they are, else a float32 array."""
+    a = x if hasattr(x, "ndim") and not isinstance(x, np.ndarray) else np.asarray(x)
+    if a.ndim != 2:
+        raise VQError(f"vectors must be a 2-D [N, D] array, got shape {a.shape}")
+    return a
+
+
 def assign(x: np.ndarray, codebook: np.ndarray, *, rows: np.ndarray | None = None,
            threads: int | None = DEFAULT_THREADS) -> np.ndarray:
     """Index of the nearest codeword (squared L2) of every vector.
 
     x [N, D] float32 (or rows indexed like it: pipeline.SourcedRows), codebook [K, D] float32
     (K >= 1)  ->  [N] int32; with ``rows`` (int indices) the index of each vector ``x[rows]``
-    ([len(rows)] int32).  Ties go to the lower codeword index.  The vectors are taken ASSIGN_BLOCK_ROWS at a time (no [N, D] copy, no
-    [N, D] finiteness mask: 1.4 GB at 6 M SH-3 vectors), in blocks that hold whole chunks of
-    the nearest-codeword search, so the result is the one of a single pass.
+    ([len(rows)] int32).  Ties go to the lower codeword index.  The vectors are taken a block
+    at a time (:func:`_nearest_blocks`: no [N, D] copy or mask, 1.4 GB at 6 M SH-3 vectors).
     """
-    a = x if hasattr(x, "ndim") else np.asarray(x)      # an array, or rows indexed as one
-    if a.ndim != 2:
-        raise VQError(f"vectors must be a 2-D [N, D] array, got shape {a.shape}")
+    a = _vectors(x)
     cb = _check_x(codebook)
     if cb.shape[0] == 0:
         raise VQError("codebook is empty")
@@ -186,14 +210,8 @@ def assign(x: np.ndarray, codebook: np.ndarray, *, rows: np.ndarray | None = Non
     if n == 0:
         return out
     with _threads(threads):
-        p = _Prepared(torch.from_numpy(cb))
-        step = p.rows * max(1, ASSIGN_BLOCK_ROWS // p.rows)
-        for s in range(0, n, step):
-            xb = torch.from_numpy(_check_x(a[s:s + step] if rows is None else a[rows[s:s + step]]))
-            xb_sq = (xb * xb).sum(dim=1)
-            for t in range(0, xb.shape[0], p.rows):
-                idx, _ = _nearest(xb[t:t + p.rows], xb_sq[t:t + p.rows], p)
-                out[s + t:s + t + idx.shape[0]] = idx.numpy()
+        for s, _, idx, _ in _nearest_blocks(a, _Prepared(torch.from_numpy(cb)), rows):
+            out[s:s + idx.shape[0]] = idx.numpy()
     return out
 
 
@@ -235,7 +253,7 @@ def _seed(x: np.ndarray, w: np.ndarray, k: int, rng: np.random.Generator) -> np.
         sub = np.unique(rng.choice(n, size=SEED_SAMPLE, replace=True, p=p))
         xs, ws = x[sub], np.ones(sub.size)
     else:
-        xs, ws = x, w
+        xs, ws = np.asarray(x), w
     m = xs.shape[0]
     xt = torch.from_numpy(np.ascontiguousarray(xs))
     xt_sq = (xt * xt).sum(dim=1)
@@ -289,7 +307,11 @@ def train_codebook(x: np.ndarray, weights: np.ndarray | None, K: int, *,
     progress optional callback(stage: str, done: int, total: int)
     returns  [K, D] float32 codebook
     """
-    a = _check_x(x)
+    a = _vectors(x)
+    if isinstance(a, np.ndarray):
+        a = _check_x(a)
+    elif any(not np.isfinite(a[s:s + ASSIGN_BLOCK_ROWS]).all() for s in range(0, a.shape[0], ASSIGN_BLOCK_ROWS)):
+        raise VQError("vectors contain non-finite values")
     n, dim = a.shape
     if isinstance(K, bool) or not isinstance(K, (int, np.integer)) or K < 1:
         raise VQError(f"codebook size K must be an integer >= 1, got {K!r}")
@@ -318,16 +340,15 @@ def _train(a: np.ndarray, w: np.ndarray, K: int, iters: int, batch: int, lloyd: 
     c = _seed(a, w, K, rng)
     if progress:
         progress("seed", 1, 1)
-    xt = torch.from_numpy(a)
-    xt_sq = (xt * xt).sum(dim=1)
     acc_w = np.zeros(K)                    # accumulated weight per codeword (learning rates)
     last_hit = np.zeros(K, dtype=np.int64)
     refresh = 10                           # iterations without weight before a re-seed
     bsz = min(batch, n)
     for it in range(iters):
-        bi = torch.from_numpy(np.sort(rng.choice(n, size=bsz, replace=False)))
-        xb, xb_sq = xt[bi], xt_sq[bi]
-        wb = w[bi.numpy()]
+        bi = np.sort(rng.choice(n, size=bsz, replace=False))
+        xb = torch.from_numpy(a[bi])            # gathered: ``a`` may be rows indexed like an array
+        xb_sq = (xb * xb).sum(dim=1)
+        wb = w[bi]
         p = _Prepared(torch.from_numpy(c))
         idx = np.empty(bsz, np.int64)
         d2 = np.empty(bsz, np.float64)
@@ -355,13 +376,18 @@ def _train(a: np.ndarray, w: np.ndarray, K: int, iters: int, batch: int, lloyd: 
             progress("minibatch", it + 1, iters)
 
     for p in range(lloyd):
-        idx, d2 = _assign_all(xt, torch.from_numpy(c), xt_sq)
-        idx = idx.numpy()
+        idx, d2 = np.empty(n, np.int64), np.empty(n, np.float32)
+        sums = np.zeros((dim, K))
+        for s, blk, bi_, bd in _nearest_blocks(a, _Prepared(torch.from_numpy(c))):
+            e = s + blk.shape[0]
+            idx[s:e], d2[s:e] = bi_.numpy(), bd.numpy()
+            for j in range(dim):
+                # added in row order, as one np.bincount over every row adds: the same sums
+                np.add.at(sums[j], idx[s:e], w[s:e] * blk[:, j])
         cw = np.bincount(idx, weights=w, minlength=K)
-        sums = np.stack([np.bincount(idx, weights=w * a[:, j], minlength=K) for j in range(dim)], 1)
         live = cw > 0
-        c[live] = (sums[live] / cw[live, None]).astype(np.float32)
-        _reseed(c, np.flatnonzero(~live), a, w * d2.numpy().astype(np.float64))
+        c[live] = (sums.T[live] / cw[live, None]).astype(np.float32)
+        _reseed(c, np.flatnonzero(~live), a, w * d2.astype(np.float64))
         if progress:
             progress("lloyd", p + 1, lloyd)
     return np.ascontiguousarray(c, dtype=np.float32)

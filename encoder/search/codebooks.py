@@ -7,7 +7,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from ..pipeline import default_codebook_size, stage_source, train_sh_codebook
+from ..pipeline import SourcedRows, default_codebook_size, stage_source, train_sh_codebook
 from .options import SearchOptions
 from .sh_model import Assigner, ShSource
 
@@ -34,11 +34,12 @@ class Codebooks:
         self.sizes = [k_max] if sopts.codebook is not None else sorted(
             {k_max, max(16, k_max // 4), max(16, k_max // 16)}, reverse=True)
         self.sopts, self.assigner, self.progress, self.m1 = sopts, assigner, progress, m1
-        self.src = ShSource(sh=np.ascontiguousarray(vox_top.cloud.sh_rest.reshape(m1, -1), dtype=np.float32),
-                            importance=vox_top.importance, num_points=m1)
         # the largest stage's voxels are the first the SH models need: assign them right after
         # each codebook is trained (Stage.source as prepare_stage will compute it)
         self.source_top = stage_source(kept_top, vox_top)
+        # their SH as rows of the input's (the grid's own copy, 1 GB at 6 M, goes with the grid)
+        self.src = ShSource(sh=SourcedRows.of_grid(assigner.sh, self.source_top, vox_top),
+                            importance=vox_top.importance, num_points=m1)
         self._todo = list(range(len(self.sizes)))
         self._lock = threading.Lock()
         self._trained = [None] * len(self.sizes)

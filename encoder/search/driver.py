@@ -422,15 +422,14 @@ class BudgetSearch:
     def _result(self) -> EncodeResult:
         if not self.candidates:
             raise BudgetError(self.target, self._smallest_file())
-        self.forget_stages()             # before the chosen file is decoded
         chosen = finalists(self.candidates, self.sopts)
         chosen.sort(key=lambda c: (-c.train_psnr, -c.reserve))
-        from ...decoder import decode
         report = search_report(self, chosen[0])
         if report.search.note is not None:
             self.progress.log(report.search.note)
-        # the decoder is the truth of what the file holds (candidates released their scenes)
-        return EncodeResult(data=chosen[0].data, cloud=decode(chosen[0].data), report=report)
+        # the decoder is the truth of what the file holds (candidates released their scenes):
+        # the result decodes the bytes when its cloud is asked for, after the search has gone
+        return EncodeResult(data=chosen[0].data, report=report)
 
     def _smallest_file(self) -> int:
         """Exact size of the smallest file the search can make (the smallest tau, 1 bit

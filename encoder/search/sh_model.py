@@ -254,7 +254,7 @@ class ShModel:
 @dataclass
 class ShSource:
     """The SH vectors and importance a codebook is trained on (a Stage's fields)."""
-    sh: np.ndarray
+    sh: object                # [M, D] rows: an array or a pipeline.SourcedRows
     importance: np.ndarray
     num_points: int
 

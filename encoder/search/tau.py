@@ -3,7 +3,6 @@ jointly with the bit allocation, then calibration, then -- when every attribute 
 best width and bytes are left -- spending the rest on the SH."""
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Iterator
 
 import numpy as np
@@ -41,6 +40,7 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
         return
     with progress.stage("sh-plan", "codebook size and keep-count vs bit allocation"):
         sh_model, keep, vq_total = choose_sh(sh_models, loss, rate, target - base_fixed, weights, min_keep)
+    sh_models = None        # the other codebooks' models go (16 bytes a voxel each)
     m, w_sh, keep_estimate = sh_model.m, 1.0 if weights is None else weights["sh"], keep
     # the codebook path is skipped (after it lost) only where the estimate keeps most vectors
     # exact: below that, which path renders better changes with the depth (flowers 12x: the
@@ -71,6 +71,7 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
             keep = res.sh_plan.keep
             found = True
             yield _finish(stage, res, saturated, "vq", log)
+            res = None      # with its plan's decoded SH (1 GB at 6 M), before the next path's
     # the codebook path again with its kept vectors in importance classes, their widths
     # allocated (1-16 bits or constant): at the chosen keep-count, or once spend_saturated keeps
     # every vector (its 8-16-bit widths would otherwise cap the SH where classes pay most)
@@ -91,6 +92,7 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
         if res is not None:
             found = True
             yield _finish(stage, res, _attributes_at_max(res, loss, rate), "classes", log)
+            res = None
     if scalar is not None:
         res = calibrate(*args, scalar[0], kept=scalar[1])
         if res is not None:
@@ -127,17 +129,19 @@ def _attributes_at_max(res: Calibrated, loss, rate) -> bool:
 
 
 def _finish(stage: Stage, res: Calibrated, saturated: bool, path: str, log: list) -> Encoded:
-    """The calibrated encode with what the search reads about it."""
+    """The calibrated encode with what the search reads about it: ``res.best`` itself, so that
+    the caller's release() of its decoded scene (1.4 GB at 6 M) is the only one held."""
     log.append({"reserve": stage.reserve, "depth": stage.depth, "bytes": res.best.size, "rounds": res.history,
                 **({"sh_path": path} if res.sh_plan is not None else {})})
     plan = res.sh_plan
-    return dataclasses.replace(res.best, rounds=res.history, attributes_saturated=saturated,
-                               sh_keep=None if plan is None else int(plan.keep),
-                               sh_path=None if plan is None else path,
-                               codebook_size=0 if plan is None else int(plan.stats["codebook_size"]),
-                               depth=stage.depth, num_points=stage.num_points,
-                               layer0_points=stage.layer0_points,
-                               geometry_bytes=stage.geometry_bytes)
+    enc = res.best
+    enc.rounds, enc.attributes_saturated = res.history, saturated
+    enc.sh_keep = None if plan is None else int(plan.keep)
+    enc.sh_path = None if plan is None else path
+    enc.codebook_size = 0 if plan is None else int(plan.stats["codebook_size"])
+    enc.depth, enc.num_points = stage.depth, stage.num_points
+    enc.layer0_points, enc.geometry_bytes = stage.layer0_points, stage.geometry_bytes
+    return enc
 
 
 #: The search may stop encoding the codebook path once it lost (driver._note_lost_paths) only
