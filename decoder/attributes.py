@@ -9,6 +9,14 @@ Syntax::
     ChannelSet direct       C = 3, L = M: log-scales in Morton point order
 
 M is the GEOM chunk's voxel count.
+
+RWGT chunk (format 1.5, optional per part, GSZ.md §7.1): integer leaf weights of the part's RAHT
+tree, so that the transform's coefficient errors are importance-weighted errors (TRANSFORMS.md
+§2.1)::
+
+    u8   Q                  classes, 2..16
+    u16  weights[Q]         1..65535
+    blob classes            RansStream of M symbols (model id 0), values 0..Q-1, point order
 """
 from __future__ import annotations
 
@@ -19,6 +27,7 @@ import numpy as np
 from . import native
 from .bytesio import Reader
 from .groups import read_channel_set
+from .rans import decode_stream_single
 from .layout import DIRECT_CHANNELS, RAHT_CHANNELS, ROTATION_EULER_ZYX
 from .raht import RahtTree, build_raht_tree, raht_inverse, raht_inverse_planes
 from .rotation import euler_to_quaternion, half_angle_trig, quaternion_f32_from_trig
@@ -103,15 +112,17 @@ def parse_direct_part(r: Reader, m: int) -> np.ndarray:
 
 
 def attributes_from_coefficients(dc: np.ndarray, ac: np.ndarray, direct: np.ndarray,
-                                 codes: np.ndarray, depth: int, tree=None) -> Attributes:
+                                 codes: np.ndarray, depth: int, tree=None,
+                                 leaf_weights: np.ndarray | None = None) -> Attributes:
     """Inverse RAHT over the voxels with Morton codes ``codes`` (ascending) and the mapping to
     Gaussian fields.  With the native accelerator: the tree, the inverse transform and the
     float32 conversions in C, cos/sin still NumPy's on the same arrays (bit-identical).
-    ``tree``: the NumPy path's ``build_raht_tree(codes, depth)`` when made already."""
+    ``tree``: the NumPy path's ``build_raht_tree(codes, depth, leaf_weights)`` when made already;
+    ``leaf_weights``: the part's RWGT leaf weights (None: all 1)."""
     if not native.enabled():
-        tree = build_raht_tree(codes, depth) if tree is None else tree
+        tree = build_raht_tree(codes, depth, leaf_weights) if tree is None else tree
         return _attributes_from_planes(raht_inverse_planes(dc, ac, tree), direct)
-    tree = native_tree(codes, depth)
+    tree = native_tree(codes, depth, leaf_weights)
     half = native_half_angles(tree, dc, ac)
     opacities, sh_dc, _ = native_opacity_dc(tree, dc, ac)
     c, s = half_angle_trig(half)
@@ -120,11 +131,47 @@ def attributes_from_coefficients(dc: np.ndarray, ac: np.ndarray, direct: np.ndar
     return Attributes(opacities=opacities, rotations=rotations, sh_dc=sh_dc, scales=scales)
 
 
+#: most classes an RWGT chunk may declare
+MAX_RAHT_CLASSES = 16
+
+
+@dataclass
+class RahtWeights:
+    """A part's RWGT chunk: ``classes`` int64 [M] (point order), ``weights`` int64 [Q]."""
+    classes: np.ndarray
+    weights: np.ndarray
+
+    @property
+    def leaf_weights(self) -> np.ndarray:
+        """int64 [M]: each point's RAHT leaf weight."""
+        return self.weights[self.classes]
+
+
+def read_raht_weights(data, num_points: int) -> RahtWeights:
+    """Decode an RWGT chunk (GSZ.md §7.1) of a part of ``num_points`` voxels."""
+    r = Reader(data, "RWGT chunk")
+    q = r.u8()
+    r.check(2 <= q <= MAX_RAHT_CLASSES, f"RAHT weight class count {q} outside 2..{MAX_RAHT_CLASSES}")
+    weights = r.array(np.dtype("<u2"), q).astype(np.int64)
+    r.check(bool(np.all(weights >= 1)), "RAHT class weight 0 (must be 1..65535)")
+    classes = decode_stream_single(r.blob(), num_points)
+    r.check(bool(np.all((classes >= 0) & (classes < q))), f"RAHT weight class outside 0..{q - 1}")
+    r.expect_end()
+    return RahtWeights(classes=classes.astype(np.int64, copy=False), weights=weights)
+
+
+def leaf_weights_of(rwgt) -> np.ndarray | None:
+    """int64 [M] leaf weights of a part's decoded RWGT (None: no chunk, every leaf weighs 1)."""
+    return None if rwgt is None else np.ascontiguousarray(rwgt.leaf_weights, dtype=np.int64)
+
+
 # ---- native stages (decode.decode_layer runs them on two threads) ---------------------------
 # RAHT channel layout: 0 opacity, 1..3 roll/pitch/yaw, 4..6 f_dc_0..2 (RAHT_CHANNELS).
-def native_tree(codes: np.ndarray, depth: int):
-    """The C RAHT tree of the voxels with Morton codes ``codes`` (opaque, for the stages below)."""
-    return native.module().raht_tree(np.ascontiguousarray(codes, dtype=np.uint64), int(depth))
+def native_tree(codes: np.ndarray, depth: int, leaf_weights: np.ndarray | None = None):
+    """The C RAHT tree of the voxels with Morton codes ``codes`` (opaque, for the stages below);
+    ``leaf_weights`` int64 [M] of an RWGT chunk, or None."""
+    w = None if leaf_weights is None else np.ascontiguousarray(leaf_weights, dtype=np.int64)
+    return native.module().raht_tree(np.ascontiguousarray(codes, dtype=np.uint64), int(depth), w)
 
 
 def native_half_angles(tree, dc: np.ndarray, ac: np.ndarray) -> np.ndarray:

@@ -20,7 +20,8 @@ from .glb import gsz_payload, is_glb
 from .layer import (GAUSSIANS_PER_BYTE, LAYER_DATA_CHUNKS, LayerState, _cores, check_header_counts,  # noqa: F401
                     check_max_gaussians, check_tile_complete, concat_clouds, decode_layer, guard, load_bytes,
                     open_gsz, plan_layers, plan_parts, tile_table)
-from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_TILE, KNOWN_CHUNKS
+from .layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_TILE,
+                     KNOWN_CHUNKS)
 from .pages import small_pages
 from .tiles import check_region, select_tiles
 from .stream import StreamDecoder
@@ -28,7 +29,8 @@ from .stream import StreamDecoder
 #: Chunk type names for reports.
 CHUNK_NAMES = {CHUNK_GEOM: "geometry (octree)", CHUNK_ATTR: "attributes (RAHT + scales)",
                CHUNK_SHVQ: "SH (codebook + kept + indices)", CHUNK_META: "metadata (JSON)",
-               CHUNK_TILE: "tile table", CHUNK_SHCL: "SH importance classes"}
+               CHUNK_TILE: "tile table", CHUNK_SHCL: "SH importance classes",
+               CHUNK_RWGT: "RAHT leaf weights (importance classes)"}
 
 
 def read_meta(container: Container) -> dict:

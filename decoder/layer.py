@@ -17,15 +17,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import native
-from .attributes import (attributes_from_coefficients, native_half_angles, native_opacity_dc,
-                         native_rotations, native_scales, native_tree, numpy_colour,
-                         numpy_half_angles, parse_attributes, parse_direct_part, parse_raht_part)
+from .attributes import (attributes_from_coefficients, leaf_weights_of, native_half_angles,
+                         native_opacity_dc, native_rotations, native_scales, native_tree,
+                         numpy_colour, numpy_half_angles, parse_attributes, parse_direct_part,
+                         parse_raht_part, read_raht_weights)
 from .cloud import GaussianCloud
 from .container import DEFAULT_MAX_GAUSSIANS, LAYER_SHIFT, TILE_SHIFT, Chunk
 from .errors import GszError, GszFormatError, GszLimitError
 from .geometry import read_geometry_header
 from .io_util import check_input_file
-from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_TILE
+from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_TILE
 from .pages import small_pages
 from .raht import build_raht_tree
 from .rotation import quaternion_f32_from_trig
@@ -78,8 +79,8 @@ def guard(fn, path):
         raise GszFormatError(f"malformed data ({type(e).__name__}: {e})", path) from None
 
 
-#: Chunk types that carry one part's data (GSZ.md §4.1); SHCL is optional (1.3).
-LAYER_DATA_CHUNKS = (CHUNK_GEOM, CHUNK_ATTR, CHUNK_SHVQ, CHUNK_SHCL)
+#: Chunk types that carry one part's data (GSZ.md §4.1); SHCL (1.3) and RWGT (1.5) are optional.
+LAYER_DATA_CHUNKS = (CHUNK_GEOM, CHUNK_ATTR, CHUNK_SHVQ, CHUNK_SHCL, CHUNK_RWGT)
 
 
 @dataclass
@@ -273,24 +274,56 @@ def _check_finite(ok: dict) -> None:
             raise GszFormatError(f"decoded {name} contain non-finite values (corrupt parameters)")
 
 
-def _read_sh(chunks: dict, header, state: LayerState, m: int):
+def _read_weights(chunks: dict, m: int):
+    """The part's RWGT chunk decoded (RahtWeights), or None."""
+    data = chunks.get(CHUNK_RWGT)
+    return None if data is None else read_raht_weights(data, m)
+
+
+def _read_sh(chunks: dict, header, state: LayerState, m: int, rwgt=None):
     """(sh_rest, the codebook) of a part: its SHVQ chunk, or nothing at SH degree 0."""
     if header.sh_degree > 0:
-        return read_sh(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook, chunks.get(CHUNK_SHCL))
+        return read_sh(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook, chunks.get(CHUNK_SHCL),
+                       voxel_classes=None if rwgt is None else rwgt.classes)
     return np.zeros((m, 0, 3), np.float32), state.codebook
 
 
-def _read_attributes_and_sh(chunks: dict, header, state: LayerState, m: int):
+def _read_attributes_and_sh(chunks: dict, header, state: LayerState, m: int, rwgt=None):
     dc, ac, direct = parse_attributes(chunks[CHUNK_ATTR], m)
-    return (dc, ac, direct, *_read_sh(chunks, header, state, m))
+    return (dc, ac, direct, *_read_sh(chunks, header, state, m, rwgt))
+
+
+class _Weights:
+    """A part's RAHT leaf weights, decoded by the calling thread first and handed to the worker
+    that builds the tree (``ready`` set also when the decode failed: ``ok`` False)."""
+
+    def __init__(self):
+        self.rwgt = None
+        self.ok = False
+        self.ready = threading.Event()
+
+    def decode(self, chunks: dict, m: int):
+        try:
+            self.rwgt = _read_weights(chunks, m)
+            self.ok = True
+        finally:
+            self.ready.set()                    # never leave the worker waiting
+        return self.rwgt
+
+    def leaf_weights(self):
+        """The worker's wait: the leaf weights, or None when there are none or their decode
+        failed (the calling thread reports that error)."""
+        self.ready.wait()
+        return leaf_weights_of(self.rwgt) if self.ok else None
 
 
 class _CodesAndTree:
     """The NumPy path's worker: the octree (then ``codes_ready`` is set: the calling thread
     makes the positions meanwhile), then the RAHT tree of its voxels (returned)."""
 
-    def __init__(self, gh):
+    def __init__(self, gh, weights: _Weights):
         self.gh = gh
+        self.weights = weights
         self.codes = None
         self.codes_ready = threading.Event()
 
@@ -300,7 +333,10 @@ class _CodesAndTree:
                 self.codes = self.gh.decode_codes()
             finally:
                 self.codes_ready.set()          # also on an error: never leave the caller waiting
-            return build_raht_tree(self.codes, self.gh.depth)
+            w = self.weights.leaf_weights()
+            if not self.weights.ok:
+                return None
+            return build_raht_tree(self.codes, self.gh.depth, w)
 
 
 def decode_layer(chunks: dict, header, state: LayerState, *, overlap: bool = True,
@@ -331,19 +367,21 @@ def _decode_layer(chunks: dict, header, state: LayerState, overlap: bool, label:
         cloud = overlapped(chunks, header, state, gh)
     else:
         codes = gh.decode_codes()
-        cloud = _finish_layer(gh, codes, _read_attributes_and_sh(chunks, header, state, m), header,
-                              state)
+        rwgt = _read_weights(chunks, m)
+        cloud = _finish_layer(gh, codes, _read_attributes_and_sh(chunks, header, state, m, rwgt), header,
+                              state, leaf_weights=leaf_weights_of(rwgt))
     state.decoded_points += m
     return cloud
 
 
 def _finish_layer(gh, codes: np.ndarray, decoded: tuple, header, state: LayerState,
-                  tree=None) -> GaussianCloud:
+                  tree=None, leaf_weights=None) -> GaussianCloud:
     """decode_layer after the entropy decoding: ``decoded`` is _read_attributes_and_sh's result;
     the inverse RAHT (over ``tree`` when built already), positions and the finiteness checks."""
     dc, ac, direct, sh_rest, codebook = decoded
     state.codebook = codebook
-    attrs = attributes_from_coefficients(dc, ac, direct, codes, gh.depth, tree=tree)
+    attrs = attributes_from_coefficients(dc, ac, direct, codes, gh.depth, tree=tree,
+                                         leaf_weights=leaf_weights)
     cloud = GaussianCloud(positions=gh.positions(codes), scales=attrs.scales,
                           rotations=attrs.rotations, opacities=attrs.opacities,
                           sh_dc=attrs.sh_dc, sh_rest=sh_rest, sh_degree=header.sh_degree)
@@ -359,10 +397,12 @@ def _decode_layer_threaded(chunks: dict, header, state: LayerState, gh) -> Gauss
     while the worker builds the tree, then :func:`_finish_layer_threaded`.  Errors keep the
     sequential order: the geometry's comes first."""
     # carry: the worker follows this thread's path (inside numpy_only() too)
-    job = _CodesAndTree(gh)
+    weights = _Weights()
+    job = _CodesAndTree(gh, weights)
     pending = _worker().submit(native.carry(job))
     try:
-        decoded = _read_attributes_and_sh(chunks, header, state, gh.num_points)
+        rwgt = weights.decode(chunks, gh.num_points)
+        decoded = _read_attributes_and_sh(chunks, header, state, gh.num_points, rwgt)
     except BaseException:
         if pending.exception() is not None:
             raise pending.exception() from None        # the geometry's error comes first
@@ -429,8 +469,9 @@ class _GeometryJob:
     ``helper`` lets the calling thread join the octree traversal once its own work is done
     (``_native.octree_help``).  Returns (tree, (scales, scales finite) or None)."""
 
-    def __init__(self, gh):
+    def __init__(self, gh, weights: _Weights):
         self.gh = gh
+        self.weights = weights
         self.codes = None
         self.codes_ready = threading.Event()
         self.helper = native.module().octree_helper()
@@ -444,7 +485,8 @@ class _GeometryJob:
         finally:
             native.module().octree_helper_close(self.helper)  # also when it never started
             self.codes_ready.set()
-        tree = native_tree(self.codes, self.gh.depth)
+        w = self.weights.leaf_weights()
+        tree = native_tree(self.codes, self.gh.depth, w) if self.weights.ok else None
         self.raht_part_ready.wait()
         if self.raht_part is None:     # the calling thread's ATTR error is reported there
             return tree, None
@@ -487,15 +529,17 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
     SH, then the first non-finite field in FIELDS order."""
     m = gh.num_points
     pool = _worker()
-    job = _GeometryJob(gh)
+    weights = _Weights()
+    job = _GeometryJob(gh, weights)
     pending = pool.submit(native.carry(job))
     try:
         try:
+            rwgt = weights.decode(chunks, m)
             job.raht_part = parse_raht_part(chunks[CHUNK_ATTR], m)
         finally:
             job.raht_part_ready.set()                  # never leave the worker waiting
         dc, ac, _ = job.raht_part
-        sh_rest, codebook = _read_sh(chunks, header, state, m)
+        sh_rest, codebook = _read_sh(chunks, header, state, m, rwgt)
     except BaseException:
         if pending.exception() is not None:
             raise pending.exception() from None        # the geometry's or scales' error first

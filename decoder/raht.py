@@ -59,23 +59,34 @@ class RahtTree:
     levels: the non-empty levels (at least one pair), FINEST first (level index ascending).
     ac_slots: int64 [N-1] the slot of every AC coefficient in stream order (coarse level first,
       ascending slot within a level) -- a permutation of 1..N-1.
+    leaf_weights: int64 [N] integer leaf weights (an RWGT chunk, GSZ.md §7.1), or None (all 1).
     """
 
     num_points: int
     depth: int
     levels: tuple
     ac_slots: np.ndarray
+    leaf_weights: np.ndarray | None = None
+
+    def leaf_scale(self) -> np.ndarray | None:
+        """sqrt(leaf weight) float64 [N] of a weighted tree (None: every leaf weighs 1): the
+        transform runs on sqrt(w) * value, so its coefficients' squared error is the
+        weight-weighted squared error of the values (TRANSFORMS.md §2.5)."""
+        return None if self.leaf_weights is None else np.sqrt(self.leaf_weights.astype(np.float64))
 
     def level_sizes(self) -> list[tuple[int, int]]:
         """[(level index, number of AC coefficients)] in stream order (coarse first)."""
         return [(lv.level, lv.left.shape[0]) for lv in reversed(self.levels)]
 
 
-def build_raht_tree(morton_codes: np.ndarray, depth: int) -> RahtTree:
+def build_raht_tree(morton_codes: np.ndarray, depth: int,
+                    leaf_weights: np.ndarray | None = None) -> RahtTree:
     """Build the RAHT tree from voxel Morton codes.
 
     morton_codes: uint64 [N], N >= 1, strictly ascending, every code < 2^(3*depth).
     depth: 1 .. 21 bits per axis.
+    leaf_weights: None (every leaf weighs 1) or integers [N] in 1 .. 65535 (TRANSFORMS.md §2.5);
+      node weights are their exact integer sums.
     Raises GszFormatError when the codes violate this contract (e.g. corrupt geometry).
     Cost: O(N) per level with early exit once a single node remains; ~0.1 s for 500k points.
     """
@@ -98,6 +109,8 @@ def build_raht_tree(morton_codes: np.ndarray, depth: int) -> RahtTree:
 
     if n >= 1 << 31:
         raise GszFormatError(f"RAHT tree of {n} points: more than 2^31")
+    if leaf_weights is not None:
+        return _build_weighted(codes, depth, _check_leaf_weights(leaf_weights, n))
     # every node's slot and weight (both < 2^31) in one int64: slot << 32 | weight -- one
     # gather and one compaction per level for both.  The first m entries of ``codes`` (a copy,
     # shifted in place) and ``node`` are the level's nodes: compacted in place, into memory
@@ -137,6 +150,53 @@ def build_raht_tree(morton_codes: np.ndarray, depth: int) -> RahtTree:
     ac_slots = (np.concatenate([lv.right for lv in reversed(levels)]) if levels
                 else np.zeros(0, dtype=np.int64))
     return RahtTree(num_points=n, depth=depth, levels=tuple(levels), ac_slots=ac_slots)
+
+
+MAX_LEAF_WEIGHT = 65535
+
+
+def _check_leaf_weights(w, n: int) -> np.ndarray:
+    w = np.asarray(w)
+    if w.shape != (n,) or not np.issubdtype(w.dtype, np.integer):
+        raise GszFormatError(f"RAHT leaf weights must be integers [{n}], got {w.dtype} {w.shape}")
+    w = w.astype(np.int64)
+    if n and (int(w.min()) < 1 or int(w.max()) > MAX_LEAF_WEIGHT):
+        raise GszFormatError(f"RAHT leaf weights must lie in 1..{MAX_LEAF_WEIGHT}")
+    return w
+
+
+def _build_weighted(codes: np.ndarray, depth: int, leaf_w: np.ndarray) -> RahtTree:
+    """build_raht_tree with integer leaf weights: the same pairs, level by level; a node's weight
+    is the exact sum of its leaves' (< 2^47, exact in int64 and float64)."""
+    n = codes.shape[0]
+    slot = np.arange(n, dtype=np.int64)
+    wt = leaf_w.copy()
+    levels = []
+    m = n
+    for level in range(3 * depth):
+        if m == 1:
+            break
+        parent = codes[:m] >> np.uint64(1)
+        pos = np.flatnonzero(parent[:-1] == parent[1:])
+        if pos.size:
+            sl, sr = slot[:m][pos], slot[:m][pos + 1]
+            wl, wr = wt[:m][pos], wt[:m][pos + 1]
+            levels.append(RahtLevel(level, sl, sr, wl.astype(np.float64), wr.astype(np.float64)))
+            wt[pos] = wl + wr
+            keep = np.ones(m, dtype=bool)
+            keep[pos + 1] = False
+            m -= pos.size
+            codes[:m] = parent[keep]
+            slot[:m] = slot[:m + pos.size][keep]
+            wt[:m] = wt[:m + pos.size][keep]
+        else:
+            codes[:m] = parent
+    if m != 1:
+        raise GszFormatError("RAHT tree did not reduce to a single root")
+    ac_slots = (np.concatenate([lv.right for lv in reversed(levels)]) if levels
+                else np.zeros(0, dtype=np.int64))
+    return RahtTree(num_points=n, depth=depth, levels=tuple(levels), ac_slots=ac_slots,
+                    leaf_weights=leaf_w)
 
 
 def raht_inverse(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
@@ -189,4 +249,7 @@ def raht_inverse_planes(dc: np.ndarray, ac: np.ndarray, tree: RahtTree,
             low += u                         # H' = g2 low + g1 high
             row[lv.right] = low
         off += p
+    scale = tree.leaf_scale()
+    if scale is not None:
+        v /= scale                              # the leaves' values: v_p / sqrt(w_p)
     return v

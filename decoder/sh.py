@@ -52,12 +52,22 @@ def class_order(classes: np.ndarray) -> np.ndarray:
     return np.argsort(c, kind="stable")
 
 
-def read_sh_classes(data, num_kept: int) -> np.ndarray:
-    """Decode an SHCL chunk: the class [P] of each kept vector, in Morton order."""
+#: SHCL's class count byte that means "the classes of the part's RWGT chunk" (GSZ.md §8.1, 1.5)
+SH_CLASSES_FROM_RWGT = 0
+
+
+def read_sh_classes(data, num_kept: int, voxel_classes=None):
+    """Decode an SHCL chunk: the class [P] of each kept vector, in Morton order, or the string
+    "rwgt" when its classes are the kept points' RWGT classes (Q = 0, decided once the kept
+    flags are known)."""
     r = Reader(data, "SHCL chunk")
     q = r.u8()
-    r.check(2 <= q <= MAX_SH_CLASSES, f"SH class count {q} outside 2..{MAX_SH_CLASSES}")
     r.check(num_kept > 0, "SH classes for a part without kept SH vectors")
+    if q == SH_CLASSES_FROM_RWGT:
+        r.check(voxel_classes is not None, "SH classes taken from an RWGT chunk the part does not have")
+        r.expect_end()
+        return "rwgt"
+    r.check(2 <= q <= MAX_SH_CLASSES, f"SH class count {q} outside 2..{MAX_SH_CLASSES}")
     classes = decode_stream_single(r.blob(), num_kept)
     r.check(bool(np.all((classes >= 0) & (classes < q))), f"SH class outside 0..{q - 1}")
     r.expect_end()
@@ -65,11 +75,12 @@ def read_sh_classes(data, num_kept: int) -> np.ndarray:
 
 
 def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None,
-            classes_chunk=None):
+            classes_chunk=None, voxel_classes=None):
     """Decode one layer's SHVQ chunk.
 
     codebook    the [D, K_cb] float64 codebook an earlier layer carried, or None
     classes_chunk  the part's SHCL chunk, or None (kept vectors stored in Morton order)
+    voxel_classes  the part's RWGT classes int [M] (point order), or None
     returns     (sh_rest float32 [M, K, 3], codebook [D, K_cb] float64 or None): the codebook
                 of this layer when it carries one, else the one passed in
 
@@ -92,9 +103,9 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
         r.check(codebook is not None or p == m,
                 "codeword indices but no SH codebook in this or an earlier layer")
         kcb = 0 if codebook is None else codebook.shape[1]
-    classes = None if classes_chunk is None else read_sh_classes(classes_chunk, p)
+    classes = None if classes_chunk is None else read_sh_classes(classes_chunk, p, voxel_classes)
     if native.enabled():
-        return _assemble_native(r, m, k, d, p, kcb, codebook, classes), codebook
+        return _assemble_native(r, m, k, d, p, kcb, codebook, classes, voxel_classes), codebook
     kept = None
     if p:
         # float32: the values the float32 output keeps (half the bytes to decode into and move)
@@ -103,6 +114,8 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
         r.check(bool(np.all((flags == 0) | (flags == 1))), "kept flag outside 0/1")
         kept_mask = flags.astype(bool)
         r.check(int(kept_mask.sum()) == p, f"{int(kept_mask.sum())} kept flags set, header says {p}")
+        if isinstance(classes, str):
+            classes = voxel_classes[kept_mask]
     idx = decode_stream_single(r.blob(), m - p)
     r.check(idx.size == 0 or (idx.min() >= 0 and idx.max() < kcb), "codeword index out of range")
     r.expect_end()
@@ -133,7 +146,8 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
 _KEPT_BLOCK = 8192
 
 
-def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebook, classes):
+def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebook, classes,
+                     voxel_classes=None):
     """read_sh's kept vectors, flags and indices, assembled in one C pass (same checks): the
     kept set stays uint16 symbols until that pass dequantises them into the float32 rows."""
     flags = None
@@ -142,6 +156,11 @@ def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebo
     if p:
         kept, steps, lo = read_channel_set_symbols(r, max_length=p, shape=(d, p), name="kept SH set")
         flags = decode_stream_single(r.blob(), m)
+        if isinstance(classes, str):       # RWGT classes of the kept points: the flags' checks
+            sel = flags == 1               # of the NumPy path first, in its order
+            r.check(bool(np.all(sel | (flags == 0))), "kept flag outside 0/1")
+            r.check(int(np.count_nonzero(sel)) == p, f"{int(np.count_nonzero(sel))} kept flags set, header says {p}")
+            classes = voxel_classes[sel]
     idx = decode_stream_single(r.blob(), m - p)
     r.expect_end()
     cb = np.zeros((d, 0), np.float64) if codebook is None else codebook

@@ -68,6 +68,10 @@ def build_parser() -> argparse.ArgumentParser:
     both.add_argument("--cameras", default=None, help="cameras.json or COLMAP model for the importance pass (default: generated views)")
     both.add_argument("--train-views", type=int, default=d.train_views, help="number of generated train views (without --cameras)")
     both.add_argument("--importance-width", type=int, default=d.importance_width, help="render width of the importance pass")
+    both.add_argument("--raht-classes", type=int, default=d.raht_classes,
+                      help="importance classes of the RAHT leaves, 2-16 (an RWGT chunk, format 1.5: "
+                           "important Gaussians get finer opacity, rotation and colour for the same "
+                           f"bytes); 1: plain RAHT (default {d.raht_classes})")
     both.add_argument("--seed", type=int, default=d.seed, help="RNG seed (VQ)")
     lay = p.add_argument_group("layers, tiles and workers")
     lay.add_argument("--layers", type=int, nargs="?", default=d.layers, const=STREAMING_LAYERS, metavar="L",
@@ -122,7 +126,7 @@ def _run_fixed(a, prog) -> EncodeReport:
                          train_views=a.train_views, importance_width=a.importance_width,
                          layers=a.layers, first_layer=a.first_layer, seed=a.seed,
                          tile_gaussians=a.tile_gaussians or None, executor=a.executor,
-                         workers=a.workers).validate()
+                         workers=a.workers, raht_classes=a.raht_classes).validate()
     _check_paths(a)                           # after the options: their errors come first
     cloud, cameras = _read_inputs(a, prog)
     result = encode(cloud, opts, cameras=cameras, progress=prog, source=a.input)
@@ -162,7 +166,7 @@ def _run_search(a, prog) -> EncodeReport:
                           train_views=a.train_views, beta=a.beta,
                           importance_width=a.importance_width, seed=a.seed,
                           layers=a.layers, first_layer=a.first_layer, tile_gaussians=a.tile_gaussians or None,
-                          executor=a.executor, workers=a.workers,
+                          executor=a.executor, workers=a.workers, raht_classes=a.raht_classes,
                           codebook=a.codebook)
     result = encode_to_budget(cloud, payload_target, options=sopts, cameras=cameras, progress=prog,
                               source=a.input)

@@ -26,12 +26,12 @@ from ..decoder.cloud import GaussianCloud
 from ..decoder.container import (CHUNK_ENTRY_SIZE, CHUNK_REQUIRED, FRAME_RDF, LAYER_SHIFT, Chunk, FileHeader,
                                  write_container)
 from ..decoder.errors import GszUsageError
-from ..decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_SHCL, CHUNK_SHVQ, RAHT_CHANNELS,
+from ..decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, RAHT_CHANNELS,
                                 ROTATION_EULER_ZYX)
 from ..decoder.morton import morton_encode
 from ..decoder.raht import build_raht_tree
 from ..decoder.rotation import quaternion_to_euler
-from ..decoder.sh import MAX_CODEBOOK, MAX_SH_CLASSES, class_order
+from ..decoder.sh import MAX_CODEBOOK, MAX_SH_CLASSES, SH_CLASSES_FROM_RWGT, class_order
 from ..evaluation.cameras import DEFAULT_VIEW_WIDTH
 
 from .encode_report import MODE_FIXED, EncodeReport, FixedDetails
@@ -80,6 +80,16 @@ def check_layer_options(layers, first_layer, bad) -> None:
 #: Voxels per spatial tile from which a scene is split (``--tile-gaussians``; see split_tiles):
 #: scenes up to it stay one tile.
 DEFAULT_TILE_GAUSSIANS = 1 << 20
+#: Importance classes of the RAHT leaves (``--raht-classes``, an RWGT chunk per part; 1: none)
+#: and the fewest voxels per class a part needs for them (below, the chunk costs more than the
+#: weighting gives).
+DEFAULT_RAHT_CLASSES = 8
+MAX_RAHT_CLASSES = 16
+RAHT_CLASS_MIN_SIZE = 64
+#: ... and the least spread of the weights (their arithmetic over geometric mean across the
+#: voxels) worth the classes' log2(Q) bits a voxel: at high rate the weighting saves about
+#: 0.5 log2(AM/GM) bits per coefficient of each of 7 channels, so below ~1.5 it cannot pay
+RAHT_CLASS_MIN_SPREAD = 1.5
 #: the smallest tile (``--tile-gaussians``): below it the per-tile octree top levels, codebook
 #: and group metadata cost more than tiling gives
 MIN_TILE_GAUSSIANS = 4096
@@ -135,6 +145,10 @@ class SceneOptions:
     tile_gaussians   split a scene of more voxels into spatial tiles of at most this many, each
                      decodable alone (format 1.2); None: never split.  The search's one bit
                      allocation spans every tile's groups, so the budget holds for the file
+    raht_classes     importance classes of the RAHT leaves (2..16: an RWGT chunk per part,
+                     format 1.5, whose class weights make the transform's coefficient errors
+                     importance-weighted, so important Gaussians get finer attributes at the
+                     same bytes; 1: plain RAHT) -- docs/design/raht-weights.md
     executor         where per-tile work runs: "local" worker processes, "inline", "ray" or
                      "ray://HOST:PORT" (:mod:`gsz.encoder.executor`); the bytes do not depend on it
     workers          worker processes / local Ray CPUs (None: the machine's cores less one)
@@ -148,6 +162,7 @@ class SceneOptions:
     layers: int = DEFAULT_LAYERS
     first_layer: float = DEFAULT_FIRST_LAYER
     tile_gaussians: int | None = DEFAULT_TILE_GAUSSIANS
+    raht_classes: int = DEFAULT_RAHT_CLASSES
     executor: str = "local"
     workers: int | None = None
     seed: int = 0
@@ -162,6 +177,8 @@ class SceneOptions:
             bad(f"--importance-width must be >= 16, got {self.importance_width}")
         check_layer_options(self.layers, self.first_layer, bad)
         check_tile_option(self.tile_gaussians, bad)
+        if not (1 <= int(self.raht_classes) <= MAX_RAHT_CLASSES):
+            bad(f"--raht-classes must be 1..{MAX_RAHT_CLASSES}, got {self.raht_classes}")
         from .executor import check_executor
         check_executor(self.executor, self.workers, bad)
 
@@ -265,6 +282,8 @@ class Layer:
     geometry_job  GEOM chunk payload of the layer, or a Future of it while a worker thread codes
                   it (read :attr:`geometry`)
     raht_dc    [7] float64 RAHT root coefficients (stored exactly)
+    raht_weights  RahtWeights of the part's RWGT chunk (importance classes of its voxels and
+               their leaf weights), or None: plain RAHT
     raht_ac    [7, M_l-1] float32 AC coefficients in stream (level) order
     scales     [3, M_l] float32 log-scales in Morton order
     codes      [M_l] uint64 Morton codes of the layer's voxels on its grid (what a decoder
@@ -283,6 +302,24 @@ class Layer:
     layer: int = 0
     tile: int = 0
     grid: tuple | None = None
+    raht_weights: object = None
+
+    @property
+    def leaf_weights(self):
+        """int64 [M_l] RAHT leaf weights of the part's RWGT chunk, or None (plain RAHT)."""
+        return None if self.raht_weights is None else self.raht_weights.leaf_weights
+
+    @property
+    def weights_chunk(self) -> bytes | None:
+        """The part's RWGT chunk payload (GSZ.md §7.1), or None."""
+        return None if self.raht_weights is None else raht_weights_chunk(self.raht_weights)
+
+    @property
+    def side_bytes(self) -> int:
+        """Bytes the part's GEOM and RWGT chunks take beside the channel sets (RWGT's table
+        entry included): fixed once the stage is made."""
+        w = self.weights_chunk
+        return len(self.geometry) + (0 if w is None else len(w) + CHUNK_ENTRY_SIZE)
 
     @property
     def geometry(self) -> bytes:
@@ -392,7 +429,8 @@ class Stage:
 
     @property
     def geometry_bytes(self) -> int:
-        return sum(len(l.geometry) for l in self.layers)
+        """GEOM payloads and RWGT chunks (their entries included) of every part."""
+        return sum(l.side_bytes for l in self.layers)
 
     @property
     def num_tiles(self) -> int:
@@ -537,7 +575,8 @@ def stage_source(kept: np.ndarray, vox) -> np.ndarray:
 def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, *, depth=None,
                   rel_error=None, layers: int = DEFAULT_LAYERS, first_layer: float = DEFAULT_FIRST_LAYER,
                   progress: Progress | None = None, voxelized=None, pool=None,
-                  tile_gaussians: int | None = None, executor=None) -> Stage:
+                  tile_gaussians: int | None = None, executor=None,
+                  raht_classes: int = DEFAULT_RAHT_CLASSES) -> Stage:
     """Prune to ``reserve``, voxelise, split into spatial tiles of at most ``tile_gaussians``
     voxels (None: one tile) and each tile into importance layers, code each part's geometry
     and transform its attributes (a tiled stage's parts on ``executor`` when given, which also
@@ -562,19 +601,51 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
     part_of.sort(key=lambda p: (p[0], p[1]))
     grids = [(vox.origin, vox.side, d)] if len(tiles) == 1 else \
         [tile_grid(codes[lo:hi], vox.ijk[lo:hi], vox.origin, vox.side, d) for lo, hi in tiles]
-    parts = _prepare_parts(vox, part_of, grids, layers, progress, pool, executor)
+    parts = _prepare_parts(vox, part_of, grids, layers, progress, pool, executor, raht_classes)
     sh = SourcedRows.of_grid(cloud.sh_rest.reshape(len(cloud), -1), source, vox)
     return Stage(reserve=float(reserve), depth=d, layers=parts, sh=sh, importance=vox.importance,
                  sh_degree=cloud.sh_degree, input_gaussians=len(cloud), kept=len(kept), source=source,
                  executor=executor)
 
 
-def _transform(ijk: np.ndarray, depth: int, rotations, opacities, sh_dc):
-    """Morton codes, RAHT DC [7] and AC [7, M-1] (float32) of one part's voxels (the tree goes:
-    40 bytes a voxel, and the codes rebuild it where the NumPy decode path needs it)."""
+def raht_weights(importance: np.ndarray, q: int):
+    """The RWGT chunk's content for a part's voxels (their ``importance``, Morton order): ``q``
+    equal runs by importance (importance_classes), each class weighted by its mean importance,
+    the top class 65535 (integer weights keep the tree's sums exact); None when the weights
+    would differ too little or the part is too small for them (TRANSFORMS.md §2.5)."""
+    from ..decoder.attributes import RahtWeights
+    from ..decoder.raht import MAX_LEAF_WEIGHT
+    m = importance.shape[0]
+    if q < 2 or m < RAHT_CLASS_MIN_SIZE * q:
+        return None
+    classes = importance_classes(importance, q)
+    means = (np.bincount(classes, weights=importance, minlength=q)
+             / np.maximum(np.bincount(classes, minlength=q), 1))
+    top = float(means.max())
+    if not top > 0:
+        return None
+    w = np.clip(np.rint(MAX_LEAF_WEIGHT * means / top), 1, MAX_LEAF_WEIGHT).astype(np.int64)
+    leaf = w[classes].astype(np.float64)
+    if leaf.mean() < RAHT_CLASS_MIN_SPREAD * np.exp(np.log(leaf).mean()):
+        return None
+    return RahtWeights(classes=classes, weights=w)
+
+
+def raht_weights_chunk(rw) -> bytes:
+    """RWGT payload: u8 Q, u16 weights[Q], the classes as one rANS stream."""
+    from .rans import encode_stream
+    q = rw.weights.shape[0]
+    return (Writer().u8(q).array(rw.weights, np.dtype("<u2"))
+            .blob(encode_stream(rw.classes, np.zeros(rw.classes.shape[0], np.int64), 1)).getvalue())
+
+
+def _transform(ijk: np.ndarray, depth: int, rotations, opacities, sh_dc, weights=None):
+    """Morton codes, RAHT DC [7] and AC [7, M-1] (float32) of one part's voxels over its tree,
+    weighted by ``weights`` (RahtWeights) when given (the tree goes: 40 bytes a voxel, and the
+    codes rebuild it where the NumPy decode path needs it)."""
     from .raht import raht_forward
     codes = morton_encode(ijk)
-    tree = build_raht_tree(codes, depth)
+    tree = build_raht_tree(codes, depth, None if weights is None else weights.leaf_weights)
     euler = quaternion_to_euler(rotations.astype(np.float64))
     attrs = np.concatenate([opacities.astype(np.float64)[:, None], euler, sh_dc.astype(np.float64)], axis=1)
     dc, ac = raht_forward(attrs, tree)
@@ -589,18 +660,20 @@ class PartJob:
     rotations: np.ndarray
     opacities: np.ndarray
     sh_dc: np.ndarray
+    weights: object = None
 
 
 def code_part(job: PartJob):
     """(GEOM payload, codes, RAHT DC, RAHT AC) of one part: the executor's unit of work."""
     origin, side, depth = job.grid
     geometry = write_geometry(job.ijk, origin, side, depth)
-    return (geometry,) + _transform(job.ijk, depth, job.rotations, job.opacities, job.sh_dc)
+    return (geometry,) + _transform(job.ijk, depth, job.rotations, job.opacities, job.sh_dc, job.weights)
 
 
-def _part_job(vox, idx: np.ndarray, grid: tuple) -> PartJob:
+def _part_job(vox, idx: np.ndarray, grid: tuple, raht_classes: int) -> PartJob:
     c = vox.cloud
-    return PartJob(part_ijk(vox, idx, grid), grid, c.rotations[idx], c.opacities[idx], c.sh_dc[idx])
+    return PartJob(part_ijk(vox, idx, grid), grid, c.rotations[idx], c.opacities[idx], c.sh_dc[idx],
+                   raht_weights(vox.importance[idx], raht_classes))
 
 
 def _part_tag(li: int, t: int, n: int, tiles: int, layers: int) -> str:
@@ -609,11 +682,11 @@ def _part_tag(li: int, t: int, n: int, tiles: int, layers: int) -> str:
 
 
 def _prepare_part(vox, li: int, t: int, idx: np.ndarray, grid: tuple, tiles: int, layers: int,
-                  progress: Progress, pool) -> Layer:
+                  progress: Progress, pool, raht_classes: int) -> Layer:
     """One part (layer ``li`` of tile ``t``) in this process: its GEOM (on the thread ``pool``
     when given, while the transform runs here), the Euler angles and the RAHT of its attributes
     over its own tree."""
-    job = _part_job(vox, idx, grid)
+    job = _part_job(vox, idx, grid, raht_classes)
     tag = _part_tag(li, t, len(idx), tiles, layers)
 
     def code_geometry():
@@ -621,26 +694,29 @@ def _prepare_part(vox, li: int, t: int, idx: np.ndarray, grid: tuple, tiles: int
             return write_geometry(job.ijk, *job.grid)
     geom = pool.submit(code_geometry) if pool is not None else code_geometry()
     with progress.stage("transform", ("Euler + RAHT, " + tag) if tag else "Euler + RAHT"):
-        codes, dc, ac = _transform(job.ijk, grid[2], job.rotations, job.opacities, job.sh_dc)
+        codes, dc, ac = _transform(job.ijk, grid[2], job.rotations, job.opacities, job.sh_dc, job.weights)
     return Layer(index=idx, geometry_job=geom, raht_dc=dc, raht_ac=ac,
                  scales=np.ascontiguousarray(vox.cloud.scales[idx].T, dtype=np.float32), codes=codes,
-                 layer=li, tile=t, grid=grid)
+                 layer=li, tile=t, grid=grid, raht_weights=job.weights)
 
 
-def _prepare_parts(vox, part_of: list, grids: list, layers: int, progress: Progress, pool, executor) -> list:
+def _prepare_parts(vox, part_of: list, grids: list, layers: int, progress: Progress, pool, executor,
+                   raht_classes: int) -> list:
     """Every part's Layer; a tiled stage's parts run on ``executor`` (when given)."""
     tiles = len(grids)
     if executor is None or tiles == 1:
-        return [_prepare_part(vox, li, t, idx, grids[t], tiles, layers, progress, pool)
+        return [_prepare_part(vox, li, t, idx, grids[t], tiles, layers, progress, pool, raht_classes)
                 for li, t, idx in part_of]
     with progress.stage("tiles", f"geometry + transform of {len(part_of)} parts ({tiles} tiles) on "
                                  f"{executor.name} ({executor.workers} workers)"):
         # coded here, each part's job is made in its turn (all at once: 56 bytes a voxel)
-        done = in_order(executor, code_part, (_part_job(vox, idx, grids[t]) for _, t, idx in part_of))
+        weights = [raht_weights(vox.importance[idx], raht_classes) for _, _, idx in part_of]
+        done = in_order(executor, code_part, (_part_job(vox, idx, grids[t], raht_classes)
+                                              for _, t, idx in part_of))
         return [Layer(index=idx, geometry_job=geom, raht_dc=dc, raht_ac=ac,
                       scales=np.ascontiguousarray(vox.cloud.scales[idx].T, dtype=np.float32), codes=codes,
-                      layer=li, tile=t, grid=grids[t])
-                for (li, t, idx), (geom, codes, dc, ac) in zip(part_of, done)]
+                      layer=li, tile=t, grid=grids[t], raht_weights=w)
+                for (li, t, idx), w, (geom, codes, dc, ac) in zip(part_of, weights, done)]
 
 
 @dataclass
@@ -654,6 +730,7 @@ class AttributeJob:
     raht_bits: object
     scale_bits: object
     blocks: int
+    leaf_weights: object = None
 
 
 def code_attributes(job: AttributeJob):
@@ -676,9 +753,10 @@ def attribute_chunk(layer: Layer, raht_bits, scale_bits, blocks: int):
     if native.enabled():
         # the decoder's own C path (bit-identical to the NumPy one): the inverse RAHT and the
         # field conversions were ~1/4 of every calibration round of the size search
-        decoded = attributes_from_coefficients(layer.raht_dc, ac_rec, sc_rec, layer.codes, layer.depth)
+        decoded = attributes_from_coefficients(layer.raht_dc, ac_rec, sc_rec, layer.codes, layer.depth,
+                                               leaf_weights=layer.leaf_weights)
     else:
-        tree = build_raht_tree(layer.codes, layer.depth)
+        tree = build_raht_tree(layer.codes, layer.depth, layer.leaf_weights)
         decoded = attributes_from_channels(raht_inverse(layer.raht_dc, ac_rec.T, tree), sc_rec)
     return w.getvalue(), decoded, {"raht_bytes": len(ac_bytes), "scale_bytes": len(sc_bytes)}
 
@@ -691,7 +769,7 @@ def attribute_chunks(stage: Stage, bits, blocks: int):
 
     payloads, stats = [], {"raht_bytes": 0, "scale_bytes": 0}
     jobs = (AttributeJob(layer.raht_dc, layer.raht_ac, layer.scales, layer.codes, layer.depth,
-                         *((bits, bits) if np.isscalar(bits) else bits[li]), b)
+                         *((bits, bits) if np.isscalar(bits) else bits[li]), b, layer.leaf_weights)
             for li, (layer, b) in enumerate(zip(stage.layers, stage.layer_blocks(blocks))))
     ex = stage.executor if stage.num_tiles > 1 else None
     fields_, out, end = ("opacities", "rotations", "sh_dc", "scales"), None, 0
@@ -859,8 +937,13 @@ class ShPayloads:
         if q > 1:
             cls = importance_classes(self.stage.importance[sel], q)
             sel = sel[class_order(cls)]
-            self.class_chunks[pi] = (Writer().u8(q).blob(encode_stream(cls, np.zeros(p, np.int64), 1))
-                                     .getvalue())
+            rw = layer.raht_weights
+            if rw is not None and rw.weights.shape[0] == q and np.array_equal(rw.classes[k_l], cls):
+                # the kept points' RWGT classes: the part's RWGT chunk carries them already
+                self.class_chunks[pi] = Writer().u8(SH_CLASSES_FROM_RWGT).getvalue()
+            else:
+                self.class_chunks[pi] = (Writer().u8(q).blob(encode_stream(cls, np.zeros(p, np.int64), 1))
+                                         .getvalue())
             w = self._class_weight()
             self.block_weights[pi] = np.array([w[sel[s:e]].mean() for s, e in _block_bounds(p, q)])
         self.kept_sets[pi] = (sel, q if q > 1 else sh_set_blocks(p, blocks))
@@ -969,8 +1052,8 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
     sh_classes  per part the SHCL payload or None; any SHCL makes the file version 1.3, any
                 direct-coded geometry (OCTREE.md scheme 1) 1.4."""
     import zstandard
-    from ..decoder.container import (MINOR_DIRECT, MINOR_LAYERS, MINOR_SH_CLASSES, MINOR_TILES, TILE_SHIFT,
-                                     VERSION_MAJOR)
+    from ..decoder.container import (MINOR_DIRECT, MINOR_LAYERS, MINOR_RAHT_WEIGHTS, MINOR_SH_CLASSES,
+                                     MINOR_TILES, TILE_SHIFT, VERSION_MAJOR)
     from ..decoder.geometry import octree_scheme
     from ..decoder.octree import SCHEME_DIRECT
     from ..decoder.layout import CHUNK_TILE
@@ -995,7 +1078,10 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
         chunks.append(Chunk(CHUNK_TILE, pack_tile_table(rows), CHUNK_REQUIRED))
     for pi, part in enumerate(stage.layers):
         flags = CHUNK_REQUIRED | (part.layer << LAYER_SHIFT) | (part.tile << TILE_SHIFT)
-        chunks += [Chunk(CHUNK_GEOM, part.geometry, flags), Chunk(CHUNK_ATTR, attr[pi], flags)]
+        chunks.append(Chunk(CHUNK_GEOM, part.geometry, flags))
+        if part.raht_weights is not None:
+            chunks.append(Chunk(CHUNK_RWGT, part.weights_chunk, flags))
+        chunks.append(Chunk(CHUNK_ATTR, attr[pi], flags))
         if sh is not None:
             if sh_classes is not None and sh_classes[pi] is not None:
                 chunks.append(Chunk(CHUNK_SHCL, sh_classes[pi], flags))
@@ -1007,7 +1093,8 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
                         bbox_min=tuple(out_cloud.positions.min(0)),
                         bbox_max=tuple(out_cloud.positions.max(0)),
                         version=(VERSION_MAJOR,
-                                 MINOR_DIRECT if any(c.type == CHUNK_GEOM and octree_scheme(c.data) == SCHEME_DIRECT
+                                 MINOR_RAHT_WEIGHTS if any(c.type == CHUNK_RWGT for c in chunks)
+                                 else MINOR_DIRECT if any(c.type == CHUNK_GEOM and octree_scheme(c.data) == SCHEME_DIRECT
                                                      for c in chunks)
                                  else MINOR_SH_CLASSES if any(c.type == CHUNK_SHCL for c in chunks)
                                  else MINOR_TILES if tiles > 1 else MINOR_LAYERS))
@@ -1072,7 +1159,8 @@ def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, st
     n_in = len(cloud)
     stage = prepare_stage(cloud, importance, opts.reserve, depth=opts.depth,
                           rel_error=opts.rel_error, layers=opts.layers, first_layer=opts.first_layer,
-                          progress=progress, tile_gaussians=opts.tile_gaussians, executor=executor)
+                          progress=progress, tile_gaussians=opts.tile_gaussians, executor=executor,
+                          raht_classes=opts.raht_classes)
     m = stage.num_points
     blocks = default_blocks(opts.bits) if opts.blocks is None else int(opts.blocks)
     sh_blocks = default_blocks(opts.sh_bits or opts.bits) if opts.blocks is None else int(opts.blocks)

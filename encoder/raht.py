@@ -15,12 +15,14 @@ def raht_forward(attrs: np.ndarray, tree: RahtTree) -> tuple[np.ndarray, np.ndar
 
     attrs: float [N, C] in ascending Morton order of the tree's voxels.
     Returns (dc float64 [C], ac float64 [N-1, C] in stream order: coarse level first).
-    Orthonormal: sum(attrs^2) == dc^2 + sum(ac^2) per channel up to rounding.
+    Orthonormal: sum(attrs^2) == dc^2 + sum(ac^2) per channel up to rounding; on a weighted
+    tree sum(w * attrs^2) == dc^2 + sum(ac^2) (so coefficient errors are weighted errors).
     """
     a = np.asarray(attrs, dtype=np.float64)
     if a.ndim != 2 or a.shape[0] != tree.num_points:
         raise ValueError(f"raht_forward: attrs must be [{tree.num_points}, C], got {a.shape}")
-    v = a.copy()
+    scale = tree.leaf_scale()
+    v = a.copy() if scale is None else a * scale[:, None]
     for lv in tree.levels:  # finest first
         g1, g2, _ = lv.butterfly()
         c1 = v[lv.left]

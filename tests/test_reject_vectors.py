@@ -45,6 +45,18 @@ def test_the_base_the_vectors_mutate_is_valid(layers):
 
 
 @pytest.mark.usefixtures("each_decoder_path")
+def test_the_rwgt_base_is_valid():
+    # the RWGT vectors break one rule each of a valid RWGT chunk (and of SHCL's RWGT form)
+    gen = _generator()
+    base = gen.join(*gen.base_chunks())
+    ok = gen.rwgt(2, [1, 3], gen.single_stream(body=gen.model_body([1], lo=[1])))
+    plain, weighted = decode(base), decode(gen.with_rwgt(base, ok))
+    assert len(weighted) == 135 and np.array_equal(weighted.positions, plain.positions)
+    both = decode(gen.with_shcl(gen.with_rwgt(base, ok), 135, b"\x00"))
+    assert len(both) == 135
+
+
+@pytest.mark.usefixtures("each_decoder_path")
 @pytest.mark.parametrize("row", MANIFEST, ids=lambda r: r["file"][:-4])
 def test_vector_is_rejected_with_its_documented_error(row):
     path = REJECT / row["file"]

@@ -200,7 +200,7 @@ def test_size_search_holds_one_budget_across_tiles():
         tile_gaussians=4096, train_views=6, eval_views=2, eval_width=160, importance_width=160))
     info = inspect(res.data)
     # tiles make a 1.2 file; SH importance classes (SHCL chunks), which the search may choose,
-    # 1.3; a direct-coded octree 1.4
+    # 1.3; a direct-coded octree 1.4; RAHT leaf weights (RWGT chunks) 1.5
     assert len(info["tiles"]) >= 3 and info["version"] == lowest_version(res.data) >= "1.2"
     assert 0.99 * target <= len(res.data) <= target
     assert decode(res.data).equals(res.cloud)

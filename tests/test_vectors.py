@@ -1,4 +1,5 @@
 """The committed format test vectors decode to their documented values (format stability)."""
+import contextlib
 import hashlib
 import json
 from pathlib import Path
@@ -80,3 +81,24 @@ def test_sh_classes_vector_needs_the_class_order(monkeypatch):
             native.module().sh_assemble(np.ones(2, np.int64), np.zeros((9, 2), np.uint16), np.ones((9, 1)),
                                         np.zeros((9, 1)), np.zeros(0, np.int64), np.zeros((9, 0)),
                                         np.empty((2, 9), np.float32), np.array([0, 16]))
+
+
+def test_rwgt_vector_needs_the_leaf_weights(monkeypatch):
+    # the RWGT vector is only worth its bytes if a decoder that ignores the weights (plain RAHT)
+    # or takes the SH classes from anywhere but RWGT fails it
+    import gsz.decoder.layer as layer
+    from gsz.decoder import native
+    data = (VEC / "sh1_jug_2k_rwgt.gsz").read_bytes()
+    right = decode(data)
+    with native.numpy_only():
+        assert decode(data).equals(right)
+    monkeypatch.setattr(layer, "leaf_weights_of", lambda rwgt: None)
+    for path in ("numpy", "native"):
+        if path == "native" and not native.enabled():
+            continue
+        with (native.numpy_only() if path == "numpy" else contextlib.nullcontext()):
+            wrong = decode(data)
+        assert not np.array_equal(wrong.opacities, right.opacities)
+        assert not np.array_equal(wrong.sh_dc, right.sh_dc)
+        np.testing.assert_array_equal(wrong.positions, right.positions)
+        np.testing.assert_array_equal(wrong.sh_rest, right.sh_rest)

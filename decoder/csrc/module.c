@@ -712,29 +712,33 @@ static void rtree_capsule_free(PyObject *cap)
 }
 
 PyDoc_STRVAR(raht_tree_doc,
-"raht_tree(codes, depth) -> tree\n\n"
+"raht_tree(codes, depth, weights=None) -> tree\n\n"
 "The RAHT tree (TRANSFORMS.md §2) of the N leaves with Morton codes `codes` (uint64, strictly\n"
 "ascending, < 2^(3 depth)), as an opaque object for raht_apply(): the same sibling pairs in the\n"
-"same order as gsz.decoder.raht.build_raht_tree, with the butterfly gains computed as there.");
+"same order as gsz.decoder.raht.build_raht_tree, with the butterfly gains computed as there.\n"
+"weights: None or int64 [N] leaf weights in 1..65535 (an RWGT chunk, TRANSFORMS.md §2.5).");
 
 static PyObject *py_raht_tree(PyObject *self, PyObject *args)
 {
-    PyObject *o_codes;
+    PyObject *o_codes, *o_w = Py_None;
     int depth;
-    if (!PyArg_ParseTuple(args, "Oi", &o_codes, &depth)) return NULL;
-    Py_buffer vc;
+    if (!PyArg_ParseTuple(args, "Oi|O", &o_codes, &depth, &o_w)) return NULL;
+    Py_buffer vc, vw;
     if (getbuf(o_codes, &vc, 8, 'x', 0, "codes") < 0) return NULL;
+    const int has_w = o_w != Py_None;
+    if (has_w && getbuf(o_w, &vw, 8, 'i', 0, "weights") < 0) { PyBuffer_Release(&vc); return NULL; }
     const int64_t n = vc.len / 8;
     Err e = {0};
     RTree *t = NULL;
-    if (n < 1 || n > INT32_MAX || depth < 1 || depth > 21) {
+    if (n < 1 || n > INT32_MAX || depth < 1 || depth > 21 || (has_w && vw.len / 8 != n)) {
         fail(&e, "RAHT inverse: inconsistent shapes");
     } else {
         Py_BEGIN_ALLOW_THREADS
-        rtree_build(vc.buf, n, depth, &t, &e);
+        rtree_build(vc.buf, n, depth, has_w ? vw.buf : NULL, &t, &e);
         Py_END_ALLOW_THREADS
     }
     PyBuffer_Release(&vc);
+    if (has_w) PyBuffer_Release(&vw);
     if (e.failed) return raise_err(&e);
     PyObject *cap = PyCapsule_New(t, RAHT_TREE_CAPSULE, rtree_capsule_free);
     if (!cap) rtree_free(t);

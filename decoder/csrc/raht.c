@@ -21,6 +21,7 @@ void rtree_free(RTree *t)
     if (!t) return;
     free(t->lvl_start);
     free(t->pairs);
+    free(t->sqrtw);
     free(t);
 }
 
@@ -78,7 +79,7 @@ static inline void emit_pair(RPair *p, int32_t l, int32_t r, int64_t wl, int64_t
     p->g2 = g.g2;
 }
 
-int rtree_build(const uint64_t *c0, int64_t n, int depth, RTree **out, Err *e)
+int rtree_build(const uint64_t *c0, int64_t n, int depth, const int64_t *leafw, RTree **out, Err *e)
 {
     *out = NULL;
     uint64_t *code = NULL;
@@ -107,6 +108,15 @@ int rtree_build(const uint64_t *c0, int64_t n, int depth, RTree **out, Err *e)
     for (int a = 1; a <= GTAB; a++)
         for (int b = 1; b <= GTAB; b++) gtab[(a - 1) * GTAB + (b - 1)] = gain_of(a, b);
     for (int64_t i = 0; i < n; i++) { slot[i] = (int32_t)i; wt[i] = 1; }
+    if (leafw) {                     /* integer leaf weights (TRANSFORMS.md §2.5): exact sums */
+        t->sqrtw = big_alloc((size_t)n * sizeof *t->sqrtw);
+        if (!t->sqrtw) { fail_nomem(e); goto fail; }
+        for (int64_t i = 0; i < n; i++) {
+            if (leafw[i] < 1 || leafw[i] > 65535) { fail(e, "RAHT leaf weights must lie in 1..65535"); goto fail; }
+            wt[i] = leafw[i];
+            t->sqrtw[i] = sqrt((double)leafw[i]);
+        }
+    }
     const uint64_t *cur = c0;        /* the codes of the current level (the input at first) */
     int64_t len = n, np_ = 0;
     int nlev = 0;
@@ -208,6 +218,8 @@ void raht_inverse(const RTree *t, const double *dc, const double *ac, int64_t c0
                 vc[pr->right] = t3 + t4;
             }
         }
+        if (t->sqrtw)                /* the leaves' values: v / sqrt(w), as NumPy's v /= scale */
+            for (int64_t i = 0; i < n; i++) vc[i] = vc[i] / t->sqrtw[i];
     }
     if (half)
         for (int64_t i = 0; i < k * n; i++) v[i] = 0.5 * (isfinite(v[i]) ? v[i] : 0.0);

@@ -17,11 +17,12 @@ typedef struct {
     int nlev;             /* non-empty binary levels */
     int64_t *lvl_start;   /* [nlev + 1]: pairs of non-empty level L (finest first) */
     RPair *pairs;         /* [n - 1] */
+    double *sqrtw;        /* [n] sqrt(leaf weight) of a weighted tree (RWGT), else NULL */
 } RTree;
 
 void raht_static_init(void);
 /* The tree of n leaves with strictly ascending Morton codes c0 (< 2^(3 depth)). */
-int rtree_build(const uint64_t *c0, int64_t n, int depth, RTree **out, Err *e);
+int rtree_build(const uint64_t *c0, int64_t n, int depth, const int64_t *leafw, RTree **out, Err *e);
 void rtree_free(RTree *t);
 /* Inverse RAHT of channels c0..c0+k-1: dc [C], ac [C, n-1], out v [k, n] (see raht_apply). */
 void raht_inverse(const RTree *t, const double *dc, const double *ac, int64_t c0, int64_t k,

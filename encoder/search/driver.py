@@ -193,7 +193,7 @@ class BudgetSearch:
             stage = prepare_stage(self.cloud, self.importance, tau, depth=d, layers=self.sopts.layers,
                                   first_layer=fl, progress=self.progress, voxelized=self.vox_for(tau, d),
                                   pool=self.geometry_pool, tile_gaussians=self.sopts.tile_gaussians,
-                                  executor=self.executor)
+                                  executor=self.executor, raht_classes=self.sopts.raht_classes)
             self._voxelized.pop((tau, d))     # the stage keeps what it needs of the grid
             return stage
         return self._stages.get_or_make((tau, d, fl), make)

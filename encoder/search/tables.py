@@ -25,9 +25,14 @@ def raw_tables(stage: Stage, blocks: int):
     key = ("tables", blocks)
     if key not in stage.cache:
         out = []
-        for x, b in attribute_sets(stage, blocks):
+        # a weighted RAHT's coefficient errors are sum(w * error^2): over the mean leaf weight
+        # they sit on the scale of the other groups' plain squared errors
+        scale = [s for layer in stage.layers for s in (_mean_weight_inverse(layer), 1.0)]
+        for (x, b), sc in zip(attribute_sets(stage, blocks), scale):
             if x.shape[1]:
                 _, _, _, loss = quantize_all_bits(x, b)
+                if sc != 1.0:
+                    loss = loss * sc
                 rate = rate_matrix(x, b)
             else:
                 loss = np.zeros((x.shape[0], b, 16))
@@ -35,6 +40,12 @@ def raw_tables(stage: Stage, blocks: int):
             out.append((loss, rate))
         stage.cache[key] = out
     return stage.cache[key]
+
+
+def _mean_weight_inverse(layer) -> float:
+    """1 / the mean RAHT leaf weight of a part (1.0 for plain RAHT)."""
+    w = layer.leaf_weights
+    return 1.0 if w is None else float(w.shape[0]) / float(w.sum())
 
 
 def attribute_tables(stage: Stage, blocks: int, weights: dict | None = None):

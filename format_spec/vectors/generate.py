@@ -44,20 +44,20 @@ VECTORS = [
     # entropy-coder coverage: log-scales and opacities moved off the sample's delivery grid
     # (NOISE_SIGMA) and 12-bit groups of ~40 symbols, where a LAPLACE model (two parameters) is
     # cheaper than a frequency table; 3000 voxels give every rANS stream several lanes
-    ("sh0_plant_3000_laplace", "houseplant_sh0_20k.ply", 3000, 0, dict(blocks=80, reserve=1.0, bits=12)),
+    ("sh0_plant_3000_laplace", "houseplant_sh0_20k.ply", 3000, 0, dict(raht_classes=1, blocks=80, reserve=1.0, bits=12)),
     # octree coverage: the whole 20k sample on a depth-13 grid, where coarse contexts pass
     # COUNT_LIMIT within a level, so a decoder that skips the count halving (OCTREE.md §4)
     # decodes different occupancy; 1-bit attributes keep the file small
     ("sh0_plant_20k_d13_halving", "houseplant_sh0_20k.ply", 20_000, 0,
-     dict(blocks=80, reserve=1.0, bits=1, depth=13)),
+     dict(raht_classes=1, blocks=80, reserve=1.0, bits=1, depth=13)),
     # spatial tiles (GSZ.md §4.2, format 1.2): the whole 12k jug in tiles of at most 4096 voxels,
     # two layers each, every tile with its own codebook
     ("sh1_jug_12k_tiles", "measuring_jug_sh3_12k.ply", 12_000, 1,
-     dict(blocks=80, reserve=1.0, bits=6, codebook=64, keep=200, layers=2, tile_gaussians=4096)),
+     dict(raht_classes=1, blocks=80, reserve=1.0, bits=6, codebook=64, keep=200, layers=2, tile_gaussians=4096)),
     # octree scheme 1 (OCTREE.md §4.1, format 1.4): the 20k sample on a depth-16 grid, where
     # most voxels leave the tree at a level near 9 and the rest are coded down to the leaves
     ("sh0_plant_20k_d16_direct", "houseplant_sh0_20k.ply", 20_000, 0,
-     dict(blocks=80, reserve=1.0, bits=1, depth=16)),
+     dict(raht_classes=1, blocks=80, reserve=1.0, bits=1, depth=16)),
     # the same scheme on sh1_jug_150's Gaussians at depth 16: the GEOM chunk the scheme-1
     # must-reject vectors (vectors/reject) are built on
     ("sh1_jug_150_d16_direct", "measuring_jug_sh3_12k.ply", 150, 1,
@@ -65,7 +65,12 @@ VECTORS = [
     # SH classes (GSZ.md §8.1, format 1.3): the 1100 most important of 2000 Gaussians keep their
     # vectors, stored in 4 importance classes (an SHCL chunk), one block per class
     ("sh1_jug_2k_shclasses", "measuring_jug_sh3_12k.ply", 2000, 1,
-     dict(reserve=1.0, bits=8, codebook=32, keep=1100, sh_classes=4)),
+     dict(raht_classes=1, reserve=1.0, bits=8, codebook=32, keep=1100, sh_classes=4)),
+    # RAHT leaf weights (GSZ.md §7.1, TRANSFORMS.md §2.5, format 1.5): 2000 Gaussians in 4
+    # importance classes (an RWGT chunk), every SH vector kept in the same 4 classes, so the
+    # SHCL chunk takes RWGT's classes (its Q byte 0, GSZ.md §8.1)
+    ("sh1_jug_2k_rwgt", "measuring_jug_sh3_12k.ply", 2000, 1,
+     dict(reserve=1.0, bits=8, codebook=32, keep=2000, sh_classes=4, raht_classes=4)),
 ]
 #: vectors whose scales and opacities get seeded Gaussian noise of this sigma before encoding
 NOISED = {"sh0_plant_3000_laplace": 0.05}
@@ -94,7 +99,8 @@ def intermediates(data: bytes) -> list[dict]:
     from gsz.decoder.decode import plan_parts
     from gsz.decoder.geometry import read_geometry
     from gsz.decoder.groups import read_channel_set
-    from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHCL, CHUNK_SHVQ, KNOWN_CHUNKS
+    from gsz.decoder.attributes import read_raht_weights
+    from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, KNOWN_CHUNKS
     from gsz.decoder.octree import read_scheme
     from gsz.decoder.sh import read_sh_classes
     from gsz.decoder.morton import morton_encode
@@ -119,7 +125,12 @@ def intermediates(data: bytes) -> list[dict]:
                        "morton_sha256": sha(codes, "<u8"), "first_voxels": geom.ijk[:2].tolist()}
         if scheme:          # OCTREE.md section 4.1
             row["geom"].update(octree_scheme=scheme, direct_level=direct_from, raw_bytes=int(raw.size))
-        tree = build_raht_tree(codes, geom.depth)
+        rwgt = None
+        if CHUNK_RWGT in got:           # GSZ.md section 7.1
+            rwgt = read_raht_weights(c.chunks[got[CHUNK_RWGT]].data, m)
+            row["rwgt"] = {"Q": int(rwgt.weights.size), "weights": rwgt.weights.tolist(),
+                           "classes_sha256": sha(rwgt.classes, "u1"), "classes_first": rwgt.classes[:8].tolist()}
+        tree = build_raht_tree(codes, geom.depth, None if rwgt is None else rwgt.leaf_weights)
         r = Reader(c.chunks[got[CHUNK_ATTR]].data)
         r.u8(), r.u8()
         dc = r.array(np.float64, 7)
@@ -145,7 +156,9 @@ def intermediates(data: bytes) -> list[dict]:
                 sh["flags_sha256"] = sha(flags, "u1")
             if CHUNK_SHCL in got:
                 cdata = c.chunks[got[CHUNK_SHCL]].data
-                classes = read_sh_classes(cdata, p)
+                classes = read_sh_classes(cdata, p, None if rwgt is None else rwgt.classes)
+                if isinstance(classes, str):    # the kept points' RWGT classes (Q byte 0)
+                    classes = rwgt.classes[flags == 1]
                 row["shcl"] = {"Q": int(cdata[0]), "classes_sha256": sha(classes, "u1"),
                                "classes_first": classes[:8].tolist()}
             idx = decode_stream(r.blob(), np.zeros(m - p, np.int64))

@@ -372,6 +372,7 @@ def _part_vectors(sh1: bytes, lay2: bytes, add) -> None:
         with_shvq(sh1, 0, m, kept=kept_high, flags=single_stream(body=model_body([1], lo=[1]))),
         "GSZ.md §5 symbol within 0..2^bits-1 (kept SH set)", "quantisation symbol")
     _shcl_vectors(sh1, m, add)
+    _rwgt_vectors(sh1, m, add)
 
 
 def with_shcl(base: bytes, m: int, payload: bytes, *, kept_all: bool = True, flags: int = 1) -> bytes:
@@ -411,6 +412,44 @@ def _shcl_vectors(sh1: bytes, m: int, add) -> None:
         "layer 0 has two SHCL chunks")
     add("shcl_in_sh0_file", with_header(two, "<B", 24, 0), "GSZ.md §4 SHCL when sh_degree = 0",
         "SHCL chunk in a file of SH degree 0")
+
+
+def with_rwgt(base: bytes, payload: bytes, *, flags: int = 1) -> bytes:
+    """``base`` with an RWGT chunk (GSZ.md §7.1) of ``payload`` right after layer 0's GEOM."""
+    h, chunks = split(base)
+    i = next(k for k, c in enumerate(chunks) if c[0] == b"GEOM")
+    return join(h, chunks[:i + 1] + [[b"RWGT", flags, payload]] + chunks[i + 1:])
+
+
+def rwgt(q: int, weights, stream: bytes) -> bytes:
+    return struct.pack(f"<B{len(weights)}H", q, *weights) + struct.pack("<Q", len(stream)) + stream
+
+
+def _rwgt_vectors(sh1: bytes, m: int, add) -> None:
+    """RWGT (GSZ.md §7.1) and SHCL's RWGT form (§8.1): the valid chunk is 2 classes, weights
+    1 and 3, every point in class 1 (one SINGLE model)."""
+    every1 = single_stream(body=model_body([1], lo=[1]))
+    ok = rwgt(2, [1, 3], every1)
+    add("rwgt_q_1", with_rwgt(sh1, rwgt(1, [1], every1)), "GSZ.md §7.1 Q in 2..16",
+        "RAHT weight class count 1 outside 2..16")
+    add("rwgt_q_17", with_rwgt(sh1, rwgt(17, [1] * 17, every1)), "GSZ.md §7.1 Q in 2..16",
+        "RAHT weight class count 17 outside 2..16")
+    add("rwgt_weight_0", with_rwgt(sh1, rwgt(2, [0, 3], every1)), "GSZ.md §7.1 weights 1..65535",
+        "RAHT class weight 0")
+    add("rwgt_class_not_below_q", with_rwgt(sh1, rwgt(2, [1, 3], single_stream(body=model_body([1], lo=[2])))),
+        "GSZ.md §7.1 classes 0..Q-1", "RAHT weight class outside 0..1")
+    add("rwgt_two_models", with_rwgt(sh1, rwgt(2, [1, 3], single_stream(2))), "GSZ.md §7.1 one model (model id 0)",
+        "2 models, more than the 1 its use can name")
+    add("rwgt_trailing_byte", with_rwgt(sh1, ok + b"\x00"), "GSZ.md §7.1 nothing after",
+        "RWGT chunk: 1 unexpected trailing bytes")
+    h, chunks = split(with_rwgt(sh1, ok))
+    i = next(k for k, c in enumerate(chunks) if c[0] == b"RWGT")
+    add("rwgt_twice_in_a_layer", join(h, chunks[:i + 1] + chunks[i:]), "GSZ.md §4 one RWGT per part",
+        "layer 0 has two RWGT chunks")
+    add("shcl_from_rwgt_without_rwgt", with_shcl(sh1, m, b"\x00"), "GSZ.md §8.1 Q = 0 needs the part's RWGT",
+        "SH classes taken from an RWGT chunk the part does not have")
+    add("shcl_from_rwgt_trailing_byte", with_shcl(with_rwgt(sh1, ok), m, b"\x00\x00"),
+        "GSZ.md §8.1 nothing after the Q byte 0", "SHCL chunk: 1 unexpected trailing bytes")
 
 
 def _direct_vectors(add) -> None:
