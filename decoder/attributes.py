@@ -17,6 +17,9 @@ tree, so that the transform's coefficient errors are importance-weighted errors 
     u8   Q                  classes, 2..16
     u16  weights[Q]         1..65535
     blob classes            RansStream of M symbols (model id 0), values 0..Q-1, point order
+
+With RWGT the ATTR chunk's direct set (log-scales) is stored in class order (class_order of the
+classes), so its blocks can follow the classes.
 """
 from __future__ import annotations
 
@@ -145,6 +148,23 @@ class RahtWeights:
     def leaf_weights(self) -> np.ndarray:
         """int64 [M]: each point's RAHT leaf weight."""
         return self.weights[self.classes]
+
+    @property
+    def order(self) -> np.ndarray:
+        """int64 [M]: the point of each stored element of the part's direct set (class order:
+        classes ascending, point order within a class; GSZ.md §7.1)."""
+        from .sh import class_order
+        return class_order(self.classes)
+
+
+def direct_in_point_order(direct: np.ndarray, rwgt) -> np.ndarray:
+    """The direct channels [3, M] as decoded (class order when the part has an RWGT chunk) in
+    point order."""
+    if rwgt is None:
+        return direct
+    out = np.empty_like(direct)
+    out[:, rwgt.order] = direct
+    return out
 
 
 def read_raht_weights(data, num_points: int) -> RahtWeights:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import native
-from .attributes import (attributes_from_coefficients, leaf_weights_of, native_half_angles,
+from .attributes import (attributes_from_coefficients, direct_in_point_order, leaf_weights_of, native_half_angles,
                          native_opacity_dc, native_rotations, native_scales, native_tree,
                          numpy_colour, numpy_half_angles, parse_attributes, parse_direct_part,
                          parse_raht_part, read_raht_weights)
@@ -290,7 +290,7 @@ def _read_sh(chunks: dict, header, state: LayerState, m: int, rwgt=None):
 
 def _read_attributes_and_sh(chunks: dict, header, state: LayerState, m: int, rwgt=None):
     dc, ac, direct = parse_attributes(chunks[CHUNK_ATTR], m)
-    return (dc, ac, direct, *_read_sh(chunks, header, state, m, rwgt))
+    return (dc, ac, direct_in_point_order(direct, rwgt), *_read_sh(chunks, header, state, m, rwgt))
 
 
 class _Weights:
@@ -490,7 +490,8 @@ class _GeometryJob:
         self.raht_part_ready.wait()
         if self.raht_part is None:     # the calling thread's ATTR error is reported there
             return tree, None
-        return tree, native_scales(parse_direct_part(self.raht_part[2], self.gh.num_points))
+        direct = parse_direct_part(self.raht_part[2], self.gh.num_points)
+        return tree, native_scales(direct_in_point_order(direct, self.weights.rwgt))
 
 
 class _ColourJob:

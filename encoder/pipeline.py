@@ -90,6 +90,16 @@ RAHT_CLASS_MIN_SIZE = 64
 #: voxels) worth the classes' log2(Q) bits a voxel: at high rate the weighting saves about
 #: 0.5 log2(AM/GM) bits per coefficient of each of 7 channels, so below ~1.5 it cannot pay
 RAHT_CLASS_MIN_SPREAD = 1.5
+#: ... and, in the size search, the fewest budget bits per voxel: below 8 bytes a voxel the
+#: classes' 3 bits take more than ~5 % of the file, and measured searches lost up to 0.6 dB
+#: (docs/design/raht-weights.md)
+RAHT_CLASS_MIN_BUDGET_BITS = 64
+
+
+def raht_classes_for(requested: int, target_bytes: int, voxels: int) -> int:
+    """The RAHT classes a size-search stage of ``voxels`` uses under ``target_bytes``: the
+    requested count, or 1 (plain RAHT) where the budget is too small for them to pay."""
+    return int(requested) if 8 * int(target_bytes) >= RAHT_CLASS_MIN_BUDGET_BITS * int(voxels) else 1
 #: the smallest tile (``--tile-gaussians``): below it the per-tile octree top levels, codebook
 #: and group metadata cost more than tiling gives
 MIN_TILE_GAUSSIANS = 4096
@@ -285,7 +295,8 @@ class Layer:
     raht_weights  RahtWeights of the part's RWGT chunk (importance classes of its voxels and
                their leaf weights), or None: plain RAHT
     raht_ac    [7, M_l-1] float32 AC coefficients in stream (level) order
-    scales     [3, M_l] float32 log-scales in Morton order
+    scales     [3, M_l] float32 log-scales in Morton order, or in class order (``scale_order``)
+               in a part with RAHT weights
     codes      [M_l] uint64 Morton codes of the layer's voxels on its grid (what a decoder
                rebuilds the RAHT tree from)
     layer, tile   which part of the file this is (a file without tiles has only tile 0)
@@ -308,6 +319,12 @@ class Layer:
     def leaf_weights(self):
         """int64 [M_l] RAHT leaf weights of the part's RWGT chunk, or None (plain RAHT)."""
         return None if self.raht_weights is None else self.raht_weights.leaf_weights
+
+    @property
+    def scale_order(self):
+        """int64 [M_l] the voxel (of the part) of each column of ``scales`` when they are stored
+        in class order (a part with RAHT weights, GSZ.md §7.1), else None (Morton order)."""
+        return None if self.raht_weights is None else self.raht_weights.order
 
     @property
     def weights_chunk(self) -> bytes | None:
@@ -696,8 +713,14 @@ def _prepare_part(vox, li: int, t: int, idx: np.ndarray, grid: tuple, tiles: int
     with progress.stage("transform", ("Euler + RAHT, " + tag) if tag else "Euler + RAHT"):
         codes, dc, ac = _transform(job.ijk, grid[2], job.rotations, job.opacities, job.sh_dc, job.weights)
     return Layer(index=idx, geometry_job=geom, raht_dc=dc, raht_ac=ac,
-                 scales=np.ascontiguousarray(vox.cloud.scales[idx].T, dtype=np.float32), codes=codes,
+                 scales=_stored_scales(vox, idx, job.weights), codes=codes,
                  layer=li, tile=t, grid=grid, raht_weights=job.weights)
+
+
+def _stored_scales(vox, idx: np.ndarray, weights) -> np.ndarray:
+    """float32 [3, M_l] the part's log-scales in the order its direct set stores them."""
+    sel = idx if weights is None else idx[weights.order]
+    return np.ascontiguousarray(vox.cloud.scales[sel].T, dtype=np.float32)
 
 
 def _prepare_parts(vox, part_of: list, grids: list, layers: int, progress: Progress, pool, executor,
@@ -714,7 +737,7 @@ def _prepare_parts(vox, part_of: list, grids: list, layers: int, progress: Progr
         done = in_order(executor, code_part, (_part_job(vox, idx, grids[t], raht_classes)
                                               for _, t, idx in part_of))
         return [Layer(index=idx, geometry_job=geom, raht_dc=dc, raht_ac=ac,
-                      scales=np.ascontiguousarray(vox.cloud.scales[idx].T, dtype=np.float32), codes=codes,
+                      scales=_stored_scales(vox, idx, w), codes=codes,
                       layer=li, tile=t, grid=grids[t], raht_weights=w)
                 for (li, t, idx), w, (geom, codes, dc, ac) in zip(part_of, weights, done)]
 
@@ -731,6 +754,7 @@ class AttributeJob:
     scale_bits: object
     blocks: int
     leaf_weights: object = None
+    scale_order: object = None
 
 
 def code_attributes(job: AttributeJob):
@@ -750,6 +774,10 @@ def attribute_chunk(layer: Layer, raht_bits, scale_bits, blocks: int):
     ac_bytes, ac_rec = write_channel_set(layer.raht_ac, raht_bits, blocks)
     sc_bytes, sc_rec = write_channel_set(layer.scales, scale_bits, blocks)
     w.bytes(ac_bytes).bytes(sc_bytes)
+    if layer.scale_order is not None:          # stored in class order: back to point order
+        rec = np.empty_like(sc_rec)
+        rec[:, layer.scale_order] = sc_rec
+        sc_rec = rec
     if native.enabled():
         # the decoder's own C path (bit-identical to the NumPy one): the inverse RAHT and the
         # field conversions were ~1/4 of every calibration round of the size search
@@ -769,7 +797,8 @@ def attribute_chunks(stage: Stage, bits, blocks: int):
 
     payloads, stats = [], {"raht_bytes": 0, "scale_bytes": 0}
     jobs = (AttributeJob(layer.raht_dc, layer.raht_ac, layer.scales, layer.codes, layer.depth,
-                         *((bits, bits) if np.isscalar(bits) else bits[li]), b, layer.leaf_weights)
+                         *((bits, bits) if np.isscalar(bits) else bits[li]), b, layer.leaf_weights,
+                         layer.scale_order)
             for li, (layer, b) in enumerate(zip(stage.layers, stage.layer_blocks(blocks))))
     ex = stage.executor if stage.num_tiles > 1 else None
     fields_, out, end = ("opacities", "rotations", "sh_dc", "scales"), None, 0

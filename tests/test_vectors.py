@@ -85,7 +85,7 @@ def test_sh_classes_vector_needs_the_class_order(monkeypatch):
 
 def test_rwgt_vector_needs_the_leaf_weights(monkeypatch):
     # the RWGT vector is only worth its bytes if a decoder that ignores the weights (plain RAHT)
-    # or takes the SH classes from anywhere but RWGT fails it
+    # or the class order of the log-scales fails it
     import gsz.decoder.layer as layer
     from gsz.decoder import native
     data = (VEC / "sh1_jug_2k_rwgt.gsz").read_bytes()
@@ -102,3 +102,13 @@ def test_rwgt_vector_needs_the_leaf_weights(monkeypatch):
         assert not np.array_equal(wrong.sh_dc, right.sh_dc)
         np.testing.assert_array_equal(wrong.positions, right.positions)
         np.testing.assert_array_equal(wrong.sh_rest, right.sh_rest)
+    monkeypatch.undo()
+    # ... and one that reads the log-scales in point order instead of class order
+    monkeypatch.setattr(layer, "direct_in_point_order", lambda direct, rwgt: direct)
+    for path in ("numpy", "native"):
+        if path == "native" and not native.enabled():
+            continue
+        with (native.numpy_only() if path == "numpy" else contextlib.nullcontext()):
+            wrong = decode(data)
+        assert not np.array_equal(wrong.scales, right.scales)
+        np.testing.assert_array_equal(wrong.opacities, right.opacities)

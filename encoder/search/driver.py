@@ -17,7 +17,8 @@ import numpy as np
 
 from ...decoder.pages import small_pages
 from ..pipeline import (EncodeOptionsError, EncodeResult, Stage, assemble, attribute_chunks,
-                        compute_train_importance, prepare_stage, sh_chunk, sh_set_blocks, voxelize_stage)
+                        compute_train_importance, prepare_stage, raht_classes_for, sh_chunk, sh_set_blocks,
+                        voxelize_stage)
 from ..progress import Progress
 from .candidate import Candidate, best_of
 from .codebooks import Codebooks
@@ -190,10 +191,13 @@ class BudgetSearch:
         fl = self.sopts.first_layer if fl is None else fl
 
         def make():
+            vox = self.vox_for(tau, d)
             stage = prepare_stage(self.cloud, self.importance, tau, depth=d, layers=self.sopts.layers,
-                                  first_layer=fl, progress=self.progress, voxelized=self.vox_for(tau, d),
+                                  first_layer=fl, progress=self.progress, voxelized=vox,
                                   pool=self.geometry_pool, tile_gaussians=self.sopts.tile_gaussians,
-                                  executor=self.executor, raht_classes=self.sopts.raht_classes)
+                                  executor=self.executor,
+                                  raht_classes=raht_classes_for(self.sopts.raht_classes, self.target,
+                                                                len(vox[1].ijk)))
             self._voxelized.pop((tau, d))     # the stage keeps what it needs of the grid
             return stage
         return self._stages.get_or_make((tau, d, fl), make)

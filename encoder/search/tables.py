@@ -17,22 +17,21 @@ def attribute_sets(stage: Stage, blocks: int):
 
 
 def raw_tables(stage: Stage, blocks: int):
-    """Unweighted loss [C, B, 16] and rate [C, B, 16] of every channel set, computed once per
-    stage (the size bounds, every calibration round and every re-run of a tau share them)."""
+    """Loss [C, B, 16] (importance-weighted in parts with RAHT weights) and rate [C, B, 16] of
+    every channel set, computed once per stage (the size bounds, every calibration round and
+    every re-run of a tau share them)."""
     from ...kernels.quantize import quantize_all_bits
 
     from ..rate import rate_matrix
     key = ("tables", blocks)
     if key not in stage.cache:
         out = []
-        # a weighted RAHT's coefficient errors are sum(w * error^2): over the mean leaf weight
-        # they sit on the scale of the other groups' plain squared errors
-        scale = [s for layer in stage.layers for s in (_mean_weight_inverse(layer), 1.0)]
-        for (x, b), sc in zip(attribute_sets(stage, blocks), scale):
+        for i, (x, b) in enumerate(attribute_sets(stage, blocks)):
+            wt = _loss_weights(stage, stage.layers[i // 2], b)[i % 2]
             if x.shape[1]:
                 _, _, _, loss = quantize_all_bits(x, b)
-                if sc != 1.0:
-                    loss = loss * sc
+                if wt is not None:
+                    loss = loss * wt
                 rate = rate_matrix(x, b)
             else:
                 loss = np.zeros((x.shape[0], b, 16))
@@ -42,10 +41,24 @@ def raw_tables(stage: Stage, blocks: int):
     return stage.cache[key]
 
 
-def _mean_weight_inverse(layer) -> float:
-    """1 / the mean RAHT leaf weight of a part (1.0 for plain RAHT)."""
+def _loss_weights(stage: Stage, layer, scale_blocks: int):
+    """(RAHT, scales) loss multipliers of a part with RAHT weights (None, None without): its
+    weighted RAHT's coefficient errors are sum(w * error^2), w proportional to the classes'
+    mean importance, so over the mean leaf weight, times the part's mean importance over the
+    stage's, they weigh like the SH classes' errors (importance over the stage mean); its
+    class-ordered scale blocks by their voxels' mean importance over the stage's."""
     w = layer.leaf_weights
-    return 1.0 if w is None else float(w.shape[0]) / float(w.sum())
+    if w is None:
+        return None, None
+    from ...decoder.quant import split_lengths
+    mean = float(stage.importance.mean()) or 1.0
+    imp = stage.importance[layer.index]
+    raht = float(w.shape[0]) / float(w.sum()) * float(imp.mean()) / mean
+    stored = imp[layer.scale_order] / mean
+    lens = split_lengths(stored.shape[0], scale_blocks)
+    ends = np.cumsum(lens)
+    per_block = np.add.reduceat(stored, ends - lens) / lens if stored.size else np.zeros(0)
+    return raht, per_block[None, :, None]
 
 
 def attribute_tables(stage: Stage, blocks: int, weights: dict | None = None):
