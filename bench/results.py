@@ -225,13 +225,13 @@ def page_rd(rd: dict, json_dir: Path) -> str:
     lines += table(["scene", "variant", "SOG B", "SOG dB", "gsz dB at SOG B", "gain dB", "bytes ratio",
                     "SPZ gain / ratio", "compressed.ply gain / ratio"], trows)
 
-    budgets = [f"{r:g}x" for r in sorted(meta["ratios"], reverse=True)] + ["sog"]
+    budgets = [f"{r:g}x" for r in sorted(meta["ratios"], reverse=True)] + ["sog", "spz"]
     peers = ["sog", "spz", "compressed.ply"]
     grid = {}
     for r in rows:
         grid.setdefault((r["scene"], r["variant"]), {})[r["budget"] if r["codec"] == "gsz" else ("peer", r["codec"])] = r
     lines += ["## RD points (test PSNR, dB)", "",
-              "gsz columns: the budget PLY bytes / ratio (\"sog\": the SOG file's bytes); the file is at most "
+              "gsz columns: the budget PLY bytes / ratio (\"sog\", \"spz\": the SOG / SPZ file's bytes); the file is at most "
               "the budget.  Peer cells: MB / dB.", ""]
     prow, notes = [], []
     for k in sorted(grid, key=lambda k: (scene_key(k[0]), k[1])):
@@ -299,7 +299,7 @@ def page_search(rd: dict, scaling, above) -> str:
               "importance pass).  Test PSNR per point: [rd.md](rd.md); calibration rounds and CPU seconds: "
               "`bench/out/rd.json`.", ""]
     variants = sorted({k[1] for k in groups})
-    order = {b: i for i, b in enumerate([f"{r:g}x" for r in sorted(meta["ratios"], reverse=True)] + ["sog"])}
+    order = {b: i for i, b in enumerate([f"{r:g}x" for r in sorted(meta["ratios"], reverse=True)] + ["sog", "spz"])}
 
     def point(r):
         if r is None:
