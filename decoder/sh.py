@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from .bytesio import Reader
-from .cloud import sh_rest_count
+from .cloud import FRESH, OutputRows, sh_rest_count
 from .groups import read_channel_set, read_channel_set_symbols
 from . import native
 from .rans import decode_stream_single
@@ -65,11 +65,12 @@ def read_sh_classes(data, num_kept: int) -> np.ndarray:
 
 
 def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None,
-            classes_chunk=None):
+            classes_chunk=None, dest: OutputRows = FRESH):
     """Decode one layer's SHVQ chunk.
 
     codebook    the [D, K_cb] float64 codebook an earlier layer carried, or None
     classes_chunk  the part's SHCL chunk, or None (kept vectors stored in Morton order)
+    dest        where sh_rest goes (fresh by default)
     returns     (sh_rest float32 [M, K, 3], codebook [D, K_cb] float64 or None): the codebook
                 of this layer when it carries one, else the one passed in
 
@@ -94,7 +95,7 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
         kcb = 0 if codebook is None else codebook.shape[1]
     classes = None if classes_chunk is None else read_sh_classes(classes_chunk, p)
     if native.enabled():
-        return _assemble_native(r, m, k, d, p, kcb, codebook, classes), codebook
+        return _assemble_native(r, m, k, d, p, kcb, codebook, classes, dest), codebook
     kept = None
     if p:
         # float32: the values the float32 output keeps (half the bytes to decode into and move)
@@ -110,7 +111,7 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
     # scattered to their Gaussians a block of stored columns at a time (the transposed block
     # stays in cache; no [P, D] copy of the whole set), the codeword rows gathered
     item = np.dtype((np.void, 4 * d))
-    out = np.empty((m, d), np.float32)
+    out = dest.empty("sh_rest", (m, d))
     items = out.view(item)[:, 0]
     coded = None if idx.size == 0 else ~kept_mask if p else slice(None)
     if p:
@@ -133,7 +134,8 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
 _KEPT_BLOCK = 8192
 
 
-def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebook, classes):
+def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebook, classes,
+                     dest: OutputRows = FRESH):
     """read_sh's kept vectors, flags and indices, assembled in one C pass (same checks): the
     kept set stays uint16 symbols until that pass dequantises them into the float32 rows."""
     flags = None
@@ -145,7 +147,7 @@ def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebo
     idx = decode_stream_single(r.blob(), m - p)
     r.expect_end()
     cb = np.zeros((d, 0), np.float64) if codebook is None else codebook
-    out = np.empty((m, d), np.float32)
+    out = dest.empty("sh_rest", (m, d))
     native.module().sh_assemble(flags, kept, steps, lo, idx, np.ascontiguousarray(cb, dtype=np.float64),
                                 out, None if classes is None else np.ascontiguousarray(classes, np.int64))
     return out.reshape(m, k, 3)
