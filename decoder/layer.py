@@ -29,7 +29,7 @@ from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_TILE
 from .pages import small_pages
 from .raht import build_raht_tree
 from .rotation import quaternion_f32_from_trig
-from .sh import read_sh
+from .sh import read_sh_checked
 
 
 def open_gsz(path: str):
@@ -274,15 +274,17 @@ def _check_finite(ok: dict) -> None:
 
 
 def _read_sh(chunks: dict, header, state: LayerState, m: int, dest: OutputRows):
-    """(sh_rest, the codebook) of a part: its SHVQ chunk, or nothing at SH degree 0."""
+    """(sh_rest, the codebook, all finite? or None when not known) of a part: its SHVQ chunk,
+    or nothing at SH degree 0."""
     if header.sh_degree > 0:
-        return read_sh(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook, chunks.get(CHUNK_SHCL), dest)
-    return np.zeros((m, 0, 3), np.float32), state.codebook
+        return read_sh_checked(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook,
+                               chunks.get(CHUNK_SHCL), dest)
+    return np.zeros((m, 0, 3), np.float32), state.codebook, True
 
 
 def _read_attributes_and_sh(chunks: dict, header, state: LayerState, m: int, dest: OutputRows):
     dc, ac, direct = parse_attributes(chunks[CHUNK_ATTR], m)
-    return (dc, ac, direct, *_read_sh(chunks, header, state, m, dest))
+    return (dc, ac, direct, *_read_sh(chunks, header, state, m, dest)[:2])
 
 
 class _CodesAndTree:
@@ -502,13 +504,14 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh, pool,
         finally:
             job.raht_part_ready.set()                  # never leave the worker waiting
         dc, ac, _ = job.raht_part
-        sh_rest, codebook = _read_sh(chunks, header, state, m, dest)
+        sh_rest, codebook, ok_sh = _read_sh(chunks, header, state, m, dest)
     except BaseException:
         if pending.exception() is not None:
             raise pending.exception() from None        # the geometry's or scales' error first
         raise
     nat = native.module()
-    ok_sh = nat.all_finite(sh_rest)
+    if ok_sh is None:
+        ok_sh = nat.all_finite(sh_rest)
     nat.octree_help(job.helper)                        # until the traversal ends
     job.codes_ready.wait()
     if job.codes is None:

@@ -66,13 +66,22 @@ def read_sh_classes(data, num_kept: int) -> np.ndarray:
 
 def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None,
             classes_chunk=None, dest: OutputRows = FRESH):
+    """Decode one layer's SHVQ chunk: (sh_rest, codebook) of :func:`read_sh_checked`."""
+    sh_rest, codebook, _ = read_sh_checked(data, num_points, sh_degree, codebook, classes_chunk, dest)
+    return sh_rest, codebook
+
+
+def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None,
+                    classes_chunk=None, dest: OutputRows = FRESH):
     """Decode one layer's SHVQ chunk.
 
     codebook    the [D, K_cb] float64 codebook an earlier layer carried, or None
     classes_chunk  the part's SHCL chunk, or None (kept vectors stored in Morton order)
     dest        where sh_rest goes (fresh by default)
-    returns     (sh_rest float32 [M, K, 3], codebook [D, K_cb] float64 or None): the codebook
-                of this layer when it carries one, else the one passed in
+    returns     (sh_rest float32 [M, K, 3], codebook [D, K_cb] float64 or None, finite): the
+                codebook of this layer when it carries one, else the one passed in; finite:
+                whether every sh_rest value is finite when the native path assembled them
+                (checked as they were written), None on the NumPy path
 
     The codebook sits in exactly one layer; a layer that carries one when an earlier layer did,
     or that has codeword indices while no layer so far carried a codebook, is rejected.
@@ -95,7 +104,8 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
         kcb = 0 if codebook is None else codebook.shape[1]
     classes = None if classes_chunk is None else read_sh_classes(classes_chunk, p)
     if native.enabled():
-        return _assemble_native(r, m, k, d, p, kcb, codebook, classes, dest), codebook
+        sh_rest, finite = _assemble_native(r, m, k, d, p, kcb, codebook, classes, dest)
+        return sh_rest, codebook, finite
     kept = None
     if p:
         # float32: the values the float32 output keeps (half the bytes to decode into and move)
@@ -127,7 +137,7 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
     if coded is not None:
         rows = np.ascontiguousarray(codebook.T, dtype=np.float32)
         items[coded] = rows.view(item)[:, 0].take(idx)
-    return out.reshape(m, k, 3), codebook
+    return out.reshape(m, k, 3), codebook, None
 
 
 #: stored kept-SH columns transposed and scattered per step (a 45 x 8192 float32 block: 1.5 MB)
@@ -148,6 +158,6 @@ def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebo
     r.expect_end()
     cb = np.zeros((d, 0), np.float64) if codebook is None else codebook
     out = dest.empty("sh_rest", (m, d))
-    native.module().sh_assemble(flags, kept, steps, lo, idx, np.ascontiguousarray(cb, dtype=np.float64),
-                                out, None if classes is None else np.ascontiguousarray(classes, np.int64))
-    return out.reshape(m, k, 3)
+    finite = native.module().sh_assemble(flags, kept, steps, lo, idx, np.ascontiguousarray(cb, dtype=np.float64),
+                                         out, None if classes is None else np.ascontiguousarray(classes, np.int64))
+    return out.reshape(m, k, 3), bool(finite)
