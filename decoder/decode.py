@@ -183,7 +183,7 @@ def decode_container(container: Container, *, max_gaussians: int | None = None,
     except ValueError as e:
         raise GszError(str(e)) from None
     per_byte = GAUSSIANS_PER_BYTE if max_gaussians is None else None
-    with small_pages():      # the parts and their concatenation are fresh memory
+    with small_pages():      # the whole cloud (or the parts and their concatenation) is fresh memory
         cloud = decode_parts(container, plan, table, chosen, count, per_byte=per_byte, whole=True)
     if region is not None:
         lo, hi = (np.asarray(v, np.float32) for v in check_region(region))
