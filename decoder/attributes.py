@@ -29,6 +29,7 @@ import numpy as np
 
 from . import native
 from .bytesio import Reader
+from .cloud import FRESH, OutputRows
 from .groups import read_channel_set
 from .rans import decode_stream_single
 from .layout import DIRECT_CHANNELS, RAHT_CHANNELS, ROTATION_EULER_ZYX
@@ -54,25 +55,34 @@ def attributes_from_channels(raht_values: np.ndarray, direct: np.ndarray) -> Att
         scales=np.ascontiguousarray(direct.T, dtype=np.float32))
 
 
-def _attributes_from_planes(v: np.ndarray, direct: np.ndarray) -> Attributes:
+def _attributes_from_planes(v: np.ndarray, direct: np.ndarray, dest: OutputRows = FRESH) -> Attributes:
     """:func:`attributes_from_channels` of ``v.T``, from the channel-major values v float64
     [7, M] (``raht_inverse_planes``): the same values bit for bit, with cos/sin on the same
-    contiguous [3, M] half angles as :func:`euler_to_quaternion`."""
+    contiguous [3, M] half angles as :func:`euler_to_quaternion`; the fields go to ``dest``."""
     ang = v[1:4]
     half = np.where(np.isfinite(ang), ang, 0.0)
     half *= 0.5
     c, s = half_angle_trig(half)
-    return Attributes(opacities=v[0].astype(np.float32),
-                      rotations=quaternion_f32_from_trig(c, s),
-                      sh_dc=np.ascontiguousarray(v[4:7].T, dtype=np.float32),
-                      scales=np.ascontiguousarray(direct.T, dtype=np.float32))
+    m = v.shape[1]
+    return Attributes(opacities=_f32(dest.empty("opacities", (m,)), v[0]),
+                      rotations=quaternion_f32_from_trig(c, s, dest.empty("rotations", (m, 4))),
+                      sh_dc=_f32(dest.empty("sh_dc", (m, 3)), v[4:7].T),
+                      scales=_f32(dest.empty("scales", (m, 3)), direct.T))
 
 
-def numpy_colour(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> tuple[np.ndarray, np.ndarray]:
+def _f32(out: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``values`` cast to float32 into ``out`` (the same rounding as ``astype``)."""
+    out[...] = values
+    return out
+
+
+def numpy_colour(dc: np.ndarray, ac: np.ndarray, tree: RahtTree,
+                 dest: OutputRows = FRESH) -> tuple[np.ndarray, np.ndarray]:
     """(opacities float32 [M], sh_dc float32 [M, 3]) of :func:`_attributes_from_planes`, from
     the inverse RAHT of those four channels only (each channel's values are the same)."""
     v = raht_inverse_planes(dc, ac, tree, channels=(0, 4, 5, 6))
-    return v[0].astype(np.float32), np.ascontiguousarray(v[1:4].T, dtype=np.float32)
+    m = v.shape[1]
+    return _f32(dest.empty("opacities", (m,)), v[0]), _f32(dest.empty("sh_dc", (m, 3)), v[1:4].T)
 
 
 def numpy_half_angles(dc: np.ndarray, ac: np.ndarray, tree: RahtTree) -> np.ndarray:
@@ -116,21 +126,22 @@ def parse_direct_part(r: Reader, m: int) -> np.ndarray:
 
 def attributes_from_coefficients(dc: np.ndarray, ac: np.ndarray, direct: np.ndarray,
                                  codes: np.ndarray, depth: int, tree=None,
-                                 leaf_weights: np.ndarray | None = None) -> Attributes:
+                                 leaf_weights: np.ndarray | None = None,
+                                 dest: OutputRows = FRESH) -> Attributes:
     """Inverse RAHT over the voxels with Morton codes ``codes`` (ascending) and the mapping to
     Gaussian fields.  With the native accelerator: the tree, the inverse transform and the
     float32 conversions in C, cos/sin still NumPy's on the same arrays (bit-identical).
     ``tree``: the NumPy path's ``build_raht_tree(codes, depth, leaf_weights)`` when made already;
-    ``leaf_weights``: the part's RWGT leaf weights (None: all 1)."""
+    ``leaf_weights``: the part's RWGT leaf weights (None: all 1); the fields go to ``dest``."""
     if not native.enabled():
         tree = build_raht_tree(codes, depth, leaf_weights) if tree is None else tree
-        return _attributes_from_planes(raht_inverse_planes(dc, ac, tree), direct)
+        return _attributes_from_planes(raht_inverse_planes(dc, ac, tree), direct, dest)
     tree = native_tree(codes, depth, leaf_weights)
     half = native_half_angles(tree, dc, ac)
-    opacities, sh_dc, _ = native_opacity_dc(tree, dc, ac)
+    opacities, sh_dc, _ = native_opacity_dc(tree, dc, ac, dest)
     c, s = half_angle_trig(half)
-    rotations, _ = native_rotations(c, s)
-    scales, _ = native_scales(direct)
+    rotations, _ = native_rotations(c, s, dest)
+    scales, _ = native_scales(direct, dest)
     return Attributes(opacities=opacities, rotations=rotations, sh_dc=sh_dc, scales=scales)
 
 
@@ -203,7 +214,7 @@ def native_half_angles(tree, dc: np.ndarray, ac: np.ndarray) -> np.ndarray:
     return half
 
 
-def native_opacity_dc(tree, dc: np.ndarray, ac: np.ndarray):
+def native_opacity_dc(tree, dc: np.ndarray, ac: np.ndarray, dest: OutputRows = FRESH):
     """Inverse RAHT of the opacity and DC colour channels -> (opacities float32 [M], sh_dc
     float32 [M, 3], all finite?)."""
     nat = native.module()
@@ -211,23 +222,23 @@ def native_opacity_dc(tree, dc: np.ndarray, ac: np.ndarray):
     v = np.empty((4, m), np.float64)
     nat.raht_apply(tree, dc, ac, 0, 1, v[:1], False)
     nat.raht_apply(tree, dc, ac, 4, 7, v[1:], False)
-    opacities = np.empty(m, np.float32)
-    sh_dc = np.empty((m, 3), np.float32)
+    opacities = dest.empty("opacities", (m,))
+    sh_dc = dest.empty("sh_dc", (m, 3))
     ok = nat.planes_to_f32(v, 0, 1, opacities)
     ok = nat.planes_to_f32(v, 1, 4, sh_dc) and ok
     return opacities, sh_dc, ok
 
 
-def native_rotations(c: np.ndarray, s: np.ndarray):
+def native_rotations(c: np.ndarray, s: np.ndarray, dest: OutputRows = FRESH):
     """Quaternions float32 [M, 4] from cos/sin of the half angles, and whether all are finite."""
-    rotations = np.empty((c.shape[1], 4), np.float32)
+    rotations = dest.empty("rotations", (c.shape[1], 4))
     ok = native.module().quat_from_trig(c, s, rotations)
     return rotations, ok
 
 
-def native_scales(direct: np.ndarray):
+def native_scales(direct: np.ndarray, dest: OutputRows = FRESH):
     """The log-scales float32 [M, 3] from the direct channels float64 [3, M], all finite?"""
-    scales = np.empty((direct.shape[1], 3), np.float32)
+    scales = dest.empty("scales", (direct.shape[1], 3))
     ok = native.module().planes_to_f32(np.ascontiguousarray(direct, dtype=np.float64), 0, 3, scales)
     return scales, ok
 

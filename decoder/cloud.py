@@ -18,6 +18,38 @@ def sh_rest_count(degree: int) -> int:
     return SH_REST_COUNT[degree]
 
 
+class OutputRows:
+    """Where a decoded part's float32 fields go: rows [start, stop) of a whole cloud's arrays
+    {field: array}, or fresh arrays (:data:`FRESH`).  Decoding a tiled or layered file straight
+    into the final arrays spares concatenating its parts afterwards: a serial copy of every
+    field into memory touched for the first time."""
+
+    def __init__(self, arrays: dict | None = None, start: int = 0, stop: int = 0):
+        self.arrays, self.start, self.stop = arrays, start, stop
+
+    def empty(self, name: str, shape: tuple) -> np.ndarray:
+        """An uninitialised float32 array of ``shape`` for field ``name``: these rows when they
+        have that many elements per row (a view, reshaped), else a fresh array."""
+        a = None if self.arrays is None else self.arrays.get(name)
+        if a is not None and shape and shape[0] == self.stop - self.start \
+                and int(np.prod(shape[1:])) == int(np.prod(a.shape[1:])):
+            return a[self.start:self.stop].reshape(shape)
+        return np.empty(shape, np.float32)
+
+    def holds(self, name: str, arr: np.ndarray) -> bool:
+        """Is ``arr`` these rows of field ``name`` (written in place)?"""
+        a = None if self.arrays is None else self.arrays.get(name)
+        if a is None:
+            return False
+        rows = a[self.start:self.stop]
+        return (arr.dtype == rows.dtype and arr.size == rows.size and arr.flags.c_contiguous
+                and arr.__array_interface__["data"][0] == rows.__array_interface__["data"][0])
+
+
+#: fresh arrays for every field
+FRESH = OutputRows()
+
+
 @dataclass
 class GaussianCloud:
     """A 3D Gaussian Splatting scene as float32 numpy arrays, in pre-activation form.

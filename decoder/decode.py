@@ -12,14 +12,16 @@ import struct
 import numpy as np
 
 from . import native
-from .cloud import GaussianCloud
+from .cloud import FRESH, GaussianCloud, OutputRows, sh_rest_count
 from .container import Container, read_container
 from .errors import GszError, GszFormatError, GszTruncatedError
 from .glb import gsz_payload, is_glb
 # LAYER_DATA_CHUNKS, open_gsz and the layer names stay importable from here (their old home)
-from .layer import (GAUSSIANS_PER_BYTE, LAYER_DATA_CHUNKS, LayerState, _cores, check_header_counts,  # noqa: F401
-                    check_max_gaussians, check_tile_complete, concat_clouds, decode_layer, guard, load_bytes,
-                    open_gsz, plan_layers, plan_parts, tile_table)
+from .layer import (FIELDS, GAUSSIANS_PER_BYTE, LAYER_DATA_CHUNKS, LayerState, _cores,  # noqa: F401
+                    check_header_counts, check_max_gaussians, check_part_density, check_tile_complete,
+                    concat_clouds, decode_layer, guard, load_bytes, open_gsz, plan_layers, plan_parts,
+                    tile_table)
+from .geometry import read_geometry_header
 from .layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_TILE,
                      KNOWN_CHUNKS)
 from .pages import small_pages
@@ -69,11 +71,13 @@ def _nesting(obj) -> int:
 
 
 def _decode_tile(container: Container, parts: list, header, state: LayerState, overlap: bool,
-                 tiled: bool) -> list:
-    """The clouds of one tile's ``parts`` (its layers in order; they share the tile's codebook)."""
+                 tiled: bool, pool=None, rows: dict | None = None) -> list:
+    """The clouds of one tile's ``parts`` (its layers in order; they share the tile's codebook);
+    ``rows``: {(layer, tile): OutputRows} where the parts' fields go (None: fresh arrays)."""
     with np.errstate(over="ignore", invalid="ignore"):     # errstate is per thread
         return [decode_layer({t: container.chunks[i].data for t, i in p.chunks.items()}, header, state,
-                             overlap=overlap, label=part_label(p, tiled)) for p in parts]
+                             overlap=overlap, label=part_label(p, tiled), pool=pool,
+                             dest=FRESH if rows is None else rows[(p.layer, p.tile)]) for p in parts]
 
 
 def part_label(part, tiled: bool) -> str:
@@ -82,27 +86,33 @@ def part_label(part, tiled: bool) -> str:
 
 
 def decode_parts(container: Container, plan, tiles: list, chosen: list, count: int,
-                 threads: int | None = None, per_byte: int | None = GAUSSIANS_PER_BYTE) -> list:
+                 threads: int | None = None, per_byte: int | None = GAUSSIANS_PER_BYTE,
+                 whole: bool = False):
     """Decode the first ``count`` layers of the ``chosen`` tiles; the parts' clouds in decoded
-    order ((layer, tile) ascending).  Tiles decode in parallel threads (the native path releases
-    the GIL); the error reported is the one of the first failing tile, as a sequential decode
-    would report it.  ``per_byte``: the default per-part limit (None: the caller's max_gaussians)."""
+    order ((layer, tile) ascending), or with ``whole`` the one cloud of them all.  Tiles decode
+    in parallel threads (the native path releases the GIL); the error reported is the one of
+    the first failing tile, as a sequential decode would report it.  ``per_byte``: the default
+    per-part limit (None: the caller's max_gaussians)."""
     h = container.header
     tiled = plan.tile_chunk is not None
     states = {t: LayerState(limit=tiles[t].num_gaussians, what=f"tile {t}'s" if tiled else "the header's",
                             per_byte=per_byte) for t in chosen}
     by_tile = {t: [p for p in plan.parts if p.tile == t and p.layer < count] for t in chosen}
+    out = _output_rows(container, by_tile, states, h.sh_degree) if whole else None
+    rows = None if out is None else out[1]
     workers = min(len(chosen), threads or _cores())
     if workers <= 1:
-        clouds = {t: _decode_tile(container, by_tile[t], h, states[t], True, tiled) for t in chosen}
+        clouds = {t: _decode_tile(container, by_tile[t], h, states[t], True, tiled, rows=rows) for t in chosen}
     else:
         from concurrent.futures import ThreadPoolExecutor
-        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="gsz-tile") as pool:
-            # no more tiles than cores: each tile also overlaps its geometry with its attributes
-            # (a large tile's traversal is the critical path); else the tiles fill the cores
-            overlap = len(chosen) <= (threads or _cores())
+        # no more tiles than cores: each tile also overlaps its geometry with its attributes (a
+        # large tile's traversal is the critical path) on a worker of its own (the decoder's
+        # one worker would run one tile's jobs at a time); else the tiles fill the cores
+        overlap = len(chosen) <= (threads or _cores())
+        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="gsz-tile") as pool, \
+                ThreadPoolExecutor(max_workers=workers if overlap else 1, thread_name_prefix="gsz-decode") as inner:
             futures = {t: pool.submit(native.carry(_decode_tile), container, by_tile[t], h, states[t], overlap,
-                                      tiled) for t in chosen}
+                                      tiled, inner, rows) for t in chosen}
             for t in chosen:                        # the first failing tile's error
                 if futures[t].exception() is not None:
                     raise futures[t].exception()
@@ -111,7 +121,51 @@ def decode_parts(container: Container, plan, tiles: list, chosen: list, count: i
         for t in chosen:
             check_tile_complete(states[t], t, tiled)
     order = sorted(((p.layer, p.tile), k) for t in chosen for k, p in enumerate(by_tile[t]))
-    return [clouds[t][k] for (_, t), k in order]
+    parts = [clouds[t][k] for (_, t), k in order]
+    if not whole:
+        return parts
+    if out is None:
+        return concat_clouds(parts, h.sh_degree)
+    arrays, rows = out
+    for (key, _), cloud in zip(order, parts):
+        dest = rows[key]
+        if len(cloud) != dest.stop - dest.start:          # pragma: no cover - the same header bytes
+            raise GszFormatError("a part decoded to another count than its GEOM header declares")
+        for name in FIELDS:
+            a = getattr(cloud, name)
+            if not dest.holds(name, a):                   # a field decoded into a fresh array
+                arrays[name][dest.start:dest.stop] = a
+    return GaussianCloud(**arrays, sh_degree=h.sh_degree)
+
+
+def _output_rows(container: Container, by_tile: dict, states: dict, sh_degree: int):
+    """(the whole cloud's arrays, uninitialised; {(layer, tile): OutputRows}) when several parts
+    decode and their GEOM headers declare counts within their tiles' limits, else None (the
+    parts then decode into fresh arrays and are concatenated; their decoding reports the
+    errors, in order)."""
+    parts = sorted((p for ps in by_tile.values() for p in ps), key=lambda p: (p.layer, p.tile))
+    if len(parts) < 2:
+        return None
+    room = {t: s.limit for t, s in states.items()}
+    counts = []
+    for p in parts:
+        chunks = {t: container.chunks[i].data for t, i in p.chunks.items()}
+        try:
+            m = read_geometry_header(chunks[CHUNK_GEOM], max_points=room[p.tile]).num_points
+            check_part_density(m, chunks, states[p.tile], "")
+        except GszError:
+            return None
+        room[p.tile] -= m
+        counts.append(m)
+    n, k = sum(counts), sh_rest_count(sh_degree)
+    shapes = dict(positions=(n, 3), scales=(n, 3), rotations=(n, 4), opacities=(n,), sh_dc=(n, 3),
+                  sh_rest=(n, k, 3))
+    arrays = {name: np.empty(shapes[name], np.float32) for name in FIELDS}
+    rows, start = {}, 0
+    for p, m in zip(parts, counts):
+        rows[(p.layer, p.tile)] = OutputRows(arrays, start, start + m)
+        start += m
+    return arrays, rows
 
 
 def decode_container(container: Container, *, max_gaussians: int | None = None,
@@ -131,9 +185,8 @@ def decode_container(container: Container, *, max_gaussians: int | None = None,
     except ValueError as e:
         raise GszError(str(e)) from None
     per_byte = GAUSSIANS_PER_BYTE if max_gaussians is None else None
-    with small_pages():      # the parts and their concatenation are fresh memory
-        cloud = concat_clouds(decode_parts(container, plan, table, chosen, count, per_byte=per_byte),
-                              h.sh_degree)
+    with small_pages():      # the whole cloud (or the parts and their concatenation) is fresh memory
+        cloud = decode_parts(container, plan, table, chosen, count, per_byte=per_byte, whole=True)
     if region is not None:
         lo, hi = (np.asarray(v, np.float32) for v in check_region(region))
         inside = np.all((cloud.positions >= lo) & (cloud.positions <= hi), axis=1)

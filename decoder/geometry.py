@@ -52,15 +52,17 @@ class GeometryHeader:
         :func:`gsz.decoder.octree.decode_octree_codes`."""
         return decode_octree_codes(self.payload, self.depth, self.num_points, helper)
 
-    def positions(self, codes: np.ndarray) -> np.ndarray:
-        """Decoded float32 centres [M, 3] of the voxels with Morton codes ``codes``."""
+    def positions(self, codes: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Decoded float32 centres [M, 3] of the voxels with Morton codes ``codes`` (into
+        ``out`` when given)."""
         if native.enabled():
-            return self.native_positions(codes)[0]
+            return self.native_positions(codes, out)[0]
         # voxel_centres axis by axis (the same float64 operations per element, on contiguous
         # rows instead of an [M, 3] integer and a float64 intermediate)
         ijk = morton_decode_planes(codes)
         pitch = float(self.side) / float(1 << int(self.depth))
-        out = np.empty((ijk.shape[1], 3), dtype=np.float32)
+        if out is None:
+            out = np.empty((ijk.shape[1], 3), dtype=np.float32)
         for axis in range(3):
             v = ijk[axis].astype(np.float64)
             v += 0.5
@@ -69,9 +71,10 @@ class GeometryHeader:
             out[:, axis] = v
         return out
 
-    def native_positions(self, codes: np.ndarray) -> tuple[np.ndarray, bool]:
+    def native_positions(self, codes: np.ndarray, out: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
         """:meth:`positions` in C, and whether every coordinate is finite (native only)."""
-        out = np.empty((codes.shape[0], 3), np.float32)
+        if out is None:
+            out = np.empty((codes.shape[0], 3), np.float32)
         ok = native.module().voxel_positions(np.ascontiguousarray(codes, dtype=np.uint64),
                                              self.depth, *(float(v) for v in self.origin),
                                              float(self.side), out)

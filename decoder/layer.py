@@ -17,11 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import native
-from .attributes import (attributes_from_coefficients, direct_in_point_order, leaf_weights_of, native_half_angles,
-                         native_opacity_dc, native_rotations, native_scales, native_tree,
-                         numpy_colour, numpy_half_angles, parse_attributes, parse_direct_part,
-                         parse_raht_part, read_raht_weights)
-from .cloud import GaussianCloud
+from .attributes import (attributes_from_coefficients, direct_in_point_order, leaf_weights_of,
+                         native_half_angles, native_opacity_dc, native_rotations, native_scales,
+                         native_tree, numpy_colour, numpy_half_angles, parse_attributes,
+                         parse_direct_part, parse_raht_part, read_raht_weights)
+from .cloud import FRESH, GaussianCloud, OutputRows
 from .container import DEFAULT_MAX_GAUSSIANS, LAYER_SHIFT, TILE_SHIFT, Chunk
 from .errors import GszError, GszFormatError, GszLimitError
 from .geometry import read_geometry_header
@@ -30,7 +30,7 @@ from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, 
 from .pages import small_pages
 from .raht import build_raht_tree
 from .rotation import quaternion_f32_from_trig
-from .sh import read_sh
+from .sh import read_sh_checked
 
 
 def open_gsz(path: str):
@@ -280,17 +280,20 @@ def _read_weights(chunks: dict, m: int):
     return None if data is None else read_raht_weights(data, m)
 
 
-def _read_sh(chunks: dict, header, state: LayerState, m: int, rwgt=None):
-    """(sh_rest, the codebook) of a part: its SHVQ chunk, or nothing at SH degree 0."""
+def _read_sh(chunks: dict, header, state: LayerState, m: int, dest: OutputRows, rwgt=None):
+    """(sh_rest, the codebook, all finite? or None when not known) of a part: its SHVQ chunk,
+    or nothing at SH degree 0."""
     if header.sh_degree > 0:
-        return read_sh(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook, chunks.get(CHUNK_SHCL),
-                       voxel_classes=None if rwgt is None else rwgt.classes)
-    return np.zeros((m, 0, 3), np.float32), state.codebook
+        return read_sh_checked(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook,
+                               chunks.get(CHUNK_SHCL), dest,
+                               voxel_classes=None if rwgt is None else rwgt.classes)
+    return np.zeros((m, 0, 3), np.float32), state.codebook, True
 
 
-def _read_attributes_and_sh(chunks: dict, header, state: LayerState, m: int, rwgt=None):
+def _read_attributes_and_sh(chunks: dict, header, state: LayerState, m: int, dest: OutputRows,
+                            rwgt=None):
     dc, ac, direct = parse_attributes(chunks[CHUNK_ATTR], m)
-    return (dc, ac, direct_in_point_order(direct, rwgt), *_read_sh(chunks, header, state, m, rwgt))
+    return (dc, ac, direct_in_point_order(direct, rwgt), *_read_sh(chunks, header, state, m, dest, rwgt)[:2])
 
 
 class _Weights:
@@ -340,7 +343,7 @@ class _CodesAndTree:
 
 
 def decode_layer(chunks: dict, header, state: LayerState, *, overlap: bool = True,
-                 label: str = "layer") -> GaussianCloud:
+                 label: str = "layer", pool=None, dest: OutputRows = FRESH) -> GaussianCloud:
     """Decode one part (a layer of a tile) from its chunk payloads {type: bytes-like}; updates
     ``state``.
 
@@ -349,12 +352,15 @@ def decode_layer(chunks: dict, header, state: LayerState, *, overlap: bool = Tru
     GIL, see :func:`_decode_layer_overlapped`; so do NumPy's array loops, see
     :func:`_decode_layer_threaded`); ``overlap=False`` when the caller already decodes several
     tiles at once.  Errors are raised in the sequential order: a corrupt geometry is reported
-    before a corrupt attribute chunk."""
+    before a corrupt attribute chunk.  ``pool``: the executor of the worker's jobs (None: the
+    decoder's one worker); ``dest``: where the part's fields go (rows of the whole cloud when
+    the caller allocated it; the fields that do not fit are fresh arrays)."""
     with small_pages():
-        return _decode_layer(chunks, header, state, overlap, label)
+        return _decode_layer(chunks, header, state, overlap, label, pool, dest)
 
 
-def _decode_layer(chunks: dict, header, state: LayerState, overlap: bool, label: str) -> GaussianCloud:
+def _decode_layer(chunks: dict, header, state: LayerState, overlap: bool, label: str, pool,
+                  dest: OutputRows) -> GaussianCloud:
     room = state.limit - state.decoded_points
     if room <= 0:
         raise GszFormatError(f"layers hold more Gaussians than {state.what} {state.limit}")
@@ -364,25 +370,26 @@ def _decode_layer(chunks: dict, header, state: LayerState, overlap: bool, label:
     if (overlap and m >= OVERLAP_MIN_POINTS and _cores() >= 2
             and m <= OVERLAP_MAX_POINTS_PER_BYTE * sum(len(v) for v in chunks.values())):
         overlapped = _decode_layer_overlapped if native.enabled() else _decode_layer_threaded
-        cloud = overlapped(chunks, header, state, gh)
+        cloud = overlapped(chunks, header, state, gh, pool or _worker(), dest)
     else:
         codes = gh.decode_codes()
         rwgt = _read_weights(chunks, m)
-        cloud = _finish_layer(gh, codes, _read_attributes_and_sh(chunks, header, state, m, rwgt), header,
-                              state, leaf_weights=leaf_weights_of(rwgt))
+        cloud = _finish_layer(gh, codes, _read_attributes_and_sh(chunks, header, state, m, dest, rwgt),
+                              header, state, dest, leaf_weights=leaf_weights_of(rwgt))
     state.decoded_points += m
     return cloud
 
 
 def _finish_layer(gh, codes: np.ndarray, decoded: tuple, header, state: LayerState,
-                  tree=None, leaf_weights=None) -> GaussianCloud:
+                  dest: OutputRows, tree=None, leaf_weights=None) -> GaussianCloud:
     """decode_layer after the entropy decoding: ``decoded`` is _read_attributes_and_sh's result;
     the inverse RAHT (over ``tree`` when built already), positions and the finiteness checks."""
     dc, ac, direct, sh_rest, codebook = decoded
     state.codebook = codebook
     attrs = attributes_from_coefficients(dc, ac, direct, codes, gh.depth, tree=tree,
-                                         leaf_weights=leaf_weights)
-    cloud = GaussianCloud(positions=gh.positions(codes), scales=attrs.scales,
+                                         leaf_weights=leaf_weights, dest=dest)
+    cloud = GaussianCloud(positions=gh.positions(codes, dest.empty("positions", (gh.num_points, 3))),
+                          scales=attrs.scales,
                           rotations=attrs.rotations, opacities=attrs.opacities,
                           sh_dc=attrs.sh_dc, sh_rest=sh_rest, sh_degree=header.sh_degree)
     finite = native.module().all_finite if native.enabled() else (lambda a: np.isfinite(a).all())
@@ -390,7 +397,8 @@ def _finish_layer(gh, codes: np.ndarray, decoded: tuple, header, state: LayerSta
     return cloud
 
 
-def _decode_layer_threaded(chunks: dict, header, state: LayerState, gh) -> GaussianCloud:
+def _decode_layer_threaded(chunks: dict, header, state: LayerState, gh, pool,
+                           dest: OutputRows) -> GaussianCloud:
     """decode_layer's NumPy path on two threads, the same arrays bit for bit: the octree and
     its RAHT tree on the worker while the calling thread decodes the attribute and SH streams
     (NumPy releases the GIL inside its array loops, so the two overlap), then the positions
@@ -399,10 +407,10 @@ def _decode_layer_threaded(chunks: dict, header, state: LayerState, gh) -> Gauss
     # carry: the worker follows this thread's path (inside numpy_only() too)
     weights = _Weights()
     job = _CodesAndTree(gh, weights)
-    pending = _worker().submit(native.carry(job))
+    pending = pool.submit(native.carry(job))
     try:
         rwgt = weights.decode(chunks, gh.num_points)
-        decoded = _read_attributes_and_sh(chunks, header, state, gh.num_points, rwgt)
+        decoded = _read_attributes_and_sh(chunks, header, state, gh.num_points, dest, rwgt)
     except BaseException:
         if pending.exception() is not None:
             raise pending.exception() from None        # the geometry's error comes first
@@ -410,13 +418,14 @@ def _decode_layer_threaded(chunks: dict, header, state: LayerState, gh) -> Gauss
     job.codes_ready.wait()
     if job.codes is None:
         pending.result()                               # raises the geometry's error
-    positions = gh.positions(job.codes)                # while the worker builds the tree
+    # while the worker builds the tree
+    positions = gh.positions(job.codes, dest.empty("positions", (gh.num_points, 3)))
     tree = pending.result()
-    return _finish_layer_threaded(gh, job.codes, tree, positions, decoded, header, state)
+    return _finish_layer_threaded(gh, job.codes, tree, positions, decoded, header, state, pool, dest)
 
 
 def _finish_layer_threaded(gh, codes: np.ndarray, tree, positions: np.ndarray, decoded: tuple,
-                           header, state: LayerState) -> GaussianCloud:
+                           header, state: LayerState, pool, dest: OutputRows) -> GaussianCloud:
     """:func:`_finish_layer` on two threads (NumPy path), the same arrays bit for bit, once the
     calling thread has made the ``positions``:
 
@@ -436,24 +445,25 @@ def _finish_layer_threaded(gh, codes: np.ndarray, tree, positions: np.ndarray, d
 
     def colour():
         with np.errstate(**err):
-            opacities, sh_dc = numpy_colour(dc, ac, tree)
+            opacities, sh_dc = numpy_colour(dc, ac, tree, dest)
             ok = dict(opacities=finite(opacities), sh_dc=finite(sh_dc))
             published.wait()
             s = np.sin(half[0]) if half else None    # the whole array, as half_angle_trig
             return opacities, sh_dc, ok, s
-    pending = _worker().submit(native.carry(colour))
+    pending = pool.submit(native.carry(colour))
     try:
         try:
             half.append(numpy_half_angles(dc, ac, tree))
         finally:
             published.set()             # never leave the worker waiting
         c = np.cos(half[0])
-        scales = np.ascontiguousarray(direct.T, dtype=np.float32)
+        scales = dest.empty("scales", (gh.num_points, 3))
+        scales[...] = direct.T          # the float32 rounding of astype
         opacities, sh_dc, ok_colour, s = pending.result()
     except BaseException:
         pending.exception()             # the worker is done with this layer before we leave
         raise
-    rotations = quaternion_f32_from_trig(c, s)
+    rotations = quaternion_f32_from_trig(c, s, dest.empty("rotations", (gh.num_points, 4)))
     ok = dict(positions=finite(positions), scales=finite(scales), rotations=finite(rotations),
               sh_rest=finite(sh_rest))
     _check_finite({**ok, **ok_colour})
@@ -469,8 +479,8 @@ class _GeometryJob:
     ``helper`` lets the calling thread join the octree traversal once its own work is done
     (``_native.octree_help``).  Returns (tree, (scales, scales finite) or None)."""
 
-    def __init__(self, gh, weights: _Weights):
-        self.gh = gh
+    def __init__(self, gh, dest: OutputRows, weights: _Weights):
+        self.gh, self.dest = gh, dest
         self.weights = weights
         self.codes = None
         self.codes_ready = threading.Event()
@@ -491,20 +501,20 @@ class _GeometryJob:
         if self.raht_part is None:     # the calling thread's ATTR error is reported there
             return tree, None
         direct = parse_direct_part(self.raht_part[2], self.gh.num_points)
-        return tree, native_scales(direct_in_point_order(direct, self.weights.rwgt))
+        return tree, native_scales(direct_in_point_order(direct, self.weights.rwgt), self.dest)
 
 
 class _ColourJob:
     """The worker's part after the join: opacity and DC colour through the inverse RAHT, then
     sin of the half angles once the calling thread has published them (``half``)."""
 
-    def __init__(self, tree, dc, ac):
-        self.tree, self.dc, self.ac = tree, dc, ac
+    def __init__(self, tree, dc, ac, dest: OutputRows):
+        self.tree, self.dc, self.ac, self.dest = tree, dc, ac, dest
         self.half = None
         self.half_ready = threading.Event()
 
     def __call__(self):
-        opacities, sh_dc, ok = native_opacity_dc(self.tree, self.dc, self.ac)
+        opacities, sh_dc, ok = native_opacity_dc(self.tree, self.dc, self.ac, self.dest)
         self.half_ready.wait()
         if self.half is None:          # the calling thread failed: nothing left to do here
             return opacities, sh_dc, ok, None
@@ -513,7 +523,8 @@ class _ColourJob:
         return opacities, sh_dc, ok, s
 
 
-def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> GaussianCloud:
+def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh, pool,
+                             dest: OutputRows) -> GaussianCloud:
     """decode_layer on two threads (native path), the same arrays bit for bit:
 
     worker                              calling thread
@@ -529,9 +540,8 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
     scales even the two threads out.)  Errors keep the sequential order: geometry, attributes,
     SH, then the first non-finite field in FIELDS order."""
     m = gh.num_points
-    pool = _worker()
     weights = _Weights()
-    job = _GeometryJob(gh, weights)
+    job = _GeometryJob(gh, dest, weights)
     pending = pool.submit(native.carry(job))
     try:
         try:
@@ -540,20 +550,21 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
         finally:
             job.raht_part_ready.set()                  # never leave the worker waiting
         dc, ac, _ = job.raht_part
-        sh_rest, codebook = _read_sh(chunks, header, state, m, rwgt)
+        sh_rest, codebook, ok_sh = _read_sh(chunks, header, state, m, dest, rwgt)
     except BaseException:
         if pending.exception() is not None:
             raise pending.exception() from None        # the geometry's or scales' error first
         raise
     nat = native.module()
-    ok_sh = nat.all_finite(sh_rest)
+    if ok_sh is None:
+        ok_sh = nat.all_finite(sh_rest)
     nat.octree_help(job.helper)                        # until the traversal ends
     job.codes_ready.wait()
     if job.codes is None:
         pending.result()                               # raises the geometry's error
-    positions, ok_pos = gh.native_positions(job.codes)
+    positions, ok_pos = gh.native_positions(job.codes, dest.empty("positions", (m, 3)))
     tree, (scales, ok_scales) = pending.result()       # raises the direct set's error
-    colour = _ColourJob(tree, dc, ac)
+    colour = _ColourJob(tree, dc, ac, dest)
     pending = pool.submit(native.carry(colour))
     try:
         half = native_half_angles(tree, dc, ac)
@@ -562,7 +573,7 @@ def _decode_layer_overlapped(chunks: dict, header, state: LayerState, gh) -> Gau
         colour.half_ready.set()                        # never leave the worker waiting
     c = np.cos(half)
     opacities, sh_dc, ok_colour, s = pending.result()
-    rotations, ok_rot = native_rotations(c, s)
+    rotations, ok_rot = native_rotations(c, s, dest)
     state.codebook = codebook
     ok = dict(positions=ok_pos, scales=ok_scales, rotations=ok_rot, opacities=ok_colour,
               sh_dc=ok_colour, sh_rest=ok_sh)

@@ -120,10 +120,11 @@ def euler_to_quaternion(euler: np.ndarray) -> np.ndarray:
     return np.where(q[..., :1] < 0, -q, q)
 
 
-def quaternion_f32_from_trig(c: np.ndarray, s: np.ndarray) -> np.ndarray:
+def quaternion_f32_from_trig(c: np.ndarray, s: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """``euler_to_quaternion(...).astype(float32)`` from the cos and sin of the half angles
     (float64 [3, M], :func:`half_angle_trig`): the same products in the same order (the four
-    shared two-factor products computed once), the same sign rule, as float32 [M, 4]."""
+    shared two-factor products computed once), the same sign rule, as float32 [M, 4] (into
+    ``out`` when given)."""
     cr, cp, cy = c
     sr, sp, sy = s
     # in place where a product is last needed (fewer fresh [M] arrays: page faults)
@@ -138,7 +139,8 @@ def quaternion_f32_from_trig(c: np.ndarray, s: np.ndarray) -> np.ndarray:
     q2 = np.multiply(crsp, cy, out=crsp)
     q2 += np.multiply(srcp, sy, out=srcp)      # cr sp cy + sr cp sy
     neg = q0 < 0
-    out = np.empty((q0.shape[0], 4), dtype=np.float32)
+    if out is None:
+        out = np.empty((q0.shape[0], 4), dtype=np.float32)
     for i, q in enumerate((q0, q1, q2, q3)):
         np.negative(q, out=q, where=neg)
         out[:, i] = q

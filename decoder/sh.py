@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from .bytesio import Reader
-from .cloud import sh_rest_count
+from .cloud import FRESH, OutputRows, sh_rest_count
 from .groups import read_channel_set, read_channel_set_symbols
 from . import native
 from .rans import decode_stream_single
@@ -75,14 +75,25 @@ def read_sh_classes(data, num_kept: int, voxel_classes=None):
 
 
 def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None,
-            classes_chunk=None, voxel_classes=None):
+            classes_chunk=None, dest: OutputRows = FRESH, voxel_classes=None):
+    """Decode one layer's SHVQ chunk: (sh_rest, codebook) of :func:`read_sh_checked`."""
+    sh_rest, codebook, _ = read_sh_checked(data, num_points, sh_degree, codebook, classes_chunk, dest,
+                                           voxel_classes)
+    return sh_rest, codebook
+
+
+def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None,
+                    classes_chunk=None, dest: OutputRows = FRESH, voxel_classes=None):
     """Decode one layer's SHVQ chunk.
 
     codebook    the [D, K_cb] float64 codebook an earlier layer carried, or None
     classes_chunk  the part's SHCL chunk, or None (kept vectors stored in Morton order)
+    dest        where sh_rest goes (fresh by default)
     voxel_classes  the part's RWGT classes int [M] (point order), or None
-    returns     (sh_rest float32 [M, K, 3], codebook [D, K_cb] float64 or None): the codebook
-                of this layer when it carries one, else the one passed in
+    returns     (sh_rest float32 [M, K, 3], codebook [D, K_cb] float64 or None, finite): the
+                codebook of this layer when it carries one, else the one passed in; finite:
+                whether every sh_rest value is finite when the native path assembled them
+                (checked as they were written), None on the NumPy path
 
     The codebook sits in exactly one layer; a layer that carries one when an earlier layer did,
     or that has codeword indices while no layer so far carried a codebook, is rejected.
@@ -105,7 +116,8 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
         kcb = 0 if codebook is None else codebook.shape[1]
     classes = None if classes_chunk is None else read_sh_classes(classes_chunk, p, voxel_classes)
     if native.enabled():
-        return _assemble_native(r, m, k, d, p, kcb, codebook, classes, voxel_classes), codebook
+        sh_rest, finite = _assemble_native(r, m, k, d, p, kcb, codebook, classes, dest, voxel_classes)
+        return sh_rest, codebook, finite
     kept = None
     if p:
         # float32: the values the float32 output keeps (half the bytes to decode into and move)
@@ -123,7 +135,7 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
     # scattered to their Gaussians a block of stored columns at a time (the transposed block
     # stays in cache; no [P, D] copy of the whole set), the codeword rows gathered
     item = np.dtype((np.void, 4 * d))
-    out = np.empty((m, d), np.float32)
+    out = dest.empty("sh_rest", (m, d))
     items = out.view(item)[:, 0]
     coded = None if idx.size == 0 else ~kept_mask if p else slice(None)
     if p:
@@ -139,7 +151,7 @@ def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None =
     if coded is not None:
         rows = np.ascontiguousarray(codebook.T, dtype=np.float32)
         items[coded] = rows.view(item)[:, 0].take(idx)
-    return out.reshape(m, k, 3), codebook
+    return out.reshape(m, k, 3), codebook, None
 
 
 #: stored kept-SH columns transposed and scattered per step (a 45 x 8192 float32 block: 1.5 MB)
@@ -147,7 +159,7 @@ _KEPT_BLOCK = 8192
 
 
 def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebook, classes,
-                     voxel_classes=None):
+                     dest: OutputRows = FRESH, voxel_classes=None):
     """read_sh's kept vectors, flags and indices, assembled in one C pass (same checks): the
     kept set stays uint16 symbols until that pass dequantises them into the float32 rows."""
     flags = None
@@ -164,7 +176,7 @@ def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebo
     idx = decode_stream_single(r.blob(), m - p)
     r.expect_end()
     cb = np.zeros((d, 0), np.float64) if codebook is None else codebook
-    out = np.empty((m, d), np.float32)
-    native.module().sh_assemble(flags, kept, steps, lo, idx, np.ascontiguousarray(cb, dtype=np.float64),
-                                out, None if classes is None else np.ascontiguousarray(classes, np.int64))
-    return out.reshape(m, k, 3)
+    out = dest.empty("sh_rest", (m, d))
+    finite = native.module().sh_assemble(flags, kept, steps, lo, idx, np.ascontiguousarray(cb, dtype=np.float64),
+                                         out, None if classes is None else np.ascontiguousarray(classes, np.int64))
+    return out.reshape(m, k, 3), bool(finite)

@@ -806,3 +806,26 @@ def test_info_and_decode_cli_report_the_path(tmp_path):
     with contextlib.redirect_stdout(buf):
         assert decode_main([vec, "-o", str(tmp_path / "o.ply"), "--json"]) == 0
     assert json.loads(buf.getvalue())["decoder"] == native.active_path()
+
+
+@needs_native
+def test_sh_assemble_reports_finiteness():
+    """sh_assemble checks the values as it writes them (decode_layer then skips a pass over
+    sh_rest): a used codeword or a kept vector that overflows float32 makes it False, an
+    unused non-finite codeword does not."""
+    sh_assemble = native.module().sh_assemble
+    d = 3
+    cb = np.array([[1.0, 1e300], [2.0, 0.5], [3.0, 0.25]])        # codeword 1 overflows float32
+    kept = np.array([[1, 2], [3, 4], [5, 6]], np.uint16)           # 2 kept vectors, 1 block
+    flags = np.array([1, 0, 1, 0], np.int64)
+
+    def run(idx, lo=0.0):
+        out = np.empty((4, d), np.float32)
+        ok = sh_assemble(flags, kept, np.full((d, 1), 0.5), np.full((d, 1), lo), np.asarray(idx, np.int64), cb, out)
+        assert ok == bool(np.isfinite(out).all())
+        return ok
+
+    assert run([0, 0]) is True
+    assert run([0, 1]) is False                 # the non-finite codeword is used
+    assert run([0, 0], lo=1e300) is False       # kept values overflow
+    assert run([0, 0], lo=-1e39) is False

@@ -48,6 +48,29 @@ def test_tiled_encode_decodes_to_what_the_encoder_predicted(tiled, monkeypatch):
         assert decode(res.data).equals(res.cloud)
 
 
+@pytest.mark.parametrize("native", ["1", "0"])
+@pytest.mark.parametrize("overlap", [False, True])
+def test_parts_decode_in_place_into_the_whole_cloud(tiled, monkeypatch, native, overlap):
+    """Every field of every (layer, tile) part is written into its rows of the whole cloud: no
+    concatenation afterwards and no part decoded into fresh memory and copied (both paths,
+    with and without each tile's geometry/attribute overlap); the same cloud."""
+    import sys
+    from gsz.decoder import cloud as cloud_module
+    D, L = sys.modules["gsz.decoder.decode"], sys.modules["gsz.decoder.layer"]
+    _, res = tiled
+    monkeypatch.setenv("GSZ_NATIVE", native)
+    if overlap:                       # as on a machine with a core per tile
+        monkeypatch.setattr(D, "_cores", lambda: 8)
+        monkeypatch.setattr(L, "_cores", lambda: 8)
+    monkeypatch.setattr(L, "OVERLAP_MIN_POINTS", 1 if overlap else 1 << 40)
+    monkeypatch.setattr(D, "concat_clouds", lambda *a, **k: pytest.fail("parts concatenated"))
+    copied, holds = [], cloud_module.OutputRows.holds
+    monkeypatch.setattr(cloud_module.OutputRows, "holds",
+                        lambda self, name, a: holds(self, name, a) or copied.append(name))
+    assert decode(res.data).equals(res.cloud)
+    assert copied == []
+
+
 def test_tile_bounding_boxes_hold_their_gaussians(tiled):
     _, res = tiled
     info = inspect(res.data)

@@ -73,6 +73,14 @@ int voxel_positions_run(const uint64_t *codes, int64_t M, int depth, const doubl
     return !bad;
 }
 
+/* exponent all ones = inf or nan (a bit test: no branch, no libm) */
+static inline uint32_t f32_finite(float f)
+{
+    uint32_t u;
+    memcpy(&u, &f, 4);
+    return (u & 0x7F800000u) != 0x7F800000u;
+}
+
 int all_finite_run(const uint32_t *p, int64_t n)
 {
     uint32_t bad = 0;
@@ -90,16 +98,27 @@ int all_finite_run(const uint32_t *p, int64_t n)
 int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *steps,
                     const double *lo, int64_t B, const int64_t *classes, int64_t P,
                     const int64_t *idx, int64_t nidx, const double *cb, int64_t K, int64_t M,
-                    int64_t D, float *out, Err *e)
+                    int64_t D, float *out, int *finite, Err *e)
 {
     /* the codebook as rows (a codeword is one contiguous copy) and the output row of every kept
      * vector; the [D, P] kept symbols are then dequantised tile by tile (reading them row by row,
      * one Gaussian at a time, strides P values per component: D streams that miss the cache) */
     float *rows = malloc((size_t)(K ? K : 1) * (size_t)(D ? D : 1) * sizeof *rows);
     int64_t *at = malloc((size_t)(P ? P : 1) * sizeof *at);
-    if (!rows || !at) { free(rows); free(at); return fail_nomem(e); }
-    for (int64_t j = 0; j < K; j++)
-        for (int64_t d = 0; d < D; d++) rows[j * D + d] = (float)cb[d * K + j];
+    /* per codeword: has a non-finite component (the finiteness of the output is collected as
+     * it is written: no second pass over the largest output field) */
+    uint8_t *rbad = malloc((size_t)(K ? K : 1));
+    if (!rows || !at || !rbad) { free(rows); free(at); free(rbad); return fail_nomem(e); }
+    for (int64_t j = 0; j < K; j++) {
+        uint32_t bad = 0;
+        for (int64_t d = 0; d < D; d++) {
+            const float f = (float)cb[d * K + j];
+            rows[j * D + d] = f;
+            bad |= !f32_finite(f);
+        }
+        rbad[j] = (uint8_t)bad;
+    }
+    uint32_t bad = 0;
     int64_t kp = 0, ip = 0;
     int rc = 0;
     for (int64_t i = 0; i < M && !rc; i++) {
@@ -111,7 +130,10 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
             if (ip >= nidx) { rc = fail(e, "SHVQ chunk: fewer codeword indices than Gaussians"); break; }
             const int64_t j = idx[ip++];
             if (j < 0 || j >= K) rc = fail(e, "SHVQ chunk: codeword index out of range");
-            else memcpy(out + i * D, rows + j * D, (size_t)D * sizeof *out);
+            else {
+                memcpy(out + i * D, rows + j * D, (size_t)D * sizeof *out);
+                bad |= rbad[j];
+            }
         } else {
             rc = fail(e, "SHVQ chunk: kept flag outside 0/1");
         }
@@ -151,7 +173,9 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
                     const double st = steps[d * B + b], l0 = lo[d * B + b];
                     for (int64_t t = t0; t < t1; t++) {
                         const double prod = st * (double)src[t];
-                        out[at[t] * D + d] = (float)(prod + l0);
+                        const float f = (float)(prod + l0);
+                        bad |= !f32_finite(f);
+                        out[at[t] * D + d] = f;
                     }
                 }
             }
@@ -160,5 +184,7 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
     }
     free(rows);
     free(at);
+    free(rbad);
+    *finite = !bad;
     return rc;
 }

@@ -891,7 +891,7 @@ PyDoc_STRVAR(sh_assemble_doc,
 "blocks per channel (split_lengths) dequantised as lo + step * k with steps, lo float64 [D, B].\n"
 "classes (int64 [P], SHCL): each kept vector's class in point order; the set then stores them\n"
 "class by class.  A flag other than 0/1, a kept count other than P or an index >= K raises\n"
-"GszFormatError.");
+"GszFormatError.  Returns whether every value written to out is finite.");
 
 static PyObject *py_sh_assemble(PyObject *self, PyObject *args)
 {
@@ -916,6 +916,7 @@ static PyObject *py_sh_assemble(PyObject *self, PyObject *args)
     const int64_t nidx = v[4].len / 8;
     const int64_t M = has_flags ? v[0].len / 8 : nidx;
     Err e = {0};
+    int finite = 0;
     const int64_t D = M ? (v[6].len / 4) / M : 0;
     const int64_t P = D ? v[1].len / 2 / D : 0, B = D ? v[2].len / 8 / D : 0;
     if (M == 0 || v[6].len / 4 != D * M || D < 1 || v[1].len / 2 % D || v[5].len / 8 % D
@@ -928,12 +929,12 @@ static PyObject *py_sh_assemble(PyObject *self, PyObject *args)
         Py_BEGIN_ALLOW_THREADS
         sh_assemble_run(has_flags ? v[0].buf : NULL, v[1].buf, v[2].buf, v[3].buf, B,
                         has_classes ? v[7].buf : NULL, P, v[4].buf, nidx, v[5].buf, K, M, D,
-                        v[6].buf, &e);
+                        v[6].buf, &finite, &e);
         Py_END_ALLOW_THREADS
     }
     for (int i = 0; i < 8; i++) if (v[i].obj) PyBuffer_Release(&v[i]);
     if (e.failed) return raise_err(&e);
-    Py_RETURN_NONE;
+    return PyBool_FromLong(finite);
 }
 
 PyDoc_STRVAR(all_finite_doc,

@@ -36,11 +36,12 @@ int voxel_positions_run(const uint64_t *codes, int64_t M, int depth, const doubl
                         double side, float *out);
 int all_finite_run(const uint32_t *p, int64_t n);
 /* SH rest vectors (flags NULL when no vector is kept; kept: uint16 symbols [D, P] dequantised
- * with steps / lo [D, B]; classes NULL without SHCL); GszFormatError on a bad flag / index. */
+ * with steps / lo [D, B]; classes NULL without SHCL); GszFormatError on a bad flag / index.
+ * *finite: whether every value written is finite. */
 int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *steps,
                     const double *lo, int64_t B, const int64_t *classes, int64_t P,
                     const int64_t *idx, int64_t nidx, const double *cb, int64_t K, int64_t M,
-                    int64_t D, float *out, Err *e);
+                    int64_t D, float *out, int *finite, Err *e);
 
 /* ------------------------------------------------------------------ rate.c (encoder) */
 #define RATE_BITS 16                 /* gsz.decoder.quant.MAX_BITS: the out arrays' q axis */
