@@ -100,6 +100,8 @@ def raht_classes_for(requested: int, target_bytes: int, voxels: int) -> int:
     """The RAHT classes a size-search stage of ``voxels`` uses under ``target_bytes``: the
     requested count, or 1 (plain RAHT) where the budget is too small for them to pay."""
     return int(requested) if 8 * int(target_bytes) >= RAHT_CLASS_MIN_BUDGET_BITS * int(voxels) else 1
+
+
 #: the smallest tile (``--tile-gaussians``): below it the per-tile octree top levels, codebook
 #: and group metadata cost more than tiling gives
 MIN_TILE_GAUSSIANS = 4096
