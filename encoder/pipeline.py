@@ -39,6 +39,7 @@ from .executor import in_order
 from .geometry import write_geometry
 from .groups import write_channel_set
 from .progress import Progress
+from .voxelize import SourcedRows  # noqa: F401  (a Stage's SH rows; re-exported)
 
 
 class EncodeOptionsError(GszUsageError):
@@ -301,56 +302,6 @@ class Layer:
         return self.grid[2]
 
 
-class SourcedRows:
-    """Read-only [M, D] float32 rows kept as references: row i is ``base[source[i]]`` where
-    ``source[i] >= 0`` (a voxel holding one input Gaussian keeps its vector bit for bit) and the
-    next row of ``own`` where it is -1 (merged voxels, in voxel order) -- a stage's SH vectors
-    without a copy of the input's (180 bytes a voxel at SH degree 3).  Indexing with an int
-    array, a bool mask or a slice gives the ndarray the materialised rows would; ``np.asarray``
-    materialises them."""
-
-    ndim = 2
-    dtype = np.dtype(np.float32)
-
-    def __init__(self, base: np.ndarray, source: np.ndarray, own: np.ndarray):
-        self.base, self.source, self.own = base, source, own
-        self.merged = np.flatnonzero(source < 0)          # voxel of each row of own
-        self.shape = (source.shape[0], base.shape[1])
-
-    @classmethod
-    def of_grid(cls, base: np.ndarray, source: np.ndarray, vox) -> "SourcedRows":
-        """The SH vectors of a voxel grid (Voxelized) whose Stage.source is ``source``, as rows
-        of the input cloud's SH ``base`` [N, D]."""
-        m = len(vox.ijk)
-        return cls(base, source, vox.cloud.sh_rest.reshape(m, -1)[source < 0])
-
-    def __len__(self) -> int:
-        return self.shape[0]
-
-    def __getitem__(self, key) -> np.ndarray:
-        src = self.source[key]
-        if src.ndim != 1:
-            raise IndexError("SourcedRows takes a slice, an int array or a bool mask of rows")
-        out = np.take(self.base, np.maximum(src, 0), axis=0)
-        neg = np.flatnonzero(src < 0)
-        if neg.size:
-            out[neg] = self.own[np.searchsorted(self.merged, self._voxels(key, neg))]
-        return out
-
-    def _voxels(self, key, at: np.ndarray) -> np.ndarray:
-        """The voxel indices of the rows ``at`` of the selection ``key``."""
-        if isinstance(key, slice):
-            start, _, step = key.indices(self.shape[0])
-            return start + step * at
-        key = np.asarray(key)
-        sel = np.flatnonzero(key)[at] if key.dtype == bool else key[at]
-        return np.where(sel < 0, sel + self.shape[0], sel)
-
-    def __array__(self, dtype=None, copy=None):
-        out = self[:]
-        return out if dtype is None else out.astype(dtype, copy=False)
-
-
 @dataclass
 class Stage:
     """Everything that depends on the reserve ratio, depth and layering but not on bit-widths.
@@ -504,9 +455,10 @@ def tile_grid(codes: np.ndarray, ijk: np.ndarray, origin, side: float, depth: in
 
 def voxelize_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, *, depth=None,
                    rel_error=None, progress: Progress | None = None):
-    """Prune to ``reserve`` and voxelise: (kept input indices [K], Voxelized).  ``vox.cloud``
-    (voxel centres, merged attributes) is what a decoder would reconstruct with every attribute
-    exact, so its fidelity bounds what any bit allocation at this reserve and depth reaches."""
+    """Prune to ``reserve`` and voxelise: (kept input indices [K], Voxelized, its SH rest as rows
+    of the input's).  ``vox.full_cloud()`` (voxel centres, merged attributes) is what a decoder
+    would reconstruct with every attribute exact, so its fidelity bounds what any bit
+    allocation at this reserve and depth reaches."""
     from .importance import prune
     from .voxelize import DEFAULT_REL_ERROR, choose_depth, voxelize
 
@@ -517,7 +469,8 @@ def voxelize_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float,
     with progress.stage("voxelize"):
         rel = DEFAULT_REL_ERROR if rel_error is None else float(rel_error)
         d = int(depth) if depth is not None else choose_depth(cloud.positions[kept], rel_error=rel)
-        vox = voxelize(cloud, imp, d, rows=kept)       # no pruned copy of the cloud
+        # no pruned copy of the cloud, and the voxels' SH as rows of the input's
+        vox = voxelize(cloud, imp, d, rows=kept, sourced_sh=True)
         pruned = len(kept)
         progress.log(f"depth {d}: {pruned} Gaussians -> {len(vox.ijk)} voxels "
                      f"({100 * vox.merged_fraction:.2f} % merged)")
@@ -551,7 +504,7 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
                                    progress=progress)
     kept, vox = voxelized
     d = vox.depth
-    source = stage_source(kept, vox)
+    source = stage_source(kept, vox) if vox.sh is None else vox.sh.source
     codes = morton_encode(vox.ijk)
     tiles = split_tiles(codes, d, tile_gaussians)
     part_of = []                    # (layer, tile, voxel indices)

@@ -277,7 +277,8 @@ class BudgetSearch:
                 break
         else:
             with self.progress.stage("screen", f"tau {tau}, depth {d}: exact-attribute bound"):
-                bound, partial = self.judge.screen(self.vox_for(tau, d)[1].cloud, best.view_psnr)
+                # the grid's SH rest gathered for these renders only (1 GB at 6 M voxels)
+                bound, partial = self.judge.screen(self.vox_for(tau, d)[1].full_cloud(), best.view_psnr)
         skip = bound <= best.train_psnr and not partial         # a partial mean only ever lets through
         self.screened.append({"reserve": tau, "depth": d, "bound_psnr": bound, "inferred": inferred,
                               "views": 0 if inferred else (partial or len(self.judge.cameras)),
