@@ -852,16 +852,19 @@ class ShPayloads:
         """float32 [D, P_l]: the kept vectors of a layer as their channel set codes them."""
         return np.ascontiguousarray(self.stage.sh[self.kept_sets[layer][0]].T)
 
-    def payloads(self, kept_bits=None):
+    def payloads(self, kept_bits=None, decoded: bool = True):
         """(payloads per layer, SH as decoded [M, K, 3] output order, stats).  ``kept_bits``:
         per layer an int or int array [D, B_l] (B_l = blocks_for(P_l, its kept_sets blocks));
-        default every group at ``sh_bits``."""
-        order = self.stage.order
-        pos = np.empty(self.m, np.int64)       # voxel -> its row in the output
-        pos[order] = np.arange(self.m)
-        out = np.empty((self.m, self.d), np.float32)
-        for r, rec, idx in self._codewords:
-            out[pos[r]] = rec[idx]
+        default every group at ``sh_bits``.  ``decoded`` False: None instead of the SH (the
+        same payloads; the size search codes them again for the one file it renders)."""
+        out = None
+        if decoded:
+            order = self.stage.order
+            pos = np.empty(self.m, np.int64)       # voxel -> its row in the output
+            pos[order] = np.arange(self.m)
+            out = np.empty((self.m, self.d), np.float32)
+            for r, rec, idx in self._codewords:
+                out[pos[r]] = rec[idx]
         stats = dict(self.stats)
         jobs = ((self.kept_vectors(li), self.sh_bits if kept_bits is None else kept_bits[li], kb)
                 for li, (sel, kb) in enumerate(self.kept_sets) if sel.size)
@@ -872,11 +875,12 @@ class ShPayloads:
             body = b""
             if sel.size:
                 body, rec = next(coded)
-                out[pos[sel]] = rec.T
+                if out is not None:
+                    out[pos[sel]] = rec.T
                 stats["kept_bytes"] += len(body)
             payloads.append(self._heads[li] + body + self._tails[li])
         k = self.m and self.d // 3
-        return payloads, out.reshape(self.m, k, 3), stats
+        return payloads, None if out is None else out.reshape(self.m, k, 3), stats
 
 
 #: importance classes of the kept SH vectors wherever the size search allocates their widths
@@ -915,10 +919,30 @@ def _code_channel_set(job):
 
 def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: dict,
              sh_classes: list | None = None):
-    """The .gsz bytes and the cloud the decoder will reconstruct.
+    """The .gsz bytes and the cloud the decoder will reconstruct (:func:`write_file`; decoded,
+    sh_rest in output order)."""
+    positions = stage.positions()
+    data, meta_len = write_file(stage, positions, attr, sh, meta, sh_classes)
+    return data, decoded_cloud(stage, positions, decoded, sh_rest if sh is not None else None), meta_len
 
-    attr / sh   per-part ATTR / SHVQ payloads; decoded, sh_rest in output order.  A stage of
-                several tiles gets a TILE chunk first and format version 1.2.
+
+def decoded_cloud(stage: Stage, positions: np.ndarray, decoded, sh_rest) -> GaussianCloud:
+    """The cloud a decoder reconstructs from a file of ``stage``: its ``positions`` (output
+    order), ``decoded`` Attributes and ``sh_rest`` [M, K, 3] (None: the file has no SH rest)."""
+    return GaussianCloud(
+        positions=positions, scales=decoded.scales, rotations=decoded.rotations,
+        opacities=decoded.opacities, sh_dc=decoded.sh_dc,
+        sh_rest=np.zeros((stage.num_points, 0, 3), np.float32) if sh_rest is None else sh_rest,
+        sh_degree=stage.sh_degree)
+
+
+def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None, meta: dict,
+               sh_classes: list | None = None) -> tuple[bytes, int]:
+    """(the .gsz bytes, META chunk bytes) of ``stage`` with its decoded ``positions`` (output
+    order, :meth:`Stage.positions`).
+
+    attr / sh   per-part ATTR / SHVQ payloads.  A stage of several tiles gets a TILE chunk first
+                and format version 1.2.
     sh_classes  per part the SHCL payload or None; any SHCL makes the file version 1.3, any
                 direct-coded geometry (OCTREE.md scheme 1) 1.4."""
     import zstandard
@@ -930,11 +954,6 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
     from ..decoder.tiles import TileInfo, pack_tile_table
 
     m = stage.num_points
-    out_cloud = GaussianCloud(
-        positions=stage.positions(),
-        scales=decoded.scales, rotations=decoded.rotations, opacities=decoded.opacities,
-        sh_dc=decoded.sh_dc, sh_rest=sh_rest if sh is not None else np.zeros((m, 0, 3), np.float32),
-        sh_degree=stage.sh_degree)
     chunks = []
     tiles = stage.num_tiles
     if tiles > 1:
@@ -943,7 +962,7 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
         for t in range(tiles):
             sel = np.concatenate([np.arange(e - l.num_points, e) for l, e in zip(stage.layers, ends)
                                   if l.tile == t])
-            p = out_cloud.positions[sel]
+            p = positions[sel]
             rows.append(TileInfo(tuple(p.min(0)), tuple(p.max(0)), len(sel)))
         chunks.append(Chunk(CHUNK_TILE, pack_tile_table(rows), CHUNK_REQUIRED))
     for pi, part in enumerate(stage.layers):
@@ -957,14 +976,14 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
         json.dumps(meta, sort_keys=True, separators=(",", ":"), default=float).encode())
     chunks.append(Chunk(CHUNK_META, meta_bytes, 0))
     header = FileHeader(num_gaussians=m, sh_degree=stage.sh_degree, frame=FRAME_RDF,
-                        bbox_min=tuple(out_cloud.positions.min(0)),
-                        bbox_max=tuple(out_cloud.positions.max(0)),
+                        bbox_min=tuple(positions.min(0)),
+                        bbox_max=tuple(positions.max(0)),
                         version=(VERSION_MAJOR,
                                  MINOR_DIRECT if any(c.type == CHUNK_GEOM and octree_scheme(c.data) == SCHEME_DIRECT
                                                      for c in chunks)
                                  else MINOR_SH_CLASSES if any(c.type == CHUNK_SHCL for c in chunks)
                                  else MINOR_TILES if tiles > 1 else MINOR_LAYERS))
-    return write_container(header, chunks), out_cloud, len(meta_bytes)
+    return write_container(header, chunks), len(meta_bytes)
 
 
 def compute_train_importance(cloud: GaussianCloud, opts: SceneOptions, *, cameras=None,
