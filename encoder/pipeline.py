@@ -39,6 +39,7 @@ from .executor import in_order
 from .geometry import write_geometry
 from .groups import write_channel_set
 from .progress import Progress
+from .voxelize import SourcedRows  # noqa: F401  (a Stage's SH rows; re-exported)
 
 
 class EncodeOptionsError(GszUsageError):
@@ -357,56 +358,6 @@ class Layer:
         return self.grid[2]
 
 
-class SourcedRows:
-    """Read-only [M, D] float32 rows kept as references: row i is ``base[source[i]]`` where
-    ``source[i] >= 0`` (a voxel holding one input Gaussian keeps its vector bit for bit) and the
-    next row of ``own`` where it is -1 (merged voxels, in voxel order) -- a stage's SH vectors
-    without a copy of the input's (180 bytes a voxel at SH degree 3).  Indexing with an int
-    array, a bool mask or a slice gives the ndarray the materialised rows would; ``np.asarray``
-    materialises them."""
-
-    ndim = 2
-    dtype = np.dtype(np.float32)
-
-    def __init__(self, base: np.ndarray, source: np.ndarray, own: np.ndarray):
-        self.base, self.source, self.own = base, source, own
-        self.merged = np.flatnonzero(source < 0)          # voxel of each row of own
-        self.shape = (source.shape[0], base.shape[1])
-
-    @classmethod
-    def of_grid(cls, base: np.ndarray, source: np.ndarray, vox) -> "SourcedRows":
-        """The SH vectors of a voxel grid (Voxelized) whose Stage.source is ``source``, as rows
-        of the input cloud's SH ``base`` [N, D]."""
-        m = len(vox.ijk)
-        return cls(base, source, vox.cloud.sh_rest.reshape(m, -1)[source < 0])
-
-    def __len__(self) -> int:
-        return self.shape[0]
-
-    def __getitem__(self, key) -> np.ndarray:
-        src = self.source[key]
-        if src.ndim != 1:
-            raise IndexError("SourcedRows takes a slice, an int array or a bool mask of rows")
-        out = np.take(self.base, np.maximum(src, 0), axis=0)
-        neg = np.flatnonzero(src < 0)
-        if neg.size:
-            out[neg] = self.own[np.searchsorted(self.merged, self._voxels(key, neg))]
-        return out
-
-    def _voxels(self, key, at: np.ndarray) -> np.ndarray:
-        """The voxel indices of the rows ``at`` of the selection ``key``."""
-        if isinstance(key, slice):
-            start, _, step = key.indices(self.shape[0])
-            return start + step * at
-        key = np.asarray(key)
-        sel = np.flatnonzero(key)[at] if key.dtype == bool else key[at]
-        return np.where(sel < 0, sel + self.shape[0], sel)
-
-    def __array__(self, dtype=None, copy=None):
-        out = self[:]
-        return out if dtype is None else out.astype(dtype, copy=False)
-
-
 @dataclass
 class Stage:
     """Everything that depends on the reserve ratio, depth and layering but not on bit-widths.
@@ -561,9 +512,10 @@ def tile_grid(codes: np.ndarray, ijk: np.ndarray, origin, side: float, depth: in
 
 def voxelize_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, *, depth=None,
                    rel_error=None, progress: Progress | None = None):
-    """Prune to ``reserve`` and voxelise: (kept input indices [K], Voxelized).  ``vox.cloud``
-    (voxel centres, merged attributes) is what a decoder would reconstruct with every attribute
-    exact, so its fidelity bounds what any bit allocation at this reserve and depth reaches."""
+    """Prune to ``reserve`` and voxelise: (kept input indices [K], Voxelized, its SH rest as rows
+    of the input's).  ``vox.full_cloud()`` (voxel centres, merged attributes) is what a decoder
+    would reconstruct with every attribute exact, so its fidelity bounds what any bit
+    allocation at this reserve and depth reaches."""
     from .importance import prune
     from .voxelize import DEFAULT_REL_ERROR, choose_depth, voxelize
 
@@ -574,7 +526,8 @@ def voxelize_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float,
     with progress.stage("voxelize"):
         rel = DEFAULT_REL_ERROR if rel_error is None else float(rel_error)
         d = int(depth) if depth is not None else choose_depth(cloud.positions[kept], rel_error=rel)
-        vox = voxelize(cloud, imp, d, rows=kept)       # no pruned copy of the cloud
+        # no pruned copy of the cloud, and the voxels' SH as rows of the input's
+        vox = voxelize(cloud, imp, d, rows=kept, sourced_sh=True)
         pruned = len(kept)
         progress.log(f"depth {d}: {pruned} Gaussians -> {len(vox.ijk)} voxels "
                      f"({100 * vox.merged_fraction:.2f} % merged)")
@@ -609,7 +562,7 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
                                    progress=progress)
     kept, vox = voxelized
     d = vox.depth
-    source = stage_source(kept, vox)
+    source = stage_source(kept, vox) if vox.sh is None else vox.sh.source
     codes = morton_encode(vox.ijk)
     tiles = split_tiles(codes, d, tile_gaussians)
     part_of = []                    # (layer, tile, voxel indices)
@@ -1013,16 +966,19 @@ class ShPayloads:
         """float32 [D, P_l]: the kept vectors of a layer as their channel set codes them."""
         return np.ascontiguousarray(self.stage.sh[self.kept_sets[layer][0]].T)
 
-    def payloads(self, kept_bits=None):
+    def payloads(self, kept_bits=None, decoded: bool = True):
         """(payloads per layer, SH as decoded [M, K, 3] output order, stats).  ``kept_bits``:
         per layer an int or int array [D, B_l] (B_l = blocks_for(P_l, its kept_sets blocks));
-        default every group at ``sh_bits``."""
-        order = self.stage.order
-        pos = np.empty(self.m, np.int64)       # voxel -> its row in the output
-        pos[order] = np.arange(self.m)
-        out = np.empty((self.m, self.d), np.float32)
-        for r, rec, idx in self._codewords:
-            out[pos[r]] = rec[idx]
+        default every group at ``sh_bits``.  ``decoded`` False: None instead of the SH (the
+        same payloads; the size search codes them again for the one file it renders)."""
+        out = None
+        if decoded:
+            order = self.stage.order
+            pos = np.empty(self.m, np.int64)       # voxel -> its row in the output
+            pos[order] = np.arange(self.m)
+            out = np.empty((self.m, self.d), np.float32)
+            for r, rec, idx in self._codewords:
+                out[pos[r]] = rec[idx]
         stats = dict(self.stats)
         jobs = ((self.kept_vectors(li), self.sh_bits if kept_bits is None else kept_bits[li], kb)
                 for li, (sel, kb) in enumerate(self.kept_sets) if sel.size)
@@ -1033,11 +989,12 @@ class ShPayloads:
             body = b""
             if sel.size:
                 body, rec = next(coded)
-                out[pos[sel]] = rec.T
+                if out is not None:
+                    out[pos[sel]] = rec.T
                 stats["kept_bytes"] += len(body)
             payloads.append(self._heads[li] + body + self._tails[li])
         k = self.m and self.d // 3
-        return payloads, out.reshape(self.m, k, 3), stats
+        return payloads, None if out is None else out.reshape(self.m, k, 3), stats
 
 
 #: importance classes of the kept SH vectors wherever the size search allocates their widths
@@ -1076,10 +1033,30 @@ def _code_channel_set(job):
 
 def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: dict,
              sh_classes: list | None = None):
-    """The .gsz bytes and the cloud the decoder will reconstruct.
+    """The .gsz bytes and the cloud the decoder will reconstruct (:func:`write_file`; decoded,
+    sh_rest in output order)."""
+    positions = stage.positions()
+    data, meta_len = write_file(stage, positions, attr, sh, meta, sh_classes)
+    return data, decoded_cloud(stage, positions, decoded, sh_rest if sh is not None else None), meta_len
 
-    attr / sh   per-part ATTR / SHVQ payloads; decoded, sh_rest in output order.  A stage of
-                several tiles gets a TILE chunk first and format version 1.2.
+
+def decoded_cloud(stage: Stage, positions: np.ndarray, decoded, sh_rest) -> GaussianCloud:
+    """The cloud a decoder reconstructs from a file of ``stage``: its ``positions`` (output
+    order), ``decoded`` Attributes and ``sh_rest`` [M, K, 3] (None: the file has no SH rest)."""
+    return GaussianCloud(
+        positions=positions, scales=decoded.scales, rotations=decoded.rotations,
+        opacities=decoded.opacities, sh_dc=decoded.sh_dc,
+        sh_rest=np.zeros((stage.num_points, 0, 3), np.float32) if sh_rest is None else sh_rest,
+        sh_degree=stage.sh_degree)
+
+
+def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None, meta: dict,
+               sh_classes: list | None = None) -> tuple[bytes, int]:
+    """(the .gsz bytes, META chunk bytes) of ``stage`` with its decoded ``positions`` (output
+    order, :meth:`Stage.positions`).
+
+    attr / sh   per-part ATTR / SHVQ payloads.  A stage of several tiles gets a TILE chunk first
+                and format version 1.2.
     sh_classes  per part the SHCL payload or None; any SHCL makes the file version 1.3, any
                 direct-coded geometry (OCTREE.md scheme 1) 1.4."""
     import zstandard
@@ -1091,11 +1068,6 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
     from ..decoder.tiles import TileInfo, pack_tile_table
 
     m = stage.num_points
-    out_cloud = GaussianCloud(
-        positions=stage.positions(),
-        scales=decoded.scales, rotations=decoded.rotations, opacities=decoded.opacities,
-        sh_dc=decoded.sh_dc, sh_rest=sh_rest if sh is not None else np.zeros((m, 0, 3), np.float32),
-        sh_degree=stage.sh_degree)
     chunks = []
     tiles = stage.num_tiles
     if tiles > 1:
@@ -1104,7 +1076,7 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
         for t in range(tiles):
             sel = np.concatenate([np.arange(e - l.num_points, e) for l, e in zip(stage.layers, ends)
                                   if l.tile == t])
-            p = out_cloud.positions[sel]
+            p = positions[sel]
             rows.append(TileInfo(tuple(p.min(0)), tuple(p.max(0)), len(sel)))
         chunks.append(Chunk(CHUNK_TILE, pack_tile_table(rows), CHUNK_REQUIRED))
     for pi, part in enumerate(stage.layers):
@@ -1121,15 +1093,15 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
         json.dumps(meta, sort_keys=True, separators=(",", ":"), default=float).encode())
     chunks.append(Chunk(CHUNK_META, meta_bytes, 0))
     header = FileHeader(num_gaussians=m, sh_degree=stage.sh_degree, frame=FRAME_RDF,
-                        bbox_min=tuple(out_cloud.positions.min(0)),
-                        bbox_max=tuple(out_cloud.positions.max(0)),
+                        bbox_min=tuple(positions.min(0)),
+                        bbox_max=tuple(positions.max(0)),
                         version=(VERSION_MAJOR,
                                  MINOR_RAHT_WEIGHTS if any(c.type == CHUNK_RWGT for c in chunks)
                                  else MINOR_DIRECT if any(c.type == CHUNK_GEOM and octree_scheme(c.data) == SCHEME_DIRECT
                                                      for c in chunks)
                                  else MINOR_SH_CLASSES if any(c.type == CHUNK_SHCL for c in chunks)
                                  else MINOR_TILES if tiles > 1 else MINOR_LAYERS))
-    return write_container(header, chunks), out_cloud, len(meta_bytes)
+    return write_container(header, chunks), len(meta_bytes)
 
 
 def compute_train_importance(cloud: GaussianCloud, opts: SceneOptions, *, cameras=None,

@@ -77,6 +77,58 @@ class VoxelizeError(GszError, ValueError):
     """Bad input to voxelisation (non-finite positions, invalid depth or cube, bad importance)."""
 
 
+class SourcedRows:
+    """Read-only [M, D] float32 rows kept as references: row i is ``base[source[i]]`` where
+    ``source[i] >= 0`` (a voxel holding one input Gaussian keeps its vector bit for bit) and the
+    next row of ``own`` where it is -1 (merged voxels, in voxel order) -- a stage's SH vectors
+    without a copy of the input's (180 bytes a voxel at SH degree 3).  Indexing with an int
+    array, a bool mask or a slice gives the ndarray the materialised rows would; ``np.asarray``
+    materialises them."""
+
+    ndim = 2
+    dtype = np.dtype(np.float32)
+
+    def __init__(self, base: np.ndarray, source: np.ndarray, own: np.ndarray):
+        self.base, self.source, self.own = base, source, own
+        self.merged = np.flatnonzero(source < 0)          # voxel of each row of own
+        self.shape = (source.shape[0], base.shape[1])
+
+    @classmethod
+    def of_grid(cls, base: np.ndarray, source: np.ndarray, vox) -> "SourcedRows":
+        """The SH vectors of a voxel grid (Voxelized) whose Stage.source is ``source``, as rows
+        of the input cloud's SH ``base`` [N, D] (the grid's own when it holds them so)."""
+        if vox.sh is not None:
+            return vox.sh
+        m = len(vox.ijk)
+        return cls(base, source, vox.cloud.sh_rest.reshape(m, -1)[source < 0])
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, key) -> np.ndarray:
+        src = self.source[key]
+        if src.ndim != 1:
+            raise IndexError("SourcedRows takes a slice, an int array or a bool mask of rows")
+        out = np.take(self.base, np.maximum(src, 0), axis=0)
+        neg = np.flatnonzero(src < 0)
+        if neg.size:
+            out[neg] = self.own[np.searchsorted(self.merged, self._voxels(key, neg))]
+        return out
+
+    def _voxels(self, key, at: np.ndarray) -> np.ndarray:
+        """The voxel indices of the rows ``at`` of the selection ``key``."""
+        if isinstance(key, slice):
+            start, _, step = key.indices(self.shape[0])
+            return start + step * at
+        key = np.asarray(key)
+        sel = np.flatnonzero(key)[at] if key.dtype == bool else key[at]
+        return np.where(sel < 0, sel + self.shape[0], sel)
+
+    def __array__(self, dtype=None, copy=None):
+        out = self[:]
+        return out if dtype is None else out.astype(dtype, copy=False)
+
+
 @dataclass
 class Voxelized:
     """Result of :func:`voxelize` (M occupied voxels out of N input Gaussians).
@@ -89,6 +141,10 @@ class Voxelized:
     depth           int           octree depth d (2^d voxels per axis)
     merged_fraction float         1 - M / N  (share of Gaussians merged away)
     index_of_point  [N] int64     voxel (row of ijk) of every input Gaussian
+    sh              [M, D] SH rest as :class:`SourcedRows` of the input's, or None: the SH rest
+                    is ``cloud``'s (see ``voxelize(sourced_sh=)``; then ``cloud`` is SH degree 0
+                    and :meth:`full_cloud` has the SH)
+    sh_degree       the voxels' SH degree
     """
 
     ijk: np.ndarray
@@ -99,11 +155,23 @@ class Voxelized:
     depth: int
     merged_fraction: float
     index_of_point: np.ndarray
+    sh: SourcedRows | None = None
+    sh_degree: int = 0
 
     @property
     def pitch(self) -> float:
         """Voxel edge length ``side / 2^depth``."""
         return self.side / float(1 << self.depth)
+
+    def full_cloud(self) -> GaussianCloud:
+        """``cloud`` with its SH rest: gathered (a fresh [M, K, 3] array, for the caller to drop)
+        when the grid holds its SH as rows of the input's."""
+        if self.sh is None:
+            return self.cloud
+        c, m = self.cloud, len(self.ijk)
+        return GaussianCloud(positions=c.positions, scales=c.scales, rotations=c.rotations,
+                             opacities=c.opacities, sh_dc=c.sh_dc,
+                             sh_rest=self.sh[:].reshape(m, -1, 3), sh_degree=self.sh_degree)
 
 
 # --------------------------------------------------------------------------------------- grid
@@ -277,7 +345,8 @@ def _matrix_to_quaternion(r: np.ndarray) -> np.ndarray:
 
 
 def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None,
-             *, rotation: str = "moment", rows: np.ndarray | None = None) -> Voxelized:
+             *, rotation: str = "moment", rows: np.ndarray | None = None,
+             sourced_sh: bool = False) -> Voxelized:
     """Snap every Gaussian to its voxel and merge Gaussians that share one.
 
     cloud       GaussianCloud, N >= 1 Gaussians
@@ -290,6 +359,9 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
                 outside a user cube are clipped to the border voxels.
     rotation    "average" (sign-aligned weighted quaternion mean) or "max" (most important
                 member's rotation)
+    sourced_sh  keep the voxels' SH rest as rows of ``cloud``'s (``Voxelized.sh``: a voxel
+                holding one Gaussian refers to its row, only merged voxels own theirs) instead
+                of gathering them into ``Voxelized.cloud`` (180 bytes a voxel at SH degree 3)
     returns     :class:`Voxelized`; deterministic (no RNG, order-stable reductions)
     """
     d = _check_depth(depth)
@@ -326,8 +398,10 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
 
     # Singletons (the vast majority at a sensible depth) are copied bit-exactly (an index array
     # gathers into a fresh array: no second copy).
+    sourced = bool(sourced_sh) and cloud.sh_rest.shape[1] > 0
     out = {name: take(getattr(cloud, name), first)
-           for name in ("scales", "rotations", "opacities", "sh_dc", "sh_rest")}
+           for name in ("scales", "rotations", "opacities", "sh_dc") + (() if sourced else ("sh_rest",))}
+    own = np.zeros((0,) + cloud.sh_rest.shape[1:], np.float32)     # merged voxels' SH rest
     vox_imp = np.bincount(inv, weights=imp, minlength=m)
 
     multi = counts > 1
@@ -355,8 +429,11 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
         out["scales"][gvox] = wmean(cloud.scales).astype(np.float32)
         out["sh_dc"][gvox] = wmean(cloud.sh_dc).astype(np.float32)
         if cloud.sh_rest.shape[1]:
-            out["sh_rest"][gvox] = wmean(cloud.sh_rest).reshape(
-                -1, *cloud.sh_rest.shape[1:]).astype(np.float32)
+            rest = wmean(cloud.sh_rest).reshape(-1, *cloud.sh_rest.shape[1:]).astype(np.float32)
+            if sourced:
+                own = rest             # gvox ascend: the merged voxels in voxel order
+            else:
+                out["sh_rest"][gvox] = rest
 
         q = _normalised_quaternions(take(cloud.rotations, members))
         ref = q[starts]                                 # most important member per voxel
@@ -387,7 +464,17 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
             qm /= np.linalg.norm(qm, axis=1, keepdims=True)
         out["rotations"][gvox] = qm.astype(np.float32)
 
+    sh = None
+    if sourced:
+        # a voxel of one Gaussian refers to its row of the input (Stage.source), -1 when merged
+        source = np.full(m, -1, np.int64)
+        single = counts == 1
+        source[single] = first[single] if rows is None else rows[first[single]]
+        d_sh = 3 * cloud.sh_rest.shape[1]
+        sh = SourcedRows(cloud.sh_rest.reshape(len(cloud), d_sh), source, own.reshape(len(own), d_sh))
+        out["sh_rest"] = np.zeros((m, 0, 3), np.float32)
     merged = GaussianCloud(positions=voxel_centres(ijk, origin, side, d).astype(np.float32),
-                           sh_degree=cloud.sh_degree, **out)
+                           sh_degree=0 if sourced else cloud.sh_degree, **out)
     return Voxelized(ijk=ijk, cloud=merged, importance=vox_imp, origin=np.asarray(origin, np.float64),
-                     side=float(side), depth=d, merged_fraction=1.0 - m / n, index_of_point=inv)
+                     side=float(side), depth=d, merged_fraction=1.0 - m / n, index_of_point=inv,
+                     sh=sh, sh_degree=cloud.sh_degree)

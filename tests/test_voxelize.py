@@ -168,6 +168,25 @@ def test_voxelizing_rows_of_a_cloud_equals_voxelizing_their_subset(sample_sh0, r
     assert np.array_equal(a.index_of_point, b.index_of_point) and np.array_equal(a.importance, b.importance)
 
 
+@pytest.mark.parametrize("with_rows", [False, True])
+def test_sourced_sh_grid_is_the_same_cloud(sample_sh3, with_rows):
+    """sourced_sh= (the search's grids: the SH rest as rows of the input's, not gathered) gives
+    the same voxels, and full_cloud() the same arrays, merged voxels included."""
+    from gsz.encoder.pipeline import stage_source
+    c = sample_sh3
+    imp = np.exp(c.scales.astype(np.float64).sum(1))
+    rows = np.sort(np.random.default_rng(5).choice(len(c), size=len(c) * 3 // 4, replace=False)) \
+        if with_rows else None
+    w = imp if rows is None else imp[rows]
+    a = voxelize(c, w, 7, rows=rows)
+    b = voxelize(c, w, 7, rows=rows, sourced_sh=True)
+    assert a.merged_fraction > 0.1 and a.sh is None and b.cloud.sh_rest.shape[1] == 0
+    assert b.full_cloud().equals(a.cloud) and a.full_cloud() is a.cloud
+    kept = np.arange(len(c)) if rows is None else rows
+    assert np.array_equal(b.sh.source, stage_source(kept, a))
+    assert np.array_equal(np.asarray(b.sh), a.cloud.sh_rest.reshape(len(a.ijk), -1))
+
+
 def test_voxelize_rejects_bad_input(sample_sh0):
     c = sample_sh0
     ones = np.ones(len(c))

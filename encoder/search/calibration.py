@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..pipeline import assemble, attribute_chunks
+from ..pipeline import attribute_chunks, decoded_cloud, write_file
 from .candidate import Encoded
 from .sh_model import ShPlan
 from .tables import group_meta_bytes, search_meta, split_bits, split_kept_bits
@@ -117,18 +117,26 @@ class _Rounds:
         with self.progress.stage("calibrate", f"tau {stage.reserve} round {rnd + 1}"):
             attr, decoded, attr_stats = attribute_chunks(stage, layer_bits, self.sopts.blocks)
             if sh_plan is None:
-                sh_chunk_ = sh_rest = None
+                sh_chunk_ = None
             elif self.kept:
-                sh_chunk_, sh_rest, _ = sh_plan.payloads.payloads(kept_bits)
+                sh_chunk_ = sh_plan.payloads.payloads(kept_bits, decoded=False)[0]
             else:
-                sh_chunk_, sh_rest = sh_plan.chunk, sh_plan.sh_rest
+                sh_chunk_ = sh_plan.chunk
             extra = {"sh_keep": sh_plan.keep if sh_plan else 0}
             classes = sh_plan.payloads.class_chunks if sh_plan else None
-            data, cloud, meta_len = assemble(stage, attr, decoded, sh_chunk_, sh_rest,
-                                             search_meta(stage, self.target, extra), classes)
+            positions = stage.positions()
+            data, meta_len = write_file(stage, positions, attr, sh_chunk_,
+                                        search_meta(stage, self.target, extra), classes)
         g = np.arange(len(pick))
         sh_bytes = sum(map(len, sh_chunk_)) + sum(len(c) for c in classes if c) if sh_plan else 0
-        return Encoded(data=data, cloud=cloud, pick=pick, layer_bits=layer_bits, kept_bits=kept_bits,
+        # the decoded scene is made when the round is rendered: its SH (1 GB at 6 M voxels) is
+        # coded again then rather than held by every round and plan
+        sh_bits = kept_bits if self.kept else None
+
+        def scene():
+            return decoded_cloud(stage, positions, decoded,
+                                 None if sh_plan is None else sh_plan.decoded_sh(sh_bits))
+        return Encoded(data=data, scene=scene, pick=pick, layer_bits=layer_bits, kept_bits=kept_bits,
                        sh_bytes=sh_bytes, attr_stats=attr_stats,
                        attr_bytes=sum(map(len, attr)), meta_bytes=meta_len,
                        predicted_bytes=self.fixed + self.group_meta + float(self.rate[g, pick].sum()) / 8,

@@ -2,6 +2,7 @@
 compared candidate (:class:`Candidate`, the encode plus its train-view score)."""
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,7 +17,7 @@ class Encoded:
     """One real encode of a stage under one bit allocation."""
 
     data: bytes | None            # the file; None once it can no longer be chosen (drop_data())
-    cloud: GaussianCloud | None   # the decoded scene; released once scored (see release())
+    scene: Callable | None        # makes the decoded scene (.cloud); None once released (release())
     pick: np.ndarray              # the solver's choice per group (bit-width - 1)
     layer_bits: list              # per layer (raht_bits [7, B_l], scale_bits [3, B_l])
     kept_bits: list               # per layer the kept SH vectors' widths [D, B_l], or None (SH_BITS)
@@ -42,16 +43,25 @@ class Encoded:
     def __post_init__(self):
         if self.size < 0:
             self.size = len(self.data)
+        self._cloud = None
+
+    @property
+    def cloud(self) -> GaussianCloud | None:
+        """The decoded scene, made when first asked for (None once released)."""
+        if self._cloud is None and self.scene is not None:
+            self._cloud = self.scene()
+        return self._cloud
 
     def release(self) -> None:
         """Drop the decoded scene: a search keeps many encodes, and the file's bytes decode
         to it again where it is needed (the chosen one)."""
-        self.cloud = None
+        self.scene = self._cloud = None
 
     def drop_data(self) -> None:
         """Drop the decoded scene and the file's bytes (an encode that can no longer be chosen:
         at 6 M Gaussians each file is ~120 MB, and a search makes dozens)."""
-        self.cloud = self.data = None
+        self.release()
+        self.data = None
 
     @property
     def raht_bits(self) -> np.ndarray:

@@ -36,7 +36,7 @@ class Codebooks:
         self.sopts, self.assigner, self.progress, self.m1 = sopts, assigner, progress, m1
         # the largest stage's voxels are the first the SH models need: assign them right after
         # each codebook is trained (Stage.source as prepare_stage will compute it)
-        self.source_top = stage_source(kept_top, vox_top)
+        self.source_top = stage_source(kept_top, vox_top) if vox_top.sh is None else vox_top.sh.source
         # their SH as rows of the input's (the grid's own copy, 1 GB at 6 M, goes with the grid)
         self.src = ShSource(sh=SourcedRows.of_grid(assigner.sh, self.source_top, vox_top),
                             importance=vox_top.importance, num_points=m1)

@@ -16,9 +16,8 @@ from collections import OrderedDict
 import numpy as np
 
 from ...decoder.pages import small_pages
-from ..pipeline import (EncodeOptionsError, EncodeResult, Stage, assemble, attribute_chunks,
-                        compute_train_importance, prepare_stage, raht_classes_for, sh_chunk, sh_set_blocks,
-                        voxelize_stage)
+from ..pipeline import (EncodeOptionsError, EncodeResult, Stage, attribute_chunks, compute_train_importance,
+                        prepare_stage, raht_classes_for, sh_chunk, sh_set_blocks, voxelize_stage, write_file)
 from ..progress import Progress
 from .candidate import Candidate, best_of
 from .codebooks import Codebooks
@@ -281,7 +280,8 @@ class BudgetSearch:
                 break
         else:
             with self.progress.stage("screen", f"tau {tau}, depth {d}: exact-attribute bound"):
-                bound, partial = self.judge.screen(self.vox_for(tau, d)[1].cloud, best.view_psnr)
+                # the grid's SH rest gathered for these renders only (1 GB at 6 M voxels)
+                bound, partial = self.judge.screen(self.vox_for(tau, d)[1].full_cloud(), best.view_psnr)
         skip = bound <= best.train_psnr and not partial         # a partial mean only ever lets through
         self.screened.append({"reserve": tau, "depth": d, "bound_psnr": bound, "inferred": inferred,
                               "views": 0 if inferred else (partial or len(self.judge.cameras)),
@@ -441,10 +441,10 @@ class BudgetSearch:
         everywhere, the smallest codebook, no kept SH)."""
         stage = self.stage_for(self.taus[-1])
         codebook = self.codebooks[-1] if self.codebooks else None
-        sh = sh_rest = None
+        sh = None
         if codebook is not None:
-            sh, sh_rest, _ = sh_chunk(stage, codebook, 0, SH_BITS, self.sopts.blocks,
-                                      cb_blocks=sh_set_blocks(len(codebook), self.sopts.blocks))
-        attr, decoded, _ = attribute_chunks(stage, 1, self.sopts.blocks)
-        data, _, _ = assemble(stage, attr, decoded, sh, sh_rest, search_meta(stage, 0, {"sh_keep": 0}))
+            sh, _, _ = sh_chunk(stage, codebook, 0, SH_BITS, self.sopts.blocks,
+                                cb_blocks=sh_set_blocks(len(codebook), self.sopts.blocks))
+        attr, _, _ = attribute_chunks(stage, 1, self.sopts.blocks)
+        data, _ = write_file(stage, stage.positions(), attr, sh, search_meta(stage, 0, {"sh_keep": 0}))
         return len(data)

@@ -27,11 +27,15 @@ class ShPlan:
 
     keep: int
     chunk: list | None        # SHVQ payloads with every kept vector at SH_BITS (None: not coded)
-    sh_rest: np.ndarray | None
     stats: dict
     est_bytes: float
     est_loss: float
     payloads: ShPayloads      # the same with the kept vectors' widths open (calibration.spend_saturated)
+
+    def decoded_sh(self, kept_bits=None) -> np.ndarray:
+        """[M, K, 3] the SH a decoder reconstructs (``kept_bits``: ShPayloads.payloads'), coded
+        again: a plan keeps no such array (1 GB at 6 M voxels), only the file rendered needs it."""
+        return self.payloads.payloads(kept_bits)[1]
 
 
 #: rows per step where a pass over every voxel's SH vector would otherwise gather [M, D] copies
@@ -239,16 +243,16 @@ class ShModel:
         return nbytes, loss
 
     def encode(self, keep: int, code: bool = True, classes: int = 1) -> ShPlan:
-        """The plan of ``keep``; ``code=False`` leaves chunk and sh_rest None (the kept vectors'
-        widths are allocated later: coding them all at SH_BITS first would be wasted, and at
-        1.2 M vectors it is the largest transient of the search)."""
+        """The plan of ``keep``; ``code=False`` leaves chunk None (the kept vectors' widths are
+        allocated later: coding them all at SH_BITS first would be wasted, and at 1.2 M vectors
+        it is the largest transient of the search)."""
         # the compacted codebook's row order is the raw one's, so the raw codebook with the
         # stage's assignment gives exactly what sh_chunk would compute itself
         payloads = ShPayloads(self.stage, self.raw_codebook, keep, SH_BITS, self.blocks,
                               cb_blocks=self.cb_blocks, index=self.index, classes=classes)
-        chunk, sh_rest, stats = payloads.payloads() if code else (None, None, dict(payloads.stats))
+        chunk, _, stats = payloads.payloads(decoded=False) if code else (None, None, dict(payloads.stats))
         nb, loss = self.estimate(keep)
-        return ShPlan(keep, chunk, sh_rest, stats, nb, loss, payloads)
+        return ShPlan(keep, chunk, stats, nb, loss, payloads)
 
 
 @dataclass

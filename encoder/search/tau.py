@@ -71,7 +71,7 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
             keep = res.sh_plan.keep
             found = True
             yield _finish(stage, res, saturated, "vq", log)
-            res = None      # with its plan's decoded SH (1 GB at 6 M), before the next path's
+            res = None      # its plan and best round (scene recipe), before the next path's
     # the codebook path again with its kept vectors in importance classes, their widths
     # allocated (1-16 bits or constant): at the chosen keep-count, or once spend_saturated keeps
     # every vector (its 8-16-bit widths would otherwise cap the SH where classes pay most)
