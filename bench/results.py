@@ -153,6 +153,7 @@ def _rd_sources(rd: dict, which: str) -> list:
     src = [dict(json="rd.json", label="gsz rows", command=meta.get("command"), commit=commit,
                 machine=machine_of(meta.get("machine")),
                 when=_span(meta.get("started"), meta.get("finished")))]
+    src = _rd_gsz_sources(rd) or src
     if which == "peers":
         for r in rd.get("runs", []):
             if "peers_not_run" in r:
@@ -162,6 +163,30 @@ def _rd_sources(rd: dict, which: str) -> list:
                             machine=machine_of(r.get("machine")),
                             when=_span(r.get("started"), r.get("finished")) + "; " + (r.get("splat_transform") or "")))
     return src
+
+
+def _rd_gsz_sources(rd: dict) -> list:
+    """The runs whose gsz rows the file holds: each scene's rows come from the newest run that
+    encoded it (runs with --skip-gsz encode none; a run without --scenes encodes every scene)."""
+    scenes = {r["scene"] for r in rd.get("rows", []) if r["codec"] == "gsz"}
+    out, left = [], set(scenes)
+    for r in reversed(rd.get("runs", [])):
+        cmd = (r.get("command") or "").split()
+        if "--skip-gsz" in cmd or not left:
+            continue
+        ran = set(cmd[cmd.index("--scenes") + 1].split(",")) if "--scenes" in cmd else set(scenes)
+        got = sorted(left & ran)
+        if not got:
+            continue
+        left -= ran
+        g = r.get("gsz", {})
+        commit = (g.get("commit") or "")[:7] or None
+        if commit and g.get("tracked_files_modified"):
+            commit += " (tracked files modified)"
+        out.append(dict(json="rd.json", label="gsz rows: " + ", ".join(got), command=r.get("command"),
+                        commit=commit, machine=machine_of(r.get("machine")),
+                        when=_span(r.get("started"), r.get("finished"))))
+    return out
 
 
 def _span(start: str | None, end: str | None) -> str:
@@ -269,7 +294,10 @@ def _monotone(rs: list) -> bool:
 def page_search(rd: dict, scaling, above) -> str:
     meta = rd["meta"]
     g = [r for r in rd["rows"] if r["codec"] == "gsz" and "depth" in r]
-    src = _rd_sources(rd, "gsz")
+    runs = _rd_gsz_sources(rd)         # listed in full on rd.md (the pages share 40 kB)
+    src = [dict(json="rd.json", label="gsz rows", command=f"the {len(runs)} gsz runs rd.md lists",
+                commit=", ".join(r["commit"].split()[0] for r in runs if r.get("commit")),
+                machine=runs[0]["machine"] if runs else None, when="see rd.md")]
     if scaling is not None:
         src.append(dict(json="search_scaling.json"))
     if above is not None:

@@ -91,10 +91,10 @@ RAHT_CLASS_MIN_SIZE = 64
 #: voxels) worth the classes' log2(Q) bits a voxel: at high rate the weighting saves about
 #: 0.5 log2(AM/GM) bits per coefficient of each of 7 channels, so below ~1.5 it cannot pay
 RAHT_CLASS_MIN_SPREAD = 1.5
-#: ... and, in the size search, the fewest budget bits per voxel: below 8 bytes a voxel the
-#: classes' 3 bits take more than ~5 % of the file, and measured searches lost up to 0.6 dB
+#: ... and, in the size search, the fewest budget bits per voxel: below 5 bytes a voxel the
+#: classes' 3 bits take more than ~7 % of the file, and measured searches lost up to 0.6 dB
 #: (docs/design/raht-weights.md)
-RAHT_CLASS_MIN_BUDGET_BITS = 64
+RAHT_CLASS_MIN_BUDGET_BITS = 40
 
 
 def raht_classes_for(requested: int, target_bytes: int, voxels: int) -> int:
