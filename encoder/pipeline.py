@@ -580,6 +580,19 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
                  executor=executor)
 
 
+#: importance above this quantile counts as the quantile's value in class and block weights:
+#: one huge Gaussian (an outlier the sanitiser clamped, still covering the scene) would
+#: otherwise lift the top class's mean and the stage's and coarsen every other Gaussian
+IMPORTANCE_CAP_QUANTILE = 0.999
+
+
+def capped_importance(importance: np.ndarray) -> np.ndarray:
+    """``importance`` with values above its IMPORTANCE_CAP_QUANTILE set to that quantile."""
+    if importance.size == 0:
+        return importance
+    return np.minimum(importance, np.quantile(importance, IMPORTANCE_CAP_QUANTILE))
+
+
 def raht_weights(importance: np.ndarray, q: int):
     """The RWGT chunk's content for a part's voxels (their ``importance``, Morton order): ``q``
     equal runs by importance (importance_classes), each class weighted by its mean importance,
@@ -591,7 +604,8 @@ def raht_weights(importance: np.ndarray, q: int):
     if q < 2 or m < RAHT_CLASS_MIN_SIZE * q:
         return None
     classes = importance_classes(importance, q)
-    means = (np.bincount(classes, weights=importance, minlength=q)
+    capped = capped_importance(importance)
+    means = (np.bincount(classes, weights=capped, minlength=q)
              / np.maximum(np.bincount(classes, minlength=q), 1))
     top = float(means.max())
     if not top > 0:

@@ -62,8 +62,11 @@ def test_one_absurd_attribute_is_clamped_and_the_rest_keep_their_errors(clean, f
     others = np.setdiff1d(np.arange(len(want)), mine)
     for name in ("opacities", "sh_dc", "scales"):
         a, b = getattr(got, name)[others], getattr(want, name)[others]
-        # before the fix one opacity of 1e4 put 478 of 599 opacities off by > 0.2 at 12 bits
-        assert np.abs(a - b).max() < 0.05, (name, float(np.abs(a - b).max()))
+        # before the fix one opacity of 1e4 put 478 of 599 opacities off by > 0.2 at 12 bits;
+        # with RAHT weights (RWGT) the least important Gaussians sit on a coarser step, and the
+        # outlier's importance moves a few of them to another class: a step, not a wreck
+        d = np.abs(a - b)
+        assert np.mean(d > 0.05) < 0.02 and d.max() < 0.2, (name, float(np.mean(d > 0.05)), float(d.max()))
     if bound is not None:
         got_v = getattr(got, field)[mine].max() if bound > 0 else getattr(got, field)[mine].min()
         assert abs(got_v - bound) < 0.5, got_v

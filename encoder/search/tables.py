@@ -51,8 +51,13 @@ def _loss_weights(stage: Stage, layer, scale_blocks: int):
     if w is None:
         return None, None
     from ...decoder.quant import split_lengths
-    mean = float(stage.importance.mean()) or 1.0
-    imp = stage.importance[layer.index]
+
+    from ..pipeline import capped_importance
+    capped = stage.cache.get("capped_importance")
+    if capped is None:
+        capped = stage.cache["capped_importance"] = capped_importance(stage.importance)
+    mean = float(capped.mean()) or 1.0
+    imp = capped[layer.index]
     raht = float(w.shape[0]) / float(w.sum()) * float(imp.mean()) / mean
     stored = imp[layer.scale_order] / mean
     lens = split_lengths(stored.shape[0], scale_blocks)
