@@ -23,6 +23,7 @@ classes), so its blocks can follow the classes.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -160,7 +161,7 @@ class RahtWeights:
         """int64 [M]: each point's RAHT leaf weight."""
         return self.weights[self.classes]
 
-    @property
+    @functools.cached_property
     def order(self) -> np.ndarray:
         """int64 [M]: the point of each stored element of the part's direct set (class order:
         classes ascending, point order within a class; GSZ.md §7.1)."""

@@ -14,6 +14,7 @@ Stages (each timed, progress on stderr):
 """
 from __future__ import annotations
 
+import functools
 import json
 import time
 from dataclasses import asdict, dataclass, field, fields
@@ -329,9 +330,10 @@ class Layer:
         in class order (a part with RAHT weights, GSZ.md §7.1), else None (Morton order)."""
         return None if self.raht_weights is None else self.raht_weights.order
 
-    @property
+    @functools.cached_property
     def weights_chunk(self) -> bytes | None:
-        """The part's RWGT chunk payload (GSZ.md §7.1), or None."""
+        """The part's RWGT chunk payload (GSZ.md §7.1), or None (coded once: the search sizes
+        every candidate's fixed bytes with it)."""
         return None if self.raht_weights is None else raht_weights_chunk(self.raht_weights)
 
     @property
@@ -656,10 +658,9 @@ def code_part(job: PartJob):
     return (geometry,) + _transform(job.ijk, depth, job.rotations, job.opacities, job.sh_dc, job.weights)
 
 
-def _part_job(vox, idx: np.ndarray, grid: tuple, raht_classes: int) -> PartJob:
+def _part_job(vox, idx: np.ndarray, grid: tuple, weights) -> PartJob:
     c = vox.cloud
-    return PartJob(part_ijk(vox, idx, grid), grid, c.rotations[idx], c.opacities[idx], c.sh_dc[idx],
-                   raht_weights(vox.importance[idx], raht_classes))
+    return PartJob(part_ijk(vox, idx, grid), grid, c.rotations[idx], c.opacities[idx], c.sh_dc[idx], weights)
 
 
 def _part_tag(li: int, t: int, n: int, tiles: int, layers: int) -> str:
@@ -672,7 +673,7 @@ def _prepare_part(vox, li: int, t: int, idx: np.ndarray, grid: tuple, tiles: int
     """One part (layer ``li`` of tile ``t``) in this process: its GEOM (on the thread ``pool``
     when given, while the transform runs here), the Euler angles and the RAHT of its attributes
     over its own tree."""
-    job = _part_job(vox, idx, grid, raht_classes)
+    job = _part_job(vox, idx, grid, raht_weights(vox.importance[idx], raht_classes))
     tag = _part_tag(li, t, len(idx), tiles, layers)
 
     def code_geometry():
@@ -703,8 +704,8 @@ def _prepare_parts(vox, part_of: list, grids: list, layers: int, progress: Progr
                                  f"{executor.name} ({executor.workers} workers)"):
         # coded here, each part's job is made in its turn (all at once: 56 bytes a voxel)
         weights = [raht_weights(vox.importance[idx], raht_classes) for _, _, idx in part_of]
-        done = in_order(executor, code_part, (_part_job(vox, idx, grids[t], raht_classes)
-                                              for _, t, idx in part_of))
+        done = in_order(executor, code_part, (_part_job(vox, idx, grids[t], w)
+                                              for (_, t, idx), w in zip(part_of, weights)))
         return [Layer(index=idx, geometry_job=geom, raht_dc=dc, raht_ac=ac,
                       scales=_stored_scales(vox, idx, w), codes=codes,
                       layer=li, tile=t, grid=grids[t], raht_weights=w)

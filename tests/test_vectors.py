@@ -1,5 +1,4 @@
 """The committed format test vectors decode to their documented values (format stability)."""
-import contextlib
 import hashlib
 import json
 from pathlib import Path
@@ -83,6 +82,15 @@ def test_sh_classes_vector_needs_the_class_order(monkeypatch):
                                         np.empty((2, 9), np.float32), np.array([0, 16]))
 
 
+def _decoded_on_each_path(data):
+    """``data`` decoded by the NumPy path, then by the native one where it is built."""
+    from gsz.decoder import native
+    with native.numpy_only():
+        yield decode(data)
+    if native.enabled():
+        yield decode(data)
+
+
 def test_rwgt_vector_needs_the_leaf_weights(monkeypatch):
     # the RWGT vector is only worth its bytes if a decoder that ignores the weights (plain RAHT)
     # or the class order of the log-scales fails it
@@ -93,11 +101,7 @@ def test_rwgt_vector_needs_the_leaf_weights(monkeypatch):
     with native.numpy_only():
         assert decode(data).equals(right)
     monkeypatch.setattr(layer, "leaf_weights_of", lambda rwgt: None)
-    for path in ("numpy", "native"):
-        if path == "native" and not native.enabled():
-            continue
-        with (native.numpy_only() if path == "numpy" else contextlib.nullcontext()):
-            wrong = decode(data)
+    for wrong in _decoded_on_each_path(data):
         assert not np.array_equal(wrong.opacities, right.opacities)
         assert not np.array_equal(wrong.sh_dc, right.sh_dc)
         np.testing.assert_array_equal(wrong.positions, right.positions)
@@ -105,10 +109,6 @@ def test_rwgt_vector_needs_the_leaf_weights(monkeypatch):
     monkeypatch.undo()
     # ... and one that reads the log-scales in point order instead of class order
     monkeypatch.setattr(layer, "direct_in_point_order", lambda direct, rwgt: direct)
-    for path in ("numpy", "native"):
-        if path == "native" and not native.enabled():
-            continue
-        with (native.numpy_only() if path == "numpy" else contextlib.nullcontext()):
-            wrong = decode(data)
+    for wrong in _decoded_on_each_path(data):
         assert not np.array_equal(wrong.scales, right.scales)
         np.testing.assert_array_equal(wrong.opacities, right.opacities)
