@@ -169,8 +169,10 @@ def _native_symbols(codes: np.ndarray, occ: list, depth: int, direct_from: int |
 #: nodes hold one voxel (earlier: a smaller tree for the decoder; later: usually fewer bytes).
 DIRECT_SHARES = (0.5, 0.8, 0.95)
 #: In a large tree, the earliest candidate whose payload is within this fraction of the
-#: smallest is taken (a small tree takes the smallest).
-DIRECT_TOLERANCE = 0.005
+#: smallest is taken (a small tree takes the smallest): there the geometry is ~5 % of the file,
+#: so 1.5 % of it is ~0.1 % of the file, while a start two or three levels later makes the
+#: decoder's tree up to 3x slower (the 1.2 M bench's larger tile: D 12 for 0.65 % fewer bytes)
+DIRECT_TOLERANCE = 0.015
 #: Trees of at most this many voxels also try scheme 0.
 SCHEME0_TRIED_BELOW = 1 << 18
 
