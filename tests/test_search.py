@@ -266,3 +266,44 @@ def test_sh_paths_stop_being_weighed_after_a_clear_or_a_second_narrow_loss():
     s = SimpleNamespace(lost_paths=set(), narrow_losses={}, progress=Progress(quiet=True))
     note(s, ["vq", "classes"], stage(vq=50.0))                 # classes dropped after its hardest views
     assert s.lost_paths == {"classes"}
+
+
+class _WalkScene:
+    """A search stand-in for the depth walk: train PSNR per depth from a table, nothing merged."""
+
+    def __init__(self, psnr: dict, start: int):
+        from types import SimpleNamespace
+        self.psnr, self.depth, self.evaluated, self.candidates = psnr, start, set(), []
+        self.sopts = SimpleNamespace(depth_steps=3, max_extra_depth=3)
+        self.progress = SimpleNamespace(log=lambda msg: None)
+        self.try_tau(1.0, start)
+
+    def best(self):
+        from gsz.encoder.search.candidate import best_of
+        return best_of(self.candidates)
+
+    def merged_fraction(self, tau, d) -> float:
+        return 0.001
+
+    def try_tau(self, tau, d) -> None:
+        from types import SimpleNamespace
+
+        from gsz.encoder.search.candidate import Candidate
+        self.evaluated.add((tau, d))
+        enc = SimpleNamespace(attributes_saturated=False, mean_attribute_bits=lambda: 10.0)
+        self.candidates.append(Candidate(self.psnr[d], tau, d, 0.0, [], enc))
+
+
+def test_depth_walk_goes_past_its_range_while_each_level_gains_a_lot():
+    """Where position error still dominates at the end of the walk's range (each level gaining
+    dB, as the 1.2 M bench at 12x: 3.8, 3.3, 2.7 dB), the walk goes on while a level gains at
+    least STRONG_GAIN_EXTRA_DEPTH_DB; where the gains are small it stops at the range's end."""
+    from gsz.encoder.search.depth_walk import STRONG_GAIN_EXTRA_DEPTH_DB, walk_depth
+    assert STRONG_GAIN_EXTRA_DEPTH_DB <= 1.5
+    strong = _WalkScene({12: 47.0, 13: 50.5, 14: 53.7, 15: 56.4, 16: 57.6, 17: 57.75, 18: 57.5}, 12)
+    walk_depth(strong)
+    # 16 gained 1.2 dB, so 17 was tried and won; 17 gained 0.15 dB: 18 is not tried
+    assert strong.best().depth == 17 and (1.0, 18) not in strong.evaluated
+    weak = _WalkScene({12: 47.0, 13: 48.0, 14: 48.8, 15: 49.3, 16: 49.6}, 12)
+    walk_depth(weak)
+    assert weak.best().depth == 15 and (1.0, 16) not in weak.evaluated

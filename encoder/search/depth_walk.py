@@ -23,6 +23,11 @@ DEPTH_DEEPER_FIRST_BITS = 8.0
 SATURATED_EXTRA_DEPTH = 8
 SATURATED_MIN_GAIN_DB = 0.1
 MERGED_FRACTION_EXTRA_DEPTH = 0.01
+#: ... or while the last level deeper gained at least this much train PSNR: position error still
+#: dominates there, and the next level halves it again (houseplant at SOG's bytes: depths 11-14
+#: gained 4.4, 3.2, 2.0 dB and the walk stopped at its range's end; the 1.2 M bench at 12×:
+#: 3.8, 3.3, 2.7 dB at depths 12-15)
+STRONG_GAIN_EXTRA_DEPTH_DB = 1.0
 #: A first depth step that improves train PSNR by less than this does not commit the walk to
 #: its direction: the other direction is tried as well (houseplant noised 40x: depth 11 -> 12
 #: gained 0.02 dB, and depth 9 was the better side).
@@ -71,8 +76,8 @@ def _shares_voxels(search, tau, d) -> bool:
     return search.merged_fraction(tau, d) >= MERGED_FRACTION_EXTRA_DEPTH
 
 
-def _room(search, step: int, d_next: int, lo_d: int, hi_d: int) -> bool:
-    """Whether the walk may visit depth ``d_next``.
+def _room(search, step: int, d_next: int, lo_d: int, hi_d: int, gain: float | None = None) -> bool:
+    """Whether the walk may visit depth ``d_next``; ``gain``: what its last level gained.
 
     Past the usual range a level pays in two cases: with every attribute group at its best width
     and bytes left over (saturated; spent on the SH where there are any) each further level costs
@@ -83,7 +88,8 @@ def _room(search, step: int, d_next: int, lo_d: int, hi_d: int) -> bool:
     (flowers: 0.02 % at depth 13) a level only halves an already small position error."""
     cap = hi_d
     cb = search.best()
-    if step > 0 and (cb.encoded.attributes_saturated or _shares_voxels(search, cb.reserve, cb.depth)):
+    strong = gain is not None and gain >= STRONG_GAIN_EXTRA_DEPTH_DB
+    if step > 0 and (strong or cb.encoded.attributes_saturated or _shares_voxels(search, cb.reserve, cb.depth)):
         cap = min(MAX_DEPTH, search.depth + SATURATED_EXTRA_DEPTH)
     return lo_d <= d_next <= cap
 
@@ -91,8 +97,8 @@ def _room(search, step: int, d_next: int, lo_d: int, hi_d: int) -> bool:
 def _walk(search, best: Candidate, step: int, lo_d: int, hi_d: int) -> bool:
     """One direction of the walk from ``best``; True when it moved (found a better depth)."""
     moved = looked_past = False
-    d = best.depth
-    while _room(search, step, d + step, lo_d, hi_d) and (best.reserve, d + step) not in search.evaluated:
+    d, gain = best.depth, None
+    while _room(search, step, d + step, lo_d, hi_d, gain) and (best.reserve, d + step) not in search.evaluated:
         before = search.best()
         search.progress.log(f"depth {d + step} at tau {before.reserve} (best so far: depth "
                             f"{before.depth}, {before.train_psnr:.2f} dB train PSNR)")
