@@ -316,12 +316,6 @@ def page_search(rd: dict, scaling, above) -> str:
     lines += [f"Over the budget: {over} of {len(g)} points; within {100 * tol:g} % below it: {within} of {len(g)}; "
               f"test PSNR monotone in bytes: {mono} of {len(groups)} scene variants.  Test PSNR on the "
               f"{meta['views']} default test views at {meta['width']} px (never seen by the search).", ""]
-    secs = {}
-    for r in g:
-        secs.setdefault(r["scene"], []).append(r["search_s"] + r["importance_s"])
-    lines += ["Wall seconds per point, search + importance, min – max: "
-              + "; ".join(f"{sc} {min(v):.0f} – {max(v):.0f}" for sc, v in sorted(secs.items(),
-                                                                               key=lambda kv: scene_key(kv[0]))) + ".", ""]
     lines += ["Per point: the file's bytes (against the budget), the chosen τ / octree depth, SH codebook size "
               "K / kept exact SH vectors, candidates encoded / screened out, wall seconds of the search (+ the "
               "importance pass).  Test PSNR per point: [rd.md](rd.md); calibration rounds and CPU seconds: "
