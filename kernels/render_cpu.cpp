@@ -7,6 +7,8 @@
 //   preprocess(...)  per-Gaussian projection, EWA covariance, SH colour, tile rectangle and a
 //                    conservative pixel box; returns per-Gaussian arrays plus the front-to-back
 //                    order of the visible ones.
+//   sh_colors(...)   the SH colours preprocess makes, of a row range (for an SH rest that is
+//                    made a row range at a time: render.py's chunked colour pass).
 //   rasterize(...)   tile binning + per-pixel compositing of those arrays:
 //   means   [N, 2] f32   pixel-space centre (pixel (px, py) is evaluated at (px, py))
 //   conic   [N, 3] f32   inverse 2D covariance (a, b, c): power = -0.5(a dx^2 + c dy^2) - b dx dy
@@ -206,6 +208,46 @@ static void parallel_chunks(int64_t n, int64_t num_threads, F f) {
   for (auto& th : pool) th.join();
 }
 
+// graphdeco computeColorFromSH + 0.5, clamped at 0, of one Gaussian: position p [3], dc [3], rest
+// [K, 3] (coefficient-major, RGB last; K >= (deg+1)^2-1), camera centre campos [3] -> out [3].
+// One definition for preprocess and sh_colors, so both round alike.
+static inline void sh_color(const float* p, const float* dc, const float* rs, int64_t deg,
+                            const float campos[3], float* out) {
+  float dx = p[0] - campos[0], dy = p[1] - campos[1], dz = p[2] - campos[2];
+  const float dn = std::sqrt(dx * dx + dy * dy + dz * dz);
+  const float x = dx / dn, y = dy / dn, z = dz / dn;
+  for (int ch = 0; ch < 3; ++ch) {
+    auto sh = [&](int k) { return rs[3 * k + ch]; };
+    float res = (float)0.28209479177387814 * dc[ch];
+    if (deg > 0) {
+      const float C1 = (float)0.4886025119029199;
+      res = res - C1 * y * sh(0) + C1 * z * sh(1) - C1 * x * sh(2);
+      if (deg > 1) {
+        const float xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
+        res = res + (float)1.0925484305920792 * xy * sh(3) + (float)-1.0925484305920792 * yz * sh(4) +
+              (float)0.31539156525252005 * (2.0f * zz - xx - yy) * sh(5) +
+              (float)-1.0925484305920792 * xz * sh(6) + (float)0.5462742152960396 * (xx - yy) * sh(7);
+        if (deg > 2) {
+          res = res + (float)-0.5900435899266435 * y * (3.0f * xx - yy) * sh(8) +
+                (float)2.890611442640554 * xy * z * sh(9) +
+                (float)-0.4570457994644658 * y * (4.0f * zz - xx - yy) * sh(10) +
+                (float)0.3731763325901154 * z * (2.0f * zz - 3.0f * xx - 3.0f * yy) * sh(11) +
+                (float)-0.4570457994644658 * x * (4.0f * zz - xx - yy) * sh(12) +
+                (float)1.445305721320277 * z * (xx - yy) * sh(13) +
+                (float)-0.5900435899266435 * x * (xx - 3.0f * yy) * sh(14);
+        }
+      }
+    }
+    out[ch] = std::max(res + 0.5f, 0.0f);
+  }
+}
+
+// Camera centre -R^T t, as float (render.py: torch.from_numpy(camera.center).float()).
+static void camera_centre(const double* cm, float campos[3]) {
+  for (int i = 0; i < 3; ++i)
+    campos[i] = (float)(-(cm[0 + i] * cm[9] + cm[3 + i] * cm[10] + cm[6 + i] * cm[11]));
+}
+
 // Per-Gaussian preprocessing, the same steps as render.py::_preprocess (see there for the
 // graphdeco references). Returns the per-Gaussian arrays (N rows; rows of culled Gaussians are
 // garbage) and `order` [M] int64: the visible Gaussians sorted front to back, ties by index.
@@ -231,10 +273,8 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
   const int gx = (W + BLOCK - 1) / BLOCK, gy = (H + BLOCK - 1) / BLOCK;
   const float Rf[9] = {(float)cm[0], (float)cm[1], (float)cm[2], (float)cm[3], (float)cm[4],
                        (float)cm[5], (float)cm[6], (float)cm[7], (float)cm[8]};
-  // Camera centre -R^T t, as float (render.py: torch.from_numpy(camera.center).float()).
   float campos[3];
-  for (int i = 0; i < 3; ++i)
-    campos[i] = (float)(-(cm[0 + i] * cm[9] + cm[3 + i] * cm[10] + cm[6 + i] * cm[11]));
+  camera_centre(cm, campos);
   const float limx = (float)(1.3 * (W / (2.0 * fx))), limy = (float)(1.3 * (H / (2.0 * fy)));
   const float ffx = (float)fx, ffy = (float)fy, smod = (float)scale_modifier;
 
@@ -349,36 +389,7 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
           }
         }
       }
-      if (want_color) {
-        float dx = P[3 * i] - campos[0], dy = P[3 * i + 1] - campos[1], dz = P[3 * i + 2] - campos[2];
-        const float dn = std::sqrt(dx * dx + dy * dy + dz * dz);
-        const float x = dx / dn, y = dy / dn, z = dz / dn;
-        const float* rs = REST ? REST + 3 * K * i : nullptr;
-        for (int ch = 0; ch < 3; ++ch) {
-          auto sh = [&](int k) { return rs[3 * k + ch]; };
-          float res = (float)0.28209479177387814 * DC[3 * i + ch];
-          if (deg > 0) {
-            const float C1 = (float)0.4886025119029199;
-            res = res - C1 * y * sh(0) + C1 * z * sh(1) - C1 * x * sh(2);
-            if (deg > 1) {
-              const float xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
-              res = res + (float)1.0925484305920792 * xy * sh(3) + (float)-1.0925484305920792 * yz * sh(4) +
-                    (float)0.31539156525252005 * (2.0f * zz - xx - yy) * sh(5) +
-                    (float)-1.0925484305920792 * xz * sh(6) + (float)0.5462742152960396 * (xx - yy) * sh(7);
-              if (deg > 2) {
-                res = res + (float)-0.5900435899266435 * y * (3.0f * xx - yy) * sh(8) +
-                      (float)2.890611442640554 * xy * z * sh(9) +
-                      (float)-0.4570457994644658 * y * (4.0f * zz - xx - yy) * sh(10) +
-                      (float)0.3731763325901154 * z * (2.0f * zz - 3.0f * xx - 3.0f * yy) * sh(11) +
-                      (float)-0.4570457994644658 * x * (4.0f * zz - xx - yy) * sh(12) +
-                      (float)1.445305721320277 * z * (xx - yy) * sh(13) +
-                      (float)-0.5900435899266435 * x * (xx - 3.0f * yy) * sh(14);
-              }
-            }
-          }
-          colp[3 * i + ch] = std::max(res + 0.5f, 0.0f);
-        }
-      }
+      if (want_color) sh_color(P + 3 * i, DC + 3 * i, REST ? REST + 3 * K * i : nullptr, deg, campos, colp + 3 * i);
     }
   });
   // Front-to-back order of the visible Gaussians; stable so equal depths keep index order.
@@ -400,11 +411,40 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
   return {means, conic, opac, colors, rects, boxes, order};
 }
 
+// The colours preprocess computes (want_color), of every row of a row range: positions [n,3],
+// sh_dc [n,3], sh_rest [n,K,3], cam as preprocess's -> out [n,3] f32 (contiguous, written in
+// place). A caller whose SH rest is made a row range at a time (render.py) fills preprocess's
+// colours with it; rows preprocess culls are never read by rasterize.
+void sh_colors(torch::Tensor positions, torch::Tensor sh_dc, torch::Tensor sh_rest, torch::Tensor cam,
+               int64_t deg, torch::Tensor out, int64_t num_threads) {
+  positions = positions.contiguous(); sh_dc = sh_dc.contiguous(); sh_rest = sh_rest.contiguous();
+  cam = cam.contiguous();
+  TORCH_CHECK(cam.dtype() == torch::kFloat64 && cam.numel() == 16, "cam: 16 float64 expected");
+  TORCH_CHECK(out.dtype() == torch::kFloat32 && out.is_contiguous(), "out: contiguous float32 expected");
+  const int64_t n = positions.size(0);
+  const int64_t K = sh_rest.dim() == 3 ? sh_rest.size(1) : 0;
+  TORCH_CHECK((deg + 1) * (deg + 1) - 1 <= K, "sh_rest too small for the SH degree");
+  TORCH_CHECK(sh_dc.size(0) == n && (K == 0 || sh_rest.size(0) == n) && out.size(0) == n,
+              "row counts differ");
+  float campos[3];
+  camera_centre(cam.data_ptr<double>(), campos);
+  const float* P = positions.data_ptr<float>();
+  const float* DC = sh_dc.data_ptr<float>();
+  const float* REST = K ? sh_rest.data_ptr<float>() : nullptr;
+  float* colp = out.data_ptr<float>();
+  parallel_chunks(n, num_threads, [&](int64_t begin, int64_t end) {
+    for (int64_t i = begin; i < end; ++i)
+      sh_color(P + 3 * i, DC + 3 * i, REST ? REST + 3 * K * i : nullptr, deg, campos, colp + 3 * i);
+  });
+}
+
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   // Both run without the GIL (they touch no Python object; libtorch allocates without it), so
   // a Python thread -- the size search trains SH codebooks on one -- keeps running meanwhile.
   m.def("preprocess", &preprocess, "gsz CPU 3DGS per-Gaussian preprocessing",
         py::call_guard<py::gil_scoped_release>());
   m.def("rasterize", &rasterize, "gsz CPU 3DGS tile rasteriser (forward + importance)",
+        py::call_guard<py::gil_scoped_release>());
+  m.def("sh_colors", &sh_colors, "gsz CPU 3DGS SH colours of a row range",
         py::call_guard<py::gil_scoped_release>());
 }
