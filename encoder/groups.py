@@ -20,21 +20,9 @@ def write_channel_set(x: np.ndarray, bits, num_blocks: int,
     ``recon_dtype`` (float32: the float64 values rounded, made a few channels at a time, for
     callers that store float32 anyway: half the memory at 1.2 M kept SH vectors).
     """
-    from ..kernels.quantize import quantize_groups   # torch: not needed to build the CLI's parser
-    x = np.ascontiguousarray(x, dtype=np.float32)
-    c, length = x.shape
-    b = blocks_for(length, num_blocks)
-    bits_arr = np.broadcast_to(np.asarray(bits, dtype=np.int64), (c, b)).copy()
-    const = bits_arr == 0
-    bits_arr[const] = 1
-    if length:
-        symbols, mins, maxs = quantize_groups(x, b, bits_arr)
-        if const.any():
-            constant_groups(x, b, const, symbols, mins, maxs)
-    else:
-        symbols = np.zeros((c, 0), np.int32)
-        mins = np.zeros((c, b), np.float32)
-        maxs = np.zeros((c, b), np.float32)
+    symbols, mins, maxs, bits_arr = quantize_channel_set(x, bits, num_blocks)
+    c, length = symbols.shape
+    b = bits_arr.shape[1]
     # Both model layouts are coded and the smaller kept (the first on a tie): per-group tables
     # win for large groups and low bit-widths, shared per-(channel, bits) tables for small
     # groups at high bit-widths.  The per-(channel, bits) histograms are merged from the
@@ -50,6 +38,29 @@ def write_channel_set(x: np.ndarray, bits, num_blocks: int,
     w.blob(best[1])
     return w.getvalue(), _dequantized(symbols, mins, maxs, bits_arr, split_lengths(length, b),
                                       np.dtype(recon_dtype))
+
+
+def quantize_channel_set(x: np.ndarray, bits, num_blocks: int):
+    """The symbols and group parameters :func:`write_channel_set` codes x [C, L] with:
+    (symbols int32 [C, L], mins float32 [C, B], maxs float32 [C, B], bits int64 [C, B]) with
+    B = blocks_for(L, num_blocks), width-0 groups made constant (stored as 1 bit); they
+    dequantise (``dequantize_groups(..., split_lengths(L, B))``) to its reconstruction."""
+    from ..kernels.quantize import quantize_groups   # torch: not needed to build the CLI's parser
+    x = np.ascontiguousarray(x, dtype=np.float32)
+    c, length = x.shape
+    b = blocks_for(length, num_blocks)
+    bits_arr = np.broadcast_to(np.asarray(bits, dtype=np.int64), (c, b)).copy()
+    const = bits_arr == 0
+    bits_arr[const] = 1
+    if length:
+        symbols, mins, maxs = quantize_groups(x, b, bits_arr)
+        if const.any():
+            constant_groups(x, b, const, symbols, mins, maxs)
+    else:
+        symbols = np.zeros((c, 0), np.int32)
+        mins = np.zeros((c, b), np.float32)
+        maxs = np.zeros((c, b), np.float32)
+    return symbols, mins, maxs, bits_arr
 
 
 def _dequantized(symbols, mins, maxs, bits, lens, dtype: np.dtype, step: int = 8) -> np.ndarray:

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..decoder.attributes import attributes_from_channels
 from ..decoder.bytesio import Writer
-from ..decoder.cloud import GaussianCloud
+from ..decoder.cloud import GaussianCloud, MadeRows
 from ..decoder.container import (CHUNK_ENTRY_SIZE, CHUNK_REQUIRED, FRAME_RDF, LAYER_SHIFT, Chunk, FileHeader,
                                  write_container)
 from ..decoder.errors import GszUsageError
@@ -1010,6 +1010,62 @@ class ShPayloads:
             payloads.append(self._heads[li] + body + self._tails[li])
         k = self.m and self.d // 3
         return payloads, None if out is None else out.reshape(self.m, k, 3), stats
+
+    def decoded_rows(self, kept_bits=None) -> MadeRows:
+        """The SH ``payloads(kept_bits)`` decodes to ([M, K, 3] float32, output order), bit for
+        bit, as :class:`MadeRows` made 64 k rows at a time (for a render): from each tile's
+        codebook and the kept vectors' symbols (quantised as their channel sets code them, not
+        entropy coded), dequantised with the same float64 steps.  It holds the symbols (a byte
+        a value up to 8 bits) and 12 bytes of row indices a voxel, not the [M, K, 3] float32
+        array (1 GB at 6 M voxels)."""
+        from ..decoder.quant import split_lengths, step_sizes
+        from .groups import quantize_channel_set
+        m, d = self.m, self.d
+        pos = np.empty(m, np.int64)              # voxel -> its row in the output
+        pos[self.stage.order] = np.arange(m)
+        cw_row = np.full(m, -1, np.int32)        # output row -> its row in the stacked codebooks
+        books, off = [], 0
+        for r, rec, idx in self._codewords:
+            cw_row[pos[r]] = idx + off
+            books.append(rec)
+            off += rec.shape[0]
+        books = np.concatenate(books) if books else np.zeros((0, d), np.float32)
+        parts = [(li, sel, kb, self.sh_bits if kept_bits is None else kept_bits[li])
+                 for li, (sel, kb) in enumerate(self.kept_sets) if sel.size]
+        wide = any(int(np.max(bits)) > 8 for *_, bits in parts)
+        sym = np.empty((sum(sel.size for _, sel, _, _ in parts), d), np.uint16 if wide else np.uint8)
+        kept_row = np.full(m, -1, np.int32)      # output row -> its row in sym (-1: a codeword)
+        group = np.empty(sym.shape[0], np.int32)  # row of sym -> its group's row in lo / step
+        lo, step = [np.zeros((0, d))], [np.zeros((0, d))]
+        s = g = 0
+        for li, sel, kb, bits in parts:
+            q, mins, maxs, qbits = quantize_channel_set(self.kept_vectors(li), bits, kb)
+            e = s + sel.size
+            sym[s:e] = q.T
+            group[s:e] = g + np.repeat(np.arange(qbits.shape[1], dtype=np.int32),
+                                       split_lengths(sel.size, qbits.shape[1]))
+            kept_row[pos[sel]] = np.arange(s, e, dtype=np.int32)
+            # dequantize_groups' parameters: float32 minimum widened, normative float64 step
+            lo.append(mins.astype(np.float64).T)
+            step.append(step_sizes(mins, maxs, qbits).T)
+            s, g = e, g + qbits.shape[1]
+        lo, step = np.concatenate(lo), np.concatenate(step)
+        del pos
+
+        def rows(a: int, b: int) -> np.ndarray:
+            out = np.empty((b - a, d), np.float32)
+            kr = kept_row[a:b]
+            kept = kr >= 0
+            if kept.any():
+                r = kr[kept]
+                gr = group[r]
+                v = step[gr] * sym[r]            # dequantize_groups: step * k, then + min
+                v += lo[gr]
+                out[kept] = v
+            if not kept.all():
+                out[~kept] = books[cw_row[a:b][~kept]]
+            return out.reshape(b - a, -1, 3)
+        return MadeRows((m, m and d // 3, 3), rows)
 
 
 #: importance classes of the kept SH vectors wherever the size search allocates their widths
