@@ -4,10 +4,34 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...decoder.cloud import MadeRows
+
 #: Perturbation (std) per channel used to measure rendering sensitivity; small enough for the
 #: image error to grow ~quadratically, large enough to rise above float noise.
 _SENS_SIGMA = {"opacity": 0.05, "euler": 0.02, "f_dc": 0.02, "scale": 0.02, "sh": 0.01}
 _NOISE_ROWS = 65536
+
+
+def noised_rows(x: np.ndarray, rng: np.random.Generator, sigma: float) -> MadeRows:
+    """float32 [N, ...] ``x + rng.normal(0, sigma, x.shape)`` (the sum in float64, then
+    rounded) as :class:`MadeRows`, made a row range at a time as a render reads them (the whole
+    noised SH rest is 1 GB at 6 M Gaussians of degree 3).  Every read replays the generator
+    from its state now (a read that does not continue the last one starts again from row 0),
+    so each row gets the draws one call in row order gives (the generator fills in C order);
+    ``rng`` itself is not advanced."""
+    start = rng.bit_generator.state
+    at = {"row": None, "gen": None}
+
+    def rows(a: int, b: int) -> np.ndarray:
+        if at["row"] is None or a < at["row"]:
+            gen = np.random.Generator(type(rng.bit_generator)())
+            gen.bit_generator.state = start
+            at.update(row=0, gen=gen)
+        for s in range(at["row"], a, _NOISE_ROWS):            # skip to row a: the same draws
+            at["gen"].normal(0, sigma, (min(a, s + _NOISE_ROWS) - s,) + x.shape[1:])
+        at["row"] = b
+        return x[a:b] + at["gen"].normal(0, sigma, (b - a,) + x.shape[1:])
+    return MadeRows(x.shape, rows)
 
 
 def channel_weights(cloud, cameras, *, seed: int = 0, base_images=None) -> dict:
@@ -76,12 +100,6 @@ def channel_weights(cloud, cameras, *, seed: int = 0, base_images=None) -> dict:
     sh = 0.0
     if cloud.sh_degree > 0:
         sg = _SENS_SIGMA["sh"]
-        # in row chunks: the same draws as one call (the generator fills in C order), without
-        # the N x D float64 noise and sum (1 GB at 1.2 M Gaussians of degree 3)
-        rest = np.empty_like(cloud.sh_rest)
-        for s in range(0, n, _NOISE_ROWS):
-            e = min(n, s + _NOISE_ROWS)
-            rest[s:e] = cloud.sh_rest[s:e] + rng.normal(0, sg, (e - s,) + cloud.sh_rest.shape[1:])
-        sh = sensitivity(variant(sh_rest=rest), sg, cloud.sh_rest[0].size * n)
+        sh = sensitivity(variant(sh_rest=noised_rows(cloud.sh_rest, rng, sg)), sg, cloud.sh_rest[0].size * n)
     norm = float(np.mean(raht + scales))
     return {"raht": [w / norm for w in raht], "scales": [w / norm for w in scales], "sh": sh / norm}
