@@ -18,7 +18,8 @@ def write_channel_set(x: np.ndarray, bits, num_blocks: int,
     a group constant (:func:`constant_groups`).
     Returns (bytes, dequantised [C, L] exactly as the decoder will reconstruct it), float64 or
     ``recon_dtype`` (float32: the float64 values rounded, made a few channels at a time, for
-    callers that store float32 anyway: half the memory at 1.2 M kept SH vectors).
+    callers that store float32 anyway: half the memory at 1.2 M kept SH vectors; None: no
+    reconstruction, None instead, for callers that want the bytes only).
     """
     symbols, mins, maxs, bits_arr = quantize_channel_set(x, bits, num_blocks)
     c, length = symbols.shape
@@ -36,6 +37,8 @@ def write_channel_set(x: np.ndarray, bits, num_blocks: int,
     w.u8(c).u32(length).u16(b).u8(best[0])
     w.array(bits_arr, np.uint8).array(mins, np.float32).array(maxs, np.float32)
     w.blob(best[1])
+    if recon_dtype is None:
+        return w.getvalue(), None
     return w.getvalue(), _dequantized(symbols, mins, maxs, bits_arr, split_lengths(length, b),
                                       np.dtype(recon_dtype))
 

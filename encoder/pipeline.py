@@ -856,6 +856,10 @@ def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks
     return ShPayloads(stage, codebook, keep, sh_bits, blocks, cb_blocks, index).payloads()
 
 
+#: rows per step where a pass over every voxel's SH vector would otherwise gather [M, D] copies
+ROW_CHUNK = 65536
+
+
 class ShPayloads:
     """The SHVQ payloads of one (stage, codebook, keep-count), with the kept vectors' group
     bit-widths still open: the codebook, the codeword indices and the kept flags are coded
@@ -979,7 +983,13 @@ class ShPayloads:
 
     def kept_vectors(self, layer: int) -> np.ndarray:
         """float32 [D, P_l]: the kept vectors of a layer as their channel set codes them."""
-        return np.ascontiguousarray(self.stage.sh[self.kept_sets[layer][0]].T)
+        sel = self.kept_sets[layer][0]
+        out = np.empty((self.d, sel.size), np.float32)
+        # gathered ROW_CHUNK rows at a time: a whole [P_l, D] gather besides its transpose was
+        # 180 MB more for a part of 2^20 kept vectors
+        for s in range(0, sel.size, ROW_CHUNK):
+            out[:, s:s + ROW_CHUNK] = self.stage.sh[sel[s:s + ROW_CHUNK]].T
+        return out
 
     def payloads(self, kept_bits=None, decoded: bool = True):
         """(payloads per layer, SH as decoded [M, K, 3] output order, stats).  ``kept_bits``:
@@ -995,7 +1005,9 @@ class ShPayloads:
             for r, rec, idx in self._codewords:
                 out[pos[r]] = rec[idx]
         stats = dict(self.stats)
-        jobs = ((self.kept_vectors(li), self.sh_bits if kept_bits is None else kept_bits[li], kb)
+        # without ``decoded`` the reconstruction is not made (180 MB a part of 2^20 kept vectors)
+        jobs = ((self.kept_vectors(li), self.sh_bits if kept_bits is None else kept_bits[li], kb,
+                 np.float32 if decoded else None)
                 for li, (sel, kb) in enumerate(self.kept_sets) if sel.size)
         ex = self.stage.executor if self.stage.num_tiles > 1 else None
         coded = in_order(ex, _code_channel_set, jobs)
@@ -1097,9 +1109,9 @@ def _block_bounds(length: int, blocks: int):
 
 
 def _code_channel_set(job):
-    """write_channel_set(values, bits, blocks) of one job (an executor's unit of work), its
-    reconstruction float32 (the SH output's type)."""
-    return write_channel_set(*job, recon_dtype=np.float32)
+    """write_channel_set(values, bits, blocks, recon_dtype) of one job (an executor's unit of
+    work): its reconstruction float32 (the SH output's type), or None."""
+    return write_channel_set(*job[:3], recon_dtype=job[3])
 
 
 def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: dict,

@@ -11,7 +11,7 @@ import numpy as np
 from ...decoder.cloud import MadeRows
 from ...decoder.groups import blocks_for
 
-from ..pipeline import ShPayloads, Stage, sh_set_blocks, tile_assignment
+from ..pipeline import ROW_CHUNK, ShPayloads, Stage, sh_set_blocks, tile_assignment
 from .options import SH_BITS
 
 #: Fractions of the Gaussians whose SH vectors are kept exact (most important first), tried
@@ -40,8 +40,6 @@ class ShPlan:
         return self.payloads.decoded_rows(kept_bits)
 
 
-#: rows per step where a pass over every voxel's SH vector would otherwise gather [M, D] copies
-ROW_CHUNK = 65536
 
 
 def row_sse(x: np.ndarray, ref, step: int = 16384) -> np.ndarray:
