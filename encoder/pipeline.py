@@ -858,6 +858,8 @@ def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks
 
 #: rows per step where a pass over every voxel's SH vector would otherwise gather [M, D] copies
 ROW_CHUNK = 65536
+#: SH channels quantised at a time where only the symbols are wanted (ShPayloads.decoded_rows)
+QUANT_CHANNELS = 8
 
 
 class ShPayloads:
@@ -1030,6 +1032,7 @@ class ShPayloads:
         entropy coded), dequantised with the same float64 steps.  It holds the symbols (a byte
         a value up to 8 bits) and 12 bytes of row indices a voxel, not the [M, K, 3] float32
         array (1 GB at 6 M voxels)."""
+        from ..decoder.groups import blocks_for
         from ..decoder.quant import split_lengths, step_sizes
         from .groups import quantize_channel_set
         m, d = self.m, self.d
@@ -1051,9 +1054,17 @@ class ShPayloads:
         lo, step = [np.zeros((0, d))], [np.zeros((0, d))]
         s = g = 0
         for li, sel, kb, bits in parts:
-            q, mins, maxs, qbits = quantize_channel_set(self.kept_vectors(li), bits, kb)
-            e = s + sel.size
-            sym[s:e] = q.T
+            x, e = self.kept_vectors(li), s + sel.size
+            bits = np.broadcast_to(np.asarray(bits), (d, blocks_for(sel.size, kb)))
+            mins, maxs, qbits = [], [], []
+            # QUANT_CHANNELS channels at a time (groups are per channel: the same symbols and
+            # parameters), so that no [D, P] int32 symbols exist (360 MB with a part of 2^20)
+            for c in range(0, d, QUANT_CHANNELS):
+                q, mn, mx, qb = quantize_channel_set(x[c:c + QUANT_CHANNELS], bits[c:c + QUANT_CHANNELS], kb)
+                sym[s:e, c:c + QUANT_CHANNELS] = q.T
+                mins.append(mn), maxs.append(mx), qbits.append(qb)
+            del x, q
+            mins, maxs, qbits = np.concatenate(mins), np.concatenate(maxs), np.concatenate(qbits)
             group[s:e] = g + np.repeat(np.arange(qbits.shape[1], dtype=np.int32),
                                        split_lengths(sel.size, qbits.shape[1]))
             kept_row[pos[sel]] = np.arange(s, e, dtype=np.int32)
