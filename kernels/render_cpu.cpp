@@ -14,7 +14,8 @@
 //   conic   [N, 3] f32   inverse 2D covariance (a, b, c): power = -0.5(a dx^2 + c dy^2) - b dx dy
 //   opac    [N]    f32   sigmoid(opacity)
 //   colors  [N, 3] f32   SH colour (+0.5, clamped at 0)
-//   rects   [N, 4] i32   graphdeco tile rectangle (x0, y0, x1, y1), x1/y1 exclusive
+//   rects   [N, 4] i32   tiles to bin into (x0, y0, x1, y1), x1/y1 exclusive: the graphdeco
+//                        tile rectangle cut to the tiles that meet the pixel box
 //   boxes   [N, 4] i32   conservative pixel box (x0, y0, x1, y1) outside of which
 //                        alpha < 1/255 everywhere (so skipping it is exact); empty = never drawn
 //   order   [M]    i64   visible Gaussians, front to back
@@ -72,27 +73,17 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
   const int32_t* rp = rects.data_ptr<int32_t>();
   const int32_t* bp = boxes.data_ptr<int32_t>();
 
-  // Binning: only tiles of the graphdeco rectangle that also meet the pixel box can receive a
-  // contribution. Counting sort keyed by tile; filling in depth order keeps each list sorted
-  // front-to-back with ties in index order (what graphdeco's stable radix sort gives).
-  std::vector<int32_t> tr(4 * M);
+  // Binning into the tiles of each Gaussian's rects (the graphdeco rectangle cut to the tiles
+  // its pixel box meets: only those can receive a contribution). Counting sort keyed by tile;
+  // filling in depth order keeps each list sorted front-to-back with ties in index order (what
+  // graphdeco's stable radix sort gives).
   std::vector<int64_t> offsets(ntiles + 1, 0);
   for (int64_t j = 0; j < M; ++j) {
     const int64_t g = ordp[j];
     TORCH_CHECK(g >= 0 && g < N, "order index out of range");
-    const int32_t* b = bp + 4 * g;
     const int32_t* r = rp + 4 * g;
-    int tx0 = 0, ty0 = 0, tx1 = 0, ty1 = 0;
-    if (b[2] > b[0] && b[3] > b[1]) {
-      tx0 = std::max(r[0], b[0] / BLOCK);
-      ty0 = std::max(r[1], b[1] / BLOCK);
-      tx1 = std::min(r[2], (b[2] - 1) / BLOCK + 1);
-      ty1 = std::min(r[3], (b[3] - 1) / BLOCK + 1);
-    }
-    if (tx1 <= tx0 || ty1 <= ty0) tx0 = ty0 = tx1 = ty1 = 0;
-    tr[4 * j] = tx0; tr[4 * j + 1] = ty0; tr[4 * j + 2] = tx1; tr[4 * j + 3] = ty1;
-    for (int ty = ty0; ty < ty1; ++ty)
-      for (int tx = tx0; tx < tx1; ++tx) offsets[static_cast<int64_t>(ty) * gx + tx + 1]++;
+    for (int ty = r[1]; ty < r[3]; ++ty)
+      for (int tx = r[0]; tx < r[2]; ++tx) offsets[static_cast<int64_t>(ty) * gx + tx + 1]++;
   }
   for (int64_t t = 0; t < ntiles; ++t) offsets[t + 1] += offsets[t];
   const int64_t E = offsets[ntiles];
@@ -100,7 +91,7 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
   {
     std::vector<int64_t> fill(offsets.begin(), offsets.end() - 1);
     for (int64_t j = 0; j < M; ++j) {
-      const int32_t* r = tr.data() + 4 * j;
+      const int32_t* r = rp + 4 * ordp[j];
       for (int ty = r[1]; ty < r[3]; ++ty)
         for (int tx = r[0]; tx < r[2]; ++tx)
           entries[fill[static_cast<int64_t>(ty) * gx + tx]++] = static_cast<int32_t>(ordp[j]);
@@ -357,7 +348,6 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
       dp[i] = tz;
       mp[2 * i] = mx; mp[2 * i + 1] = my;
       cp[3 * i] = ca; cp[3 * i + 1] = cb; cp[3 * i + 2] = cc;
-      rp[4 * i] = x0; rp[4 * i + 1] = y0; rp[4 * i + 2] = x1; rp[4 * i + 3] = y1;
       const float o = 1.0f / (1.0f + std::exp(-O[i]));
       op[i] = o;
       // Conservative box of the alpha >= 1/255 region, in double. alpha >= 1/255 needs
@@ -388,6 +378,17 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
             bx[1] = cl(std::ceil(my - hy), H); bx[3] = cl(std::floor(my + hy) + 1, H);
           }
         }
+        // The tiles rasterize bins into: the graphdeco rectangle cut to the tiles the box meets
+        // (none when the box is empty).
+        int tx0 = 0, ty0 = 0, tx1 = 0, ty1 = 0;
+        if (bx[2] > bx[0] && bx[3] > bx[1]) {
+          tx0 = std::max(x0, bx[0] / BLOCK);
+          ty0 = std::max(y0, bx[1] / BLOCK);
+          tx1 = std::min(x1, (bx[2] - 1) / BLOCK + 1);
+          ty1 = std::min(y1, (bx[3] - 1) / BLOCK + 1);
+        }
+        if (tx1 <= tx0 || ty1 <= ty0) tx0 = ty0 = tx1 = ty1 = 0;
+        rp[4 * i] = tx0; rp[4 * i + 1] = ty0; rp[4 * i + 2] = tx1; rp[4 * i + 3] = ty1;
       }
       if (want_color) sh_color(P + 3 * i, DC + 3 * i, REST ? REST + 3 * K * i : nullptr, deg, campos, colp + 3 * i);
     }
@@ -395,19 +396,23 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
   // Front-to-back order of the visible Gaussians; stable so equal depths keep index order.
   // Key = (float bits of the depth, index): depths are > 0.2, so their IEEE bit patterns sort
   // like the numbers, and the index in the low word breaks ties exactly as a stable sort would.
+  // The keys are sorted in `order` itself (no second [M] array): a positive float's bits are
+  // below 2^31, so every key is a non-negative int64 and sorts as the unsigned key would.
   TORCH_CHECK(N < (int64_t(1) << 32), "too many Gaussians");
-  std::vector<uint64_t> keys;
-  keys.reserve(N);
-  for (int64_t i = 0; i < N; ++i) {
+  int64_t count = 0;
+  for (int64_t i = 0; i < N; ++i) count += valid[i];
+  auto order = torch::empty({count}, torch::kInt64);
+  int64_t* orp = order.data_ptr<int64_t>();
+  for (int64_t i = 0, j = 0; i < N; ++i) {
     if (!valid[i]) continue;
     uint32_t bits;
     std::memcpy(&bits, dp + i, sizeof(bits));
-    keys.push_back((static_cast<uint64_t>(bits) << 32) | static_cast<uint64_t>(i));
+    orp[j++] = static_cast<int64_t>((static_cast<uint64_t>(bits) << 32) | static_cast<uint64_t>(i));
   }
-  std::sort(keys.begin(), keys.end());
-  auto order = torch::empty({(int64_t)keys.size()}, torch::kInt64);
-  int64_t* orp = order.data_ptr<int64_t>();
-  for (size_t j = 0; j < keys.size(); ++j) orp[j] = static_cast<int64_t>(keys[j] & 0xffffffffu);
+  depth = torch::Tensor();                       // freed before the sort
+  std::vector<uint8_t>().swap(valid);
+  std::sort(orp, orp + count);
+  for (int64_t j = 0; j < count; ++j) orp[j] &= 0xffffffff;
   return {means, conic, opac, colors, rects, boxes, order};
 }
 
