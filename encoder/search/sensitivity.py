@@ -49,7 +49,6 @@ def channel_weights(cloud, cameras, *, seed: int = 0, base_images=None) -> dict:
     rng = np.random.default_rng(seed)
     base = [render(cloud, c).image.astype(np.float64) for c in cameras] if base_images is None \
         else [np.asarray(b, np.float64) for b in base_images]
-    euler = quaternion_to_euler(cloud.rotations.astype(np.float64))
     n = len(cloud)
 
     def mse_of(sq):
@@ -66,18 +65,30 @@ def channel_weights(cloud, cameras, *, seed: int = 0, base_images=None) -> dict:
         f.update(kw)
         return GaussianCloud(**f)
 
-    def noisy(a, col, sigma):
-        a = a.astype(np.float64)           # a copy
-        a[:, col] += rng.normal(0, sigma, n)
-        return a
+    def noisy(a, col, sigma, to=lambda rows: rows.astype(np.float64), back=lambda rows: rows):
+        """float32 back(to(a) with rng.normal(0, sigma, n) added to column col), _NOISE_ROWS
+        rows at a time: the draws of one call (C order), and every step works row by row (the
+        same values; NumPy's cos/sin do not depend on an element's place in the array), without
+        whole float64 temporaries (the rotations' Euler round trip: ~1 GB at 6 M Gaussians)."""
+        out = None
+        for s in range(0, n, _NOISE_ROWS):
+            rows = to(a[s:s + _NOISE_ROWS])
+            rows[:, col] += rng.normal(0, sigma, rows.shape[0])
+            rows = back(rows)
+            if out is None:
+                out = np.empty((n,) + rows.shape[1:], np.float32)
+            out[s:s + rows.shape[0]] = rows
+        return a.astype(np.float32) if out is None else out
 
     raht = []
     sg = _SENS_SIGMA["opacity"]
     raht.append(sensitivity(variant(opacities=cloud.opacities + rng.normal(0, sg, n)), sg, n))
     sg = _SENS_SIGMA["euler"]
     for k in range(3):
-        raht.append(sensitivity(variant(rotations=euler_to_quaternion(noisy(euler, k, sg))), sg, n))
-    del euler                   # full-scene temporaries go once used (6 M Gaussians: 0.1-0.2 GB each)
+        rot = noisy(cloud.rotations, k, sg, lambda q: quaternion_to_euler(q.astype(np.float64)),
+                    euler_to_quaternion)
+        raht.append(sensitivity(variant(rotations=rot), sg, n))
+        del rot                 # full-scene temporaries go once used (6 M Gaussians: 0.1 GB each)
     # Image channel k depends on DC colour channel k only (geometry, alpha and T do not involve
     # colour; the 0-clamp is per channel), so one render with all three perturbed gives each
     # channel's error image exactly as three renders would (the other channels' errors are
