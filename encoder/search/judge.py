@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...decoder.pages import trim_heap
 from ...evaluation.cameras import load_cameras
 from .options import SearchOptions
 from .sensitivity import channel_weights
@@ -92,14 +93,17 @@ class Judge:
             self.refs = [quantize_8bit(np.asarray(img)) for img in ref_float]
         self.weights = None
         if sopts.weight_channels:
+            trim_heap()
             with progress.stage("sensitivity", "per-channel rendering weights of Omega"):
                 self.weights = channel_weights(cloud, self.cameras[:2], seed=sopts.seed,
                                                base_images=ref_float[:2])
 
     def score(self, cloud, best_views=None) -> tuple[float, list, int]:
         """:func:`train_psnr` on this search's views."""
+        trim_heap()             # the renders of a whole candidate are a search's peak
         return train_psnr(self.refs, cloud, self.cameras, best_views)
 
     def screen(self, cloud, best_views) -> tuple[float, int]:
         """:func:`screen_psnr` on this search's views."""
+        trim_heap()
         return screen_psnr(self.refs, cloud, self.cameras, best_views)
