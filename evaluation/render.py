@@ -544,14 +544,14 @@ def _render_arrays(cloud: GaussianCloud, camera: Camera, deg: int, scale_modifie
         cloud.positions, cloud.scales, cloud.rotations, cloud.opacities, cloud.sh_dc, rest)]
     cam_t = torch.from_numpy(cam)
     # a made SH rest: colours after preprocessing, a row range at a time (its rows never whole)
-    means, conic, opac, colors, rects, boxes, order = kern.preprocess(
+    means, conic, opac, colors, boxes, order = kern.preprocess(
         *f32, cam_t, W, H, 0 if made else deg, float(scale_modifier), bool(want_color and not made),
         nthreads)
     if made:
         for s, e, rows in _made_rows(cloud.sh_rest):
             kern.sh_colors(f32[0][s:e], f32[4][s:e], torch.from_numpy(np.ascontiguousarray(rows[:, :k])),
                            cam_t, deg, colors[s:e], nthreads)
-    img, trans, imp = kern.rasterize(means, conic, opac, colors, rects, boxes, order, W, H,
+    img, trans, imp = kern.rasterize(means, conic, opac, colors, boxes, order, W, H,
                                      bool(want_importance), nthreads)
     return img, trans, (imp.numpy() if want_importance else None)
 

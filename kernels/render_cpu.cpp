@@ -14,10 +14,10 @@
 //   conic   [N, 3] f32   inverse 2D covariance (a, b, c): power = -0.5(a dx^2 + c dy^2) - b dx dy
 //   opac    [N]    f32   sigmoid(opacity)
 //   colors  [N, 3] f32   SH colour (+0.5, clamped at 0)
-//   rects   [N, 4] i32   tiles to bin into (x0, y0, x1, y1), x1/y1 exclusive: the graphdeco
-//                        tile rectangle cut to the tiles that meet the pixel box
-//   boxes   [N, 4] i32   conservative pixel box (x0, y0, x1, y1) outside of which
-//                        alpha < 1/255 everywhere (so skipping it is exact); empty = never drawn
+//   boxes   [N, 4] i32   pixel box (x0, y0, x1, y1), x1/y1 exclusive: a conservative box
+//                        outside of which alpha < 1/255 everywhere (so skipping it is exact), cut
+//                        to the graphdeco tile rectangle (the pixels graphdeco lets the Gaussian
+//                        reach); empty = never drawn. Its tiles are the tiles binned into.
 //   order   [M]    i64   visible Gaussians, front to back
 // Outputs: image [H, W, 3] f32 (without background), trans [H, W] f32 (final T),
 //          importance [N] f64 (sum over pixels of alpha*T) when want_importance.
@@ -42,21 +42,19 @@ constexpr int BLOCK_PIX = BLOCK * BLOCK;
 }  // namespace
 
 std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, torch::Tensor opac,
-                                     torch::Tensor colors, torch::Tensor rects,
-                                     torch::Tensor boxes, torch::Tensor order, int64_t width,
+                                     torch::Tensor colors, torch::Tensor boxes,
+                                     torch::Tensor order, int64_t width,
                                      int64_t height, bool want_importance, int64_t num_threads) {
   TORCH_CHECK(means.dtype() == torch::kFloat32 && conic.dtype() == torch::kFloat32 &&
                   opac.dtype() == torch::kFloat32 && colors.dtype() == torch::kFloat32,
               "float32 inputs expected");
-  TORCH_CHECK(rects.dtype() == torch::kInt32 && boxes.dtype() == torch::kInt32,
-              "int32 rects/boxes expected");
+  TORCH_CHECK(boxes.dtype() == torch::kInt32, "int32 boxes expected");
   TORCH_CHECK(order.dtype() == torch::kInt64, "int64 order expected");
   order = order.contiguous();
   means = means.contiguous();
   conic = conic.contiguous();
   opac = opac.contiguous();
   colors = colors.contiguous();
-  rects = rects.contiguous();
   boxes = boxes.contiguous();
   const int64_t N = means.size(0);      // rows of the per-Gaussian arrays
   const int64_t M = order.size(0);      // visible Gaussians, front to back
@@ -70,18 +68,27 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
   const float* cp = conic.data_ptr<float>();
   const float* op = opac.data_ptr<float>();
   const float* colp = colors.data_ptr<float>();
-  const int32_t* rp = rects.data_ptr<int32_t>();
   const int32_t* bp = boxes.data_ptr<int32_t>();
+  // The tiles a box meets (x0, y0, x1, y1), none for an empty box: as the box lies within the
+  // graphdeco rectangle, those of the rectangle that can receive a contribution.
+  auto tiles = [bp](int64_t g, int t[4]) {
+    const int32_t* b = bp + 4 * g;
+    if (b[2] > b[0] && b[3] > b[1]) {
+      t[0] = b[0] / BLOCK; t[1] = b[1] / BLOCK;
+      t[2] = (b[2] - 1) / BLOCK + 1; t[3] = (b[3] - 1) / BLOCK + 1;
+    } else {
+      t[0] = t[1] = t[2] = t[3] = 0;
+    }
+  };
 
-  // Binning into the tiles of each Gaussian's rects (the graphdeco rectangle cut to the tiles
-  // its pixel box meets: only those can receive a contribution). Counting sort keyed by tile;
-  // filling in depth order keeps each list sorted front-to-back with ties in index order (what
-  // graphdeco's stable radix sort gives).
+  // Binning: counting sort keyed by tile; filling in depth order keeps each list sorted
+  // front-to-back with ties in index order (what graphdeco's stable radix sort gives).
   std::vector<int64_t> offsets(ntiles + 1, 0);
   for (int64_t j = 0; j < M; ++j) {
     const int64_t g = ordp[j];
     TORCH_CHECK(g >= 0 && g < N, "order index out of range");
-    const int32_t* r = rp + 4 * g;
+    int r[4];
+    tiles(g, r);
     for (int ty = r[1]; ty < r[3]; ++ty)
       for (int tx = r[0]; tx < r[2]; ++tx) offsets[static_cast<int64_t>(ty) * gx + tx + 1]++;
   }
@@ -91,7 +98,8 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
   {
     std::vector<int64_t> fill(offsets.begin(), offsets.end() - 1);
     for (int64_t j = 0; j < M; ++j) {
-      const int32_t* r = rp + 4 * ordp[j];
+      int r[4];
+      tiles(ordp[j], r);
       for (int ty = r[1]; ty < r[3]; ++ty)
         for (int tx = r[0]; tx < r[2]; ++tx)
           entries[fill[static_cast<int64_t>(ty) * gx + tx]++] = static_cast<int32_t>(ordp[j]);
@@ -240,8 +248,9 @@ static void camera_centre(const double* cm, float campos[3]) {
 }
 
 // Per-Gaussian preprocessing, the same steps as render.py::_preprocess (see there for the
-// graphdeco references). Returns the per-Gaussian arrays (N rows; rows of culled Gaussians are
-// garbage) and `order` [M] int64: the visible Gaussians sorted front to back, ties by index.
+// graphdeco references). Returns the per-Gaussian arrays means, conic, opac, colors, boxes (N
+// rows; rows of culled Gaussians are garbage) and `order` [M] int64: the visible Gaussians
+// sorted front to back, ties by index.
 //   positions [N,3], log_scales [N,3], rotations [N,4] (w,x,y,z), opacity_logits [N],
 //   sh_dc [N,3], sh_rest [N,K,3] (K >= (deg+1)^2-1), cam = [R (9, row-major), t (3), fx, fy,
 //   cx, cy] float64.
@@ -273,7 +282,6 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
   auto conic = torch::empty({N, 3}, torch::kFloat32);
   auto opac = torch::empty({N}, torch::kFloat32);
   auto colors = torch::zeros({N, 3}, torch::kFloat32);
-  auto rects = torch::zeros({N, 4}, torch::kInt32);
   auto boxes = torch::zeros({N, 4}, torch::kInt32);
   auto depth = torch::empty({N}, torch::kFloat32);
   std::vector<uint8_t> valid(N, 0);
@@ -285,7 +293,7 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
   const float* REST = K ? sh_rest.data_ptr<float>() : nullptr;
   float* mp = means.data_ptr<float>(); float* cp = conic.data_ptr<float>();
   float* op = opac.data_ptr<float>(); float* colp = colors.data_ptr<float>();
-  int32_t* rp = rects.data_ptr<int32_t>(); int32_t* bp = boxes.data_ptr<int32_t>();
+  int32_t* bp = boxes.data_ptr<int32_t>();
   float* dp = depth.data_ptr<float>();
 
   parallel_chunks(N, num_threads, [&](int64_t begin, int64_t end) {
@@ -378,17 +386,12 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
             bx[1] = cl(std::ceil(my - hy), H); bx[3] = cl(std::floor(my + hy) + 1, H);
           }
         }
-        // The tiles rasterize bins into: the graphdeco rectangle cut to the tiles the box meets
-        // (none when the box is empty).
-        int tx0 = 0, ty0 = 0, tx1 = 0, ty1 = 0;
-        if (bx[2] > bx[0] && bx[3] > bx[1]) {
-          tx0 = std::max(x0, bx[0] / BLOCK);
-          ty0 = std::max(y0, bx[1] / BLOCK);
-          tx1 = std::min(x1, (bx[2] - 1) / BLOCK + 1);
-          ty1 = std::min(y1, (bx[3] - 1) / BLOCK + 1);
-        }
-        if (tx1 <= tx0 || ty1 <= ty0) tx0 = ty0 = tx1 = ty1 = 0;
-        rp[4 * i] = tx0; rp[4 * i + 1] = ty0; rp[4 * i + 2] = tx1; rp[4 * i + 3] = ty1;
+        // Cut to the pixels of the graphdeco tile rectangle: rasterize then bins into the
+        // rectangle's tiles that meet the box and visits, in each, the pixels of the box -- what
+        // it did with the rectangle and the box apart (no [N, 4] rectangle array).
+        bx[0] = std::max(bx[0], x0 * BLOCK); bx[2] = std::min(bx[2], x1 * BLOCK);
+        bx[1] = std::max(bx[1], y0 * BLOCK); bx[3] = std::min(bx[3], y1 * BLOCK);
+        if (bx[2] <= bx[0] || bx[3] <= bx[1]) bx[0] = bx[1] = bx[2] = bx[3] = 0;
       }
       if (want_color) sh_color(P + 3 * i, DC + 3 * i, REST ? REST + 3 * K * i : nullptr, deg, campos, colp + 3 * i);
     }
@@ -413,7 +416,7 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
   std::vector<uint8_t>().swap(valid);
   std::sort(orp, orp + count);
   for (int64_t j = 0; j < count; ++j) orp[j] &= 0xffffffff;
-  return {means, conic, opac, colors, rects, boxes, order};
+  return {means, conic, opac, colors, boxes, order};
 }
 
 // The colours preprocess computes (want_color), of every row of a row range: positions [n,3],

@@ -39,12 +39,15 @@ def train_psnr(refs, cloud, cameras, best_views=None) -> tuple[float, list, int]
     from ...evaluation.evaluate import render_views
     from ...evaluation.metrics import psnr
     if best_views is None:
-        imgs = render_views(cloud, cameras)
-        views = [psnr(r, i) for r, i in zip(refs, imgs)]
+        views = []
+        for r, c in zip(refs, cameras):
+            trim_heap()         # a whole candidate's renders are a search's peak: from a trimmed heap
+            views.append(psnr(r, render_views(cloud, [c])[0]))
         return float(np.mean(views)), views, 0
     views = [None] * len(cameras)
     diffs = []
     for i in np.argsort(np.asarray(best_views), kind="stable"):
+        trim_heap()             # the heap grew ~12 MB a view at 6 M Gaussians
         views[i] = psnr(refs[i], render_views(cloud, [cameras[i]])[0])
         diffs.append(views[i] - best_views[i])
         if EVAL_MIN_VIEWS <= len(diffs) < len(cameras) and float(np.mean(diffs)) < -EVAL_DROP_MARGIN_DB:
@@ -72,6 +75,7 @@ def screen_psnr(refs, cloud, cameras, best_views) -> tuple[float, int]:
     order = np.argsort(np.asarray(best_views), kind="stable")
     vals, diffs = [], []
     for i in order:
+        trim_heap()
         vals.append(psnr(refs[i], render_views(cloud, [cameras[i]])[0]))
         diffs.append(vals[-1] - best_views[i])
         if SCREEN_MIN_VIEWS <= len(vals) < len(cameras) and float(np.mean(diffs)) > SCREEN_PASS_MARGIN_DB:
@@ -100,10 +104,8 @@ class Judge:
 
     def score(self, cloud, best_views=None) -> tuple[float, list, int]:
         """:func:`train_psnr` on this search's views."""
-        trim_heap()             # the renders of a whole candidate are a search's peak
         return train_psnr(self.refs, cloud, self.cameras, best_views)
 
     def screen(self, cloud, best_views) -> tuple[float, int]:
         """:func:`screen_psnr` on this search's views."""
-        trim_heap()
         return screen_psnr(self.refs, cloud, self.cameras, best_views)
