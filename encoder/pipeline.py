@@ -1028,16 +1028,18 @@ class ShPayloads:
     def decoded_rows(self, kept_bits=None) -> MadeRows:
         """The SH ``payloads(kept_bits)`` decodes to ([M, K, 3] float32, output order), bit for
         bit, as :class:`MadeRows` made 64 k rows at a time (for a render): from each tile's
-        codebook and the kept vectors' symbols (quantised as their channel sets code them, not
-        entropy coded), dequantised with the same float64 steps.  It holds the symbols (a byte
-        a value up to 8 bits) and 12 bytes of row indices a voxel, not the [M, K, 3] float32
-        array (1 GB at 6 M voxels)."""
+        codebook, and for a kept vector from its own values quantised again with its group's
+        parameters (those its channel set codes, found once here without entropy coding: the
+        normative quantiser and dequantiser, kernels.quantize, are elementwise).  It holds the
+        groups' parameters and 12 bytes of row indices a voxel, neither the [M, K, 3] float32
+        array (1 GB at 6 M voxels) nor the kept vectors' symbols (270 MB on the scalar path)."""
         from ..decoder.groups import blocks_for
         from ..decoder.quant import split_lengths, step_sizes
         from .groups import quantize_channel_set
         m, d = self.m, self.d
+        order = self.stage.order                 # output row -> its voxel
         pos = np.empty(m, np.int64)              # voxel -> its row in the output
-        pos[self.stage.order] = np.arange(m)
+        pos[order] = np.arange(m)
         cw_row = np.full(m, -1, np.int32)        # output row -> its row in the stacked codebooks
         books, off = [], 0
         for r, rec, idx in self._codewords:
@@ -1045,45 +1047,52 @@ class ShPayloads:
             books.append(rec)
             off += rec.shape[0]
         books = np.concatenate(books) if books else np.zeros((0, d), np.float32)
-        parts = [(li, sel, kb, self.sh_bits if kept_bits is None else kept_bits[li])
-                 for li, (sel, kb) in enumerate(self.kept_sets) if sel.size]
-        wide = any(int(np.max(bits)) > 8 for *_, bits in parts)
-        sym = np.empty((sum(sel.size for _, sel, _, _ in parts), d), np.uint16 if wide else np.uint8)
-        kept_row = np.full(m, -1, np.int32)      # output row -> its row in sym (-1: a codeword)
-        group = np.empty(sym.shape[0], np.int32)  # row of sym -> its group's row in lo / step
-        lo, step = [np.zeros((0, d))], [np.zeros((0, d))]
-        s = g = 0
-        for li, sel, kb, bits in parts:
-            x, e = self.kept_vectors(li), s + sel.size
-            bits = np.broadcast_to(np.asarray(bits), (d, blocks_for(sel.size, kb)))
+        group = np.full(m, -1, np.int32)         # output row -> its kept group's row (-1: a codeword)
+        lo, step, top = [np.zeros((0, d))], [np.zeros((0, d))], [np.zeros((0, d))]
+        g = 0
+        for li, (sel, kb) in enumerate(self.kept_sets):
+            if not sel.size:
+                continue
+            bits = np.broadcast_to(np.asarray(self.sh_bits if kept_bits is None else kept_bits[li]),
+                                   (d, blocks_for(sel.size, kb)))
+            x = self.kept_vectors(li)
             mins, maxs, qbits = [], [], []
-            # QUANT_CHANNELS channels at a time (groups are per channel: the same symbols and
-            # parameters), so that no [D, P] int32 symbols exist (360 MB with a part of 2^20)
+            # QUANT_CHANNELS channels at a time (groups are per channel: the same parameters),
+            # so that no [D, P] int32 symbols exist (360 MB with a part of 2^20)
             for c in range(0, d, QUANT_CHANNELS):
-                q, mn, mx, qb = quantize_channel_set(x[c:c + QUANT_CHANNELS], bits[c:c + QUANT_CHANNELS], kb)
-                sym[s:e, c:c + QUANT_CHANNELS] = q.T
+                _, mn, mx, qb = quantize_channel_set(x[c:c + QUANT_CHANNELS], bits[c:c + QUANT_CHANNELS], kb)
                 mins.append(mn), maxs.append(mx), qbits.append(qb)
-            del x, q
+            del x
             mins, maxs, qbits = np.concatenate(mins), np.concatenate(maxs), np.concatenate(qbits)
-            group[s:e] = g + np.repeat(np.arange(qbits.shape[1], dtype=np.int32),
-                                       split_lengths(sel.size, qbits.shape[1]))
-            kept_row[pos[sel]] = np.arange(s, e, dtype=np.int32)
-            # dequantize_groups' parameters: float32 minimum widened, normative float64 step
+            group[pos[sel]] = g + np.repeat(np.arange(qbits.shape[1], dtype=np.int32),
+                                            split_lengths(sel.size, qbits.shape[1]))
+            # the quantiser's parameters: float32 minimum widened, normative float64 step, top
+            # symbol 2^q - 1 (0 for a width-0 group: constant_groups gives it symbols 0)
             lo.append(mins.astype(np.float64).T)
             step.append(step_sizes(mins, maxs, qbits).T)
-            s, g = e, g + qbits.shape[1]
-        lo, step = np.concatenate(lo), np.concatenate(step)
+            top.append(np.where(bits == 0, 0.0, np.ldexp(1.0, qbits) - 1.0).T)
+            g += qbits.shape[1]
+        lo, step, top = np.concatenate(lo), np.concatenate(step), np.concatenate(top)
         del pos
+        sh = self.stage.sh
 
         def rows(a: int, b: int) -> np.ndarray:
             out = np.empty((b - a, d), np.float32)
-            kr = kept_row[a:b]
-            kept = kr >= 0
+            gr = group[a:b]
+            kept = gr >= 0
             if kept.any():
-                r = kr[kept]
-                gr = group[r]
-                v = step[gr] * sym[r]            # dequantize_groups: step * k, then + min
-                v += lo[gr]
+                gr = gr[kept]
+                # quantize_cpu.quantize's k = min(max(rint((x - m) / s), 0), 2^q - 1), then
+                # dequantize_groups' s * k + m, both in float64
+                v = sh[order[a:b][kept]].astype(np.float64)
+                m_g, s_g = lo[gr], step[gr]
+                v -= m_g
+                v /= s_g
+                np.rint(v, out=v)
+                np.maximum(v, 0.0, out=v)
+                np.minimum(v, top[gr], out=v)
+                v *= s_g
+                v += m_g
                 out[kept] = v
             if not kept.all():
                 out[~kept] = books[cw_row[a:b][~kept]]
