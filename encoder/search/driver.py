@@ -337,8 +337,8 @@ class BudgetSearch:
                 continue
             progress.log(f"{what}: {enc.size:,} bytes, train PSNR {p:.2f} dB")
             scored.append(Candidate(p, tau, d, fl, views, enc))
-            # only the stage's best path can become a candidate (best_of: the first of equals, so
-            # the running best is the final one's rival): the others' bytes go before the next
+            # only the stage's best path becomes a candidate, and best_of keeps the first of
+            # equals, so a path beaten here is never that best: its bytes go before the next
             # path's render (~120 MB a file at 6 M Gaussians)
             top = best_of(scored)
             for c in scored:
