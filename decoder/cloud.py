@@ -49,6 +49,50 @@ class OutputRows:
 #: fresh arrays for every field
 FRESH = OutputRows()
 
+#: rows per step where a :class:`MadeRows` is made whole (np.asarray)
+MADE_ROWS_STEP = 1 << 16
+
+
+class MadeRows:
+    """A read-only float32 array [N, ...] made a row range at a time: ``rows(start, stop)``
+    gives rows start..stop as an ndarray.  A field its consumer reads in row steps -- the
+    renderer's SH colours (:func:`gsz.evaluation.render.render`) -- so never exists whole (a
+    candidate's decoded SH rest: 1 GB at 6 M Gaussians).  A plain row slice makes those rows;
+    any other index, and ``np.asarray``, makes the whole array first."""
+
+    dtype = np.dtype(np.float32)
+
+    def __init__(self, shape: tuple, rows):
+        self.shape = tuple(int(v) for v in shape)
+        self.ndim = len(self.shape)
+        self.size = int(np.prod(self.shape))
+        self._rows = rows
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def rows(self, start: int, stop: int) -> np.ndarray:
+        """float32 [stop - start, ...]: rows start..stop (clipped to the array)."""
+        start, stop = max(0, int(start)), min(self.shape[0], int(stop))
+        stop = max(start, stop)
+        out = np.asarray(self._rows(start, stop), dtype=np.float32)
+        if out.shape != (stop - start,) + self.shape[1:]:
+            raise ValueError(f"MadeRows: rows({start}, {stop}) gave shape {out.shape}, expected "
+                             f"{(stop - start,) + self.shape[1:]}")
+        return out
+
+    def __getitem__(self, key) -> np.ndarray:
+        if isinstance(key, slice) and key.step in (None, 1):
+            start, stop, _ = key.indices(self.shape[0])
+            return self.rows(start, stop)
+        return np.asarray(self)[key]
+
+    def __array__(self, dtype=None, copy=None):
+        out = np.empty(self.shape, np.float32)
+        for s in range(0, self.shape[0], MADE_ROWS_STEP):
+            out[s:s + MADE_ROWS_STEP] = self.rows(s, s + MADE_ROWS_STEP)
+        return out if dtype is None else out.astype(dtype, copy=False)
+
 
 @dataclass
 class GaussianCloud:
@@ -67,6 +111,9 @@ class GaussianCloud:
     sh_rest    [N,K,3]f32 higher-order SH, coefficient-major, RGB last
     sh_degree  int        0..3
     ========== ========== ===============================================================
+
+    ``sh_rest`` may be a :class:`MadeRows` (kept as it is): a scene made to be rendered, whose
+    SH rest is made row range by row range as the renderer reads it.
     """
 
     positions: np.ndarray
@@ -95,6 +142,8 @@ class GaussianCloud:
         self.sh_dc = np.ascontiguousarray(self.sh_dc, dtype=np.float32)
         k = sh_rest_count(int(self.sh_degree))
         self.sh_degree = int(self.sh_degree)
+        if isinstance(self.sh_rest, MadeRows):
+            return
         sr = np.asarray(self.sh_rest, dtype=np.float32)
         if sr.size == 0 and k == 0:
             sr = np.zeros((self.positions.shape[0], 0, 3), np.float32)

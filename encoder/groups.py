@@ -18,8 +18,36 @@ def write_channel_set(x: np.ndarray, bits, num_blocks: int,
     a group constant (:func:`constant_groups`).
     Returns (bytes, dequantised [C, L] exactly as the decoder will reconstruct it), float64 or
     ``recon_dtype`` (float32: the float64 values rounded, made a few channels at a time, for
-    callers that store float32 anyway: half the memory at 1.2 M kept SH vectors).
+    callers that store float32 anyway: half the memory at 1.2 M kept SH vectors; None: no
+    reconstruction, None instead, for callers that want the bytes only).
     """
+    symbols, mins, maxs, bits_arr = quantize_channel_set(x, bits, num_blocks)
+    c, length = symbols.shape
+    b = bits_arr.shape[1]
+    # Both model layouts are coded and the smaller kept (the first on a tie): per-group tables
+    # win for large groups and low bit-widths, shared per-(channel, bits) tables for small
+    # groups at high bit-widths.  The per-(channel, bits) histograms are merged from the
+    # per-group ones (group c*B + k -> model c*16 + bits[c, k] - 1, as group_model_ids).
+    assert MODEL_MODES == (MODEL_PER_GROUP, MODEL_PER_CHANNEL_BITS)
+    merge = (np.arange(c, dtype=np.int64)[:, None] * 16 + bits_arr - 1).ravel()
+    streams = encode_group_streams(symbols, split_lengths(length, b), merge, c * 16)
+    best = (MODEL_PER_CHANNEL_BITS, streams[1]) if len(streams[1]) < len(streams[0]) \
+        else (MODEL_PER_GROUP, streams[0])
+    w = Writer()
+    w.u8(c).u32(length).u16(b).u8(best[0])
+    w.array(bits_arr, np.uint8).array(mins, np.float32).array(maxs, np.float32)
+    w.blob(best[1])
+    if recon_dtype is None:
+        return w.getvalue(), None
+    return w.getvalue(), _dequantized(symbols, mins, maxs, bits_arr, split_lengths(length, b),
+                                      np.dtype(recon_dtype))
+
+
+def quantize_channel_set(x: np.ndarray, bits, num_blocks: int):
+    """The symbols and group parameters :func:`write_channel_set` codes x [C, L] with:
+    (symbols int32 [C, L], mins float32 [C, B], maxs float32 [C, B], bits int64 [C, B]) with
+    B = blocks_for(L, num_blocks), width-0 groups made constant (stored as 1 bit); they
+    dequantise (``dequantize_groups(..., split_lengths(L, B))``) to its reconstruction."""
     from ..kernels.quantize import quantize_groups   # torch: not needed to build the CLI's parser
     x = np.ascontiguousarray(x, dtype=np.float32)
     c, length = x.shape
@@ -35,21 +63,7 @@ def write_channel_set(x: np.ndarray, bits, num_blocks: int,
         symbols = np.zeros((c, 0), np.int32)
         mins = np.zeros((c, b), np.float32)
         maxs = np.zeros((c, b), np.float32)
-    # Both model layouts are coded and the smaller kept (the first on a tie): per-group tables
-    # win for large groups and low bit-widths, shared per-(channel, bits) tables for small
-    # groups at high bit-widths.  The per-(channel, bits) histograms are merged from the
-    # per-group ones (group c*B + k -> model c*16 + bits[c, k] - 1, as group_model_ids).
-    assert MODEL_MODES == (MODEL_PER_GROUP, MODEL_PER_CHANNEL_BITS)
-    merge = (np.arange(c, dtype=np.int64)[:, None] * 16 + bits_arr - 1).ravel()
-    streams = encode_group_streams(symbols, split_lengths(length, b), merge, c * 16)
-    best = (MODEL_PER_CHANNEL_BITS, streams[1]) if len(streams[1]) < len(streams[0]) \
-        else (MODEL_PER_GROUP, streams[0])
-    w = Writer()
-    w.u8(c).u32(length).u16(b).u8(best[0])
-    w.array(bits_arr, np.uint8).array(mins, np.float32).array(maxs, np.float32)
-    w.blob(best[1])
-    return w.getvalue(), _dequantized(symbols, mins, maxs, bits_arr, split_lengths(length, b),
-                                      np.dtype(recon_dtype))
+    return symbols, mins, maxs, bits_arr
 
 
 def _dequantized(symbols, mins, maxs, bits, lens, dtype: np.dtype, step: int = 8) -> np.ndarray:

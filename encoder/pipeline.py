@@ -23,7 +23,7 @@ import numpy as np
 
 from ..decoder.attributes import attributes_from_channels
 from ..decoder.bytesio import Writer
-from ..decoder.cloud import GaussianCloud
+from ..decoder.cloud import GaussianCloud, MadeRows
 from ..decoder.container import (CHUNK_ENTRY_SIZE, CHUNK_REQUIRED, FRAME_RDF, LAYER_SHIFT, Chunk, FileHeader,
                                  write_container)
 from ..decoder.errors import GszUsageError
@@ -856,6 +856,12 @@ def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks
     return ShPayloads(stage, codebook, keep, sh_bits, blocks, cb_blocks, index).payloads()
 
 
+#: rows per step where a pass over every voxel's SH vector would otherwise gather [M, D] copies
+ROW_CHUNK = 65536
+#: SH channels quantised at a time where only the symbols are wanted (ShPayloads.decoded_rows)
+QUANT_CHANNELS = 8
+
+
 class ShPayloads:
     """The SHVQ payloads of one (stage, codebook, keep-count), with the kept vectors' group
     bit-widths still open: the codebook, the codeword indices and the kept flags are coded
@@ -979,7 +985,13 @@ class ShPayloads:
 
     def kept_vectors(self, layer: int) -> np.ndarray:
         """float32 [D, P_l]: the kept vectors of a layer as their channel set codes them."""
-        return np.ascontiguousarray(self.stage.sh[self.kept_sets[layer][0]].T)
+        sel = self.kept_sets[layer][0]
+        out = np.empty((self.d, sel.size), np.float32)
+        # gathered ROW_CHUNK rows at a time: a whole [P_l, D] gather besides its transpose was
+        # 180 MB more for a part of 2^20 kept vectors
+        for s in range(0, sel.size, ROW_CHUNK):
+            out[:, s:s + ROW_CHUNK] = self.stage.sh[sel[s:s + ROW_CHUNK]].T
+        return out
 
     def payloads(self, kept_bits=None, decoded: bool = True):
         """(payloads per layer, SH as decoded [M, K, 3] output order, stats).  ``kept_bits``:
@@ -995,7 +1007,9 @@ class ShPayloads:
             for r, rec, idx in self._codewords:
                 out[pos[r]] = rec[idx]
         stats = dict(self.stats)
-        jobs = ((self.kept_vectors(li), self.sh_bits if kept_bits is None else kept_bits[li], kb)
+        # without ``decoded`` the reconstruction is not made (180 MB a part of 2^20 kept vectors)
+        jobs = ((self.kept_vectors(li), self.sh_bits if kept_bits is None else kept_bits[li], kb,
+                 np.float32 if decoded else None)
                 for li, (sel, kb) in enumerate(self.kept_sets) if sel.size)
         ex = self.stage.executor if self.stage.num_tiles > 1 else None
         coded = in_order(ex, _code_channel_set, jobs)
@@ -1010,6 +1024,80 @@ class ShPayloads:
             payloads.append(self._heads[li] + body + self._tails[li])
         k = self.m and self.d // 3
         return payloads, None if out is None else out.reshape(self.m, k, 3), stats
+
+    def decoded_rows(self, kept_bits=None) -> MadeRows:
+        """The SH ``payloads(kept_bits)`` decodes to ([M, K, 3] float32, output order), bit for
+        bit, as :class:`MadeRows` made 64 k rows at a time (for a render): from each tile's
+        codebook, and for a kept vector from its own values quantised again with its group's
+        parameters (those its channel set codes, found once here without entropy coding: the
+        normative quantiser and dequantiser, kernels.quantize, are elementwise).  It holds the
+        groups' parameters and 12 bytes of row indices a voxel, neither the [M, K, 3] float32
+        array (1 GB at 6 M voxels) nor the kept vectors' symbols (270 MB on the scalar path)."""
+        from ..decoder.groups import blocks_for
+        from ..decoder.quant import split_lengths, step_sizes
+        from .groups import quantize_channel_set
+        m, d = self.m, self.d
+        order = self.stage.order                 # output row -> its voxel
+        pos = np.empty(m, np.int64)              # voxel -> its row in the output
+        pos[order] = np.arange(m)
+        cw_row = np.full(m, -1, np.int32)        # output row -> its row in the stacked codebooks
+        books, off = [], 0
+        for r, rec, idx in self._codewords:
+            cw_row[pos[r]] = idx + off
+            books.append(rec)
+            off += rec.shape[0]
+        books = np.concatenate(books) if books else np.zeros((0, d), np.float32)
+        group = np.full(m, -1, np.int32)         # output row -> its kept group's row (-1: a codeword)
+        lo, step, top = [np.zeros((0, d))], [np.zeros((0, d))], [np.zeros((0, d))]
+        g = 0
+        for li, (sel, kb) in enumerate(self.kept_sets):
+            if not sel.size:
+                continue
+            bits = np.broadcast_to(np.asarray(self.sh_bits if kept_bits is None else kept_bits[li]),
+                                   (d, blocks_for(sel.size, kb)))
+            x = self.kept_vectors(li)
+            mins, maxs, qbits = [], [], []
+            # QUANT_CHANNELS channels at a time (groups are per channel: the same parameters),
+            # so that no [D, P] int32 symbols exist (360 MB with a part of 2^20)
+            for c in range(0, d, QUANT_CHANNELS):
+                _, mn, mx, qb = quantize_channel_set(x[c:c + QUANT_CHANNELS], bits[c:c + QUANT_CHANNELS], kb)
+                mins.append(mn), maxs.append(mx), qbits.append(qb)
+            del x
+            mins, maxs, qbits = np.concatenate(mins), np.concatenate(maxs), np.concatenate(qbits)
+            group[pos[sel]] = g + np.repeat(np.arange(qbits.shape[1], dtype=np.int32),
+                                            split_lengths(sel.size, qbits.shape[1]))
+            # the quantiser's parameters: float32 minimum widened, normative float64 step, top
+            # symbol 2^q - 1 (0 for a width-0 group: constant_groups gives it symbols 0)
+            lo.append(mins.astype(np.float64).T)
+            step.append(step_sizes(mins, maxs, qbits).T)
+            top.append(np.where(bits == 0, 0.0, np.ldexp(1.0, qbits) - 1.0).T)
+            g += qbits.shape[1]
+        lo, step, top = np.concatenate(lo), np.concatenate(step), np.concatenate(top)
+        del pos
+        sh = self.stage.sh
+
+        def rows(a: int, b: int) -> np.ndarray:
+            out = np.empty((b - a, d), np.float32)
+            gr = group[a:b]
+            kept = gr >= 0
+            if kept.any():
+                gr = gr[kept]
+                # quantize_cpu.quantize's k = min(max(rint((x - m) / s), 0), 2^q - 1), then
+                # dequantize_groups' s * k + m, both in float64
+                v = sh[order[a:b][kept]].astype(np.float64)
+                m_g, s_g = lo[gr], step[gr]
+                v -= m_g
+                v /= s_g
+                np.rint(v, out=v)
+                np.maximum(v, 0.0, out=v)
+                np.minimum(v, top[gr], out=v)
+                v *= s_g
+                v += m_g
+                out[kept] = v
+            if not kept.all():
+                out[~kept] = books[cw_row[a:b][~kept]]
+            return out.reshape(b - a, -1, 3)
+        return MadeRows((m, m and d // 3, 3), rows)
 
 
 #: importance classes of the kept SH vectors wherever the size search allocates their widths
@@ -1041,9 +1129,9 @@ def _block_bounds(length: int, blocks: int):
 
 
 def _code_channel_set(job):
-    """write_channel_set(values, bits, blocks) of one job (an executor's unit of work), its
-    reconstruction float32 (the SH output's type)."""
-    return write_channel_set(*job, recon_dtype=np.float32)
+    """write_channel_set(values, bits, blocks, recon_dtype) of one job (an executor's unit of
+    work): its reconstruction float32 (the SH output's type), or None."""
+    return write_channel_set(*job[:3], recon_dtype=job[3])
 
 
 def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: dict,

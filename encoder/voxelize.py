@@ -53,7 +53,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..decoder.cloud import GaussianCloud
+from ..decoder.cloud import GaussianCloud, MadeRows
 from ..decoder.errors import GszError
 # The decoder's reconstruction rule is the normative one; re-exported for encoder callers.
 from ..decoder.geometry import voxel_centres  # noqa: F401  (origin + (ijk + 0.5) * pitch)
@@ -164,14 +164,16 @@ class Voxelized:
         return self.side / float(1 << self.depth)
 
     def full_cloud(self) -> GaussianCloud:
-        """``cloud`` with its SH rest: gathered (a fresh [M, K, 3] array, for the caller to drop)
-        when the grid holds its SH as rows of the input's."""
+        """``cloud`` with its SH rest: when the grid holds its SH as rows of the input's, a
+        :class:`MadeRows` gathering them a row range at a time as a render reads them (whole,
+        1 GB at 6 M voxels)."""
         if self.sh is None:
             return self.cloud
-        c, m = self.cloud, len(self.ijk)
+        c, m, sh = self.cloud, len(self.ijk), self.sh
+        rest = MadeRows((m, sh.shape[1] // 3, 3), lambda a, b: sh[a:b].reshape(b - a, -1, 3))
         return GaussianCloud(positions=c.positions, scales=c.scales, rotations=c.rotations,
-                             opacities=c.opacities, sh_dc=c.sh_dc,
-                             sh_rest=self.sh[:].reshape(m, -1, 3), sh_degree=self.sh_degree)
+                             opacities=c.opacities, sh_dc=c.sh_dc, sh_rest=rest,
+                             sh_degree=self.sh_degree)
 
 
 # --------------------------------------------------------------------------------------- grid

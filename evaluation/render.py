@@ -56,6 +56,7 @@ issued and the torch path is used.  ``GSZ_RENDER_BACKEND=torch`` forces the refe
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import os
 import threading
@@ -68,7 +69,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from ..decoder.cloud import GaussianCloud
+from ..decoder.cloud import GaussianCloud, MadeRows
 from ..decoder.errors import GszError
 from .cameras import Camera, look_at, robust_bounds
 
@@ -144,14 +145,11 @@ def _check_inputs(cloud: GaussianCloud, camera: Camera, sh_degree: int | None) -
             ("sh_rest", cloud.sh_rest, np.isfinite),
             ("scales", cloud.scales, lambda a: ~np.isnan(a) & (a != np.inf)),
             ("opacities", cloud.opacities, lambda a: ~np.isnan(a))):
+        if isinstance(arr, MadeRows):
+            continue            # checked as its rows are made (_made_rows), not made twice
         # row steps: a whole-field mask of the SH rest was 270 MB per render at 6 M Gaussians
-        if all(ok(arr[s:s + CHECK_ROWS]).all() for s in range(0, n, CHECK_ROWS)):
-            continue
-        good = ok(arr)
-        if not good.all():
-            first = int(np.argmin(good.reshape(n, -1).all(axis=1))) if n else 0
-            raise GszError(f"render: cloud field '{fname}' has {int((~good).sum())} invalid "
-                           f"(NaN/inf) values, first at Gaussian {first}")
+        if not all(ok(arr[s:s + CHECK_ROWS]).all() for s in range(0, n, CHECK_ROWS)):
+            _raise_invalid(fname, arr, ok)
     if n and not (np.abs(cloud.rotations).sum(axis=1) > 0).all():
         raise GszError("render: cloud has an all-zero quaternion (first at Gaussian "
                        f"{int(np.argmin(np.abs(cloud.rotations).sum(axis=1) > 0))})")
@@ -174,6 +172,27 @@ def _check_inputs(cloud: GaussianCloud, camera: Camera, sh_degree: int | None) -
         raise GszError(f"render: cloud sh_rest has shape {cloud.sh_rest.shape}, "
                        f"expected ({n}, >={k}, 3) for SH degree {deg}")
     return deg
+
+
+def _raise_invalid(fname: str, arr, ok) -> None:
+    """Raise the GszError naming field ``fname``'s invalid values (``ok``: the per-value test)
+    when it has any."""
+    good = ok(np.asarray(arr))
+    if not good.all():
+        n = good.shape[0]
+        first = int(np.argmin(good.reshape(n, -1).all(axis=1))) if n else 0
+        raise GszError(f"render: cloud field '{fname}' has {int((~good).sum())} invalid "
+                       f"(NaN/inf) values, first at Gaussian {first}")
+
+
+def _made_rows(arr: MadeRows):
+    """(start, stop, rows) of a :class:`MadeRows` SH rest, CHECK_ROWS at a time, each range
+    checked finite as it is made (what _check_inputs does for an array)."""
+    for s in range(0, len(arr), CHECK_ROWS):
+        rows = arr.rows(s, s + CHECK_ROWS)
+        if not np.isfinite(rows).all():
+            _raise_invalid("sh_rest", arr, np.isfinite)
+        yield s, s + rows.shape[0], rows
 
 
 def _eval_sh(deg: int, dc: torch.Tensor, rest: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
@@ -497,6 +516,18 @@ def _render_arrays(cloud: GaussianCloud, camera: Camera, deg: int, scale_modifie
     kern = _load_kernel() if backend in ("auto", "cpp") else None
     if kern is None and backend == "cpp":
         raise GszError("render: the C++ rasteriser was requested but could not be built")
+    made = isinstance(cloud.sh_rest, MadeRows)
+    k = (deg + 1) ** 2 - 1
+    if made and (kern is None or not (want_color and k)):
+        # no chunked colour pass reads the rows: they are checked here (the torch reference
+        # then takes them whole)
+        whole = np.empty(cloud.sh_rest.shape, np.float32) if kern is None and want_color and k else None
+        for s, e, rows in _made_rows(cloud.sh_rest):
+            if whole is not None:
+                whole[s:e] = rows
+        if whole is not None:
+            cloud = dataclasses.replace(cloud, sh_rest=whole)
+        made = False
     if kern is None:
         p = _preprocess(cloud, camera, deg, scale_modifier, want_color)
         img, trans, imp_vis = _rasterize_torch(p, W, H, want_importance)
@@ -508,13 +539,19 @@ def _render_arrays(cloud: GaussianCloud, camera: Camera, deg: int, scale_modifie
     nthreads = _THREADS or max(1, torch.get_num_threads())
     cam = np.concatenate([camera.R.reshape(-1), camera.t,
                           [camera.fx, camera.fy, camera.cx, camera.cy]]).astype(np.float64)
-    k = (deg + 1) ** 2 - 1
-    rest = cloud.sh_rest[:, :k] if k else np.zeros((len(cloud), 0, 3), np.float32)
+    rest = cloud.sh_rest[:, :k] if k and not made else np.zeros((len(cloud), 0, 3), np.float32)
     f32 = [torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32)) for a in (
         cloud.positions, cloud.scales, cloud.rotations, cloud.opacities, cloud.sh_dc, rest)]
-    means, conic, opac, colors, rects, boxes, order = kern.preprocess(
-        *f32, torch.from_numpy(cam), W, H, deg, float(scale_modifier), bool(want_color), nthreads)
-    img, trans, imp = kern.rasterize(means, conic, opac, colors, rects, boxes, order, W, H,
+    cam_t = torch.from_numpy(cam)
+    # a made SH rest: colours after preprocessing, a row range at a time (its rows never whole)
+    means, conic, opac, colors, boxes, order = kern.preprocess(
+        *f32, cam_t, W, H, 0 if made else deg, float(scale_modifier), bool(want_color and not made),
+        nthreads)
+    if made:
+        for s, e, rows in _made_rows(cloud.sh_rest):
+            kern.sh_colors(f32[0][s:e], f32[4][s:e], torch.from_numpy(np.ascontiguousarray(rows[:, :k])),
+                           cam_t, deg, colors[s:e], nthreads)
+    img, trans, imp = kern.rasterize(means, conic, opac, colors, boxes, order, W, H,
                                      bool(want_importance), nthreads)
     return img, trans, (imp.numpy() if want_importance else None)
 

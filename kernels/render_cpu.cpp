@@ -7,14 +7,17 @@
 //   preprocess(...)  per-Gaussian projection, EWA covariance, SH colour, tile rectangle and a
 //                    conservative pixel box; returns per-Gaussian arrays plus the front-to-back
 //                    order of the visible ones.
+//   sh_colors(...)   the SH colours preprocess makes, of a row range (for an SH rest that is
+//                    made a row range at a time: render.py's chunked colour pass).
 //   rasterize(...)   tile binning + per-pixel compositing of those arrays:
 //   means   [N, 2] f32   pixel-space centre (pixel (px, py) is evaluated at (px, py))
 //   conic   [N, 3] f32   inverse 2D covariance (a, b, c): power = -0.5(a dx^2 + c dy^2) - b dx dy
 //   opac    [N]    f32   sigmoid(opacity)
 //   colors  [N, 3] f32   SH colour (+0.5, clamped at 0)
-//   rects   [N, 4] i32   graphdeco tile rectangle (x0, y0, x1, y1), x1/y1 exclusive
-//   boxes   [N, 4] i32   conservative pixel box (x0, y0, x1, y1) outside of which
-//                        alpha < 1/255 everywhere (so skipping it is exact); empty = never drawn
+//   boxes   [N, 4] i32   pixel box (x0, y0, x1, y1), x1/y1 exclusive: a conservative box
+//                        outside of which alpha < 1/255 everywhere (so skipping it is exact), cut
+//                        to the graphdeco tile rectangle (the pixels graphdeco lets the Gaussian
+//                        reach); empty = never drawn. Its tiles are the tiles binned into.
 //   order   [M]    i64   visible Gaussians, front to back
 // Outputs: image [H, W, 3] f32 (without background), trans [H, W] f32 (final T),
 //          importance [N] f64 (sum over pixels of alpha*T) when want_importance.
@@ -39,21 +42,19 @@ constexpr int BLOCK_PIX = BLOCK * BLOCK;
 }  // namespace
 
 std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, torch::Tensor opac,
-                                     torch::Tensor colors, torch::Tensor rects,
-                                     torch::Tensor boxes, torch::Tensor order, int64_t width,
+                                     torch::Tensor colors, torch::Tensor boxes,
+                                     torch::Tensor order, int64_t width,
                                      int64_t height, bool want_importance, int64_t num_threads) {
   TORCH_CHECK(means.dtype() == torch::kFloat32 && conic.dtype() == torch::kFloat32 &&
                   opac.dtype() == torch::kFloat32 && colors.dtype() == torch::kFloat32,
               "float32 inputs expected");
-  TORCH_CHECK(rects.dtype() == torch::kInt32 && boxes.dtype() == torch::kInt32,
-              "int32 rects/boxes expected");
+  TORCH_CHECK(boxes.dtype() == torch::kInt32, "int32 boxes expected");
   TORCH_CHECK(order.dtype() == torch::kInt64, "int64 order expected");
   order = order.contiguous();
   means = means.contiguous();
   conic = conic.contiguous();
   opac = opac.contiguous();
   colors = colors.contiguous();
-  rects = rects.contiguous();
   boxes = boxes.contiguous();
   const int64_t N = means.size(0);      // rows of the per-Gaussian arrays
   const int64_t M = order.size(0);      // visible Gaussians, front to back
@@ -67,30 +68,29 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
   const float* cp = conic.data_ptr<float>();
   const float* op = opac.data_ptr<float>();
   const float* colp = colors.data_ptr<float>();
-  const int32_t* rp = rects.data_ptr<int32_t>();
   const int32_t* bp = boxes.data_ptr<int32_t>();
+  // The tiles a box meets (x0, y0, x1, y1), none for an empty box: as the box lies within the
+  // graphdeco rectangle, those of the rectangle that can receive a contribution.
+  auto tiles = [bp](int64_t g, int t[4]) {
+    const int32_t* b = bp + 4 * g;
+    if (b[2] > b[0] && b[3] > b[1]) {
+      t[0] = b[0] / BLOCK; t[1] = b[1] / BLOCK;
+      t[2] = (b[2] - 1) / BLOCK + 1; t[3] = (b[3] - 1) / BLOCK + 1;
+    } else {
+      t[0] = t[1] = t[2] = t[3] = 0;
+    }
+  };
 
-  // Binning: only tiles of the graphdeco rectangle that also meet the pixel box can receive a
-  // contribution. Counting sort keyed by tile; filling in depth order keeps each list sorted
+  // Binning: counting sort keyed by tile; filling in depth order keeps each list sorted
   // front-to-back with ties in index order (what graphdeco's stable radix sort gives).
-  std::vector<int32_t> tr(4 * M);
   std::vector<int64_t> offsets(ntiles + 1, 0);
   for (int64_t j = 0; j < M; ++j) {
     const int64_t g = ordp[j];
     TORCH_CHECK(g >= 0 && g < N, "order index out of range");
-    const int32_t* b = bp + 4 * g;
-    const int32_t* r = rp + 4 * g;
-    int tx0 = 0, ty0 = 0, tx1 = 0, ty1 = 0;
-    if (b[2] > b[0] && b[3] > b[1]) {
-      tx0 = std::max(r[0], b[0] / BLOCK);
-      ty0 = std::max(r[1], b[1] / BLOCK);
-      tx1 = std::min(r[2], (b[2] - 1) / BLOCK + 1);
-      ty1 = std::min(r[3], (b[3] - 1) / BLOCK + 1);
-    }
-    if (tx1 <= tx0 || ty1 <= ty0) tx0 = ty0 = tx1 = ty1 = 0;
-    tr[4 * j] = tx0; tr[4 * j + 1] = ty0; tr[4 * j + 2] = tx1; tr[4 * j + 3] = ty1;
-    for (int ty = ty0; ty < ty1; ++ty)
-      for (int tx = tx0; tx < tx1; ++tx) offsets[static_cast<int64_t>(ty) * gx + tx + 1]++;
+    int r[4];
+    tiles(g, r);
+    for (int ty = r[1]; ty < r[3]; ++ty)
+      for (int tx = r[0]; tx < r[2]; ++tx) offsets[static_cast<int64_t>(ty) * gx + tx + 1]++;
   }
   for (int64_t t = 0; t < ntiles; ++t) offsets[t + 1] += offsets[t];
   const int64_t E = offsets[ntiles];
@@ -98,7 +98,8 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
   {
     std::vector<int64_t> fill(offsets.begin(), offsets.end() - 1);
     for (int64_t j = 0; j < M; ++j) {
-      const int32_t* r = tr.data() + 4 * j;
+      int r[4];
+      tiles(ordp[j], r);
       for (int ty = r[1]; ty < r[3]; ++ty)
         for (int tx = r[0]; tx < r[2]; ++tx)
           entries[fill[static_cast<int64_t>(ty) * gx + tx]++] = static_cast<int32_t>(ordp[j]);
@@ -206,9 +207,50 @@ static void parallel_chunks(int64_t n, int64_t num_threads, F f) {
   for (auto& th : pool) th.join();
 }
 
+// graphdeco computeColorFromSH + 0.5, clamped at 0, of one Gaussian: position p [3], dc [3], rest
+// [K, 3] (coefficient-major, RGB last; K >= (deg+1)^2-1), camera centre campos [3] -> out [3].
+// One definition for preprocess and sh_colors, so both round alike.
+static inline void sh_color(const float* p, const float* dc, const float* rs, int64_t deg,
+                            const float campos[3], float* out) {
+  float dx = p[0] - campos[0], dy = p[1] - campos[1], dz = p[2] - campos[2];
+  const float dn = std::sqrt(dx * dx + dy * dy + dz * dz);
+  const float x = dx / dn, y = dy / dn, z = dz / dn;
+  for (int ch = 0; ch < 3; ++ch) {
+    auto sh = [&](int k) { return rs[3 * k + ch]; };
+    float res = (float)0.28209479177387814 * dc[ch];
+    if (deg > 0) {
+      const float C1 = (float)0.4886025119029199;
+      res = res - C1 * y * sh(0) + C1 * z * sh(1) - C1 * x * sh(2);
+      if (deg > 1) {
+        const float xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
+        res = res + (float)1.0925484305920792 * xy * sh(3) + (float)-1.0925484305920792 * yz * sh(4) +
+              (float)0.31539156525252005 * (2.0f * zz - xx - yy) * sh(5) +
+              (float)-1.0925484305920792 * xz * sh(6) + (float)0.5462742152960396 * (xx - yy) * sh(7);
+        if (deg > 2) {
+          res = res + (float)-0.5900435899266435 * y * (3.0f * xx - yy) * sh(8) +
+                (float)2.890611442640554 * xy * z * sh(9) +
+                (float)-0.4570457994644658 * y * (4.0f * zz - xx - yy) * sh(10) +
+                (float)0.3731763325901154 * z * (2.0f * zz - 3.0f * xx - 3.0f * yy) * sh(11) +
+                (float)-0.4570457994644658 * x * (4.0f * zz - xx - yy) * sh(12) +
+                (float)1.445305721320277 * z * (xx - yy) * sh(13) +
+                (float)-0.5900435899266435 * x * (xx - 3.0f * yy) * sh(14);
+        }
+      }
+    }
+    out[ch] = std::max(res + 0.5f, 0.0f);
+  }
+}
+
+// Camera centre -R^T t, as float (render.py: torch.from_numpy(camera.center).float()).
+static void camera_centre(const double* cm, float campos[3]) {
+  for (int i = 0; i < 3; ++i)
+    campos[i] = (float)(-(cm[0 + i] * cm[9] + cm[3 + i] * cm[10] + cm[6 + i] * cm[11]));
+}
+
 // Per-Gaussian preprocessing, the same steps as render.py::_preprocess (see there for the
-// graphdeco references). Returns the per-Gaussian arrays (N rows; rows of culled Gaussians are
-// garbage) and `order` [M] int64: the visible Gaussians sorted front to back, ties by index.
+// graphdeco references). Returns the per-Gaussian arrays means, conic, opac, colors, boxes (N
+// rows; rows of culled Gaussians are garbage) and `order` [M] int64: the visible Gaussians
+// sorted front to back, ties by index.
 //   positions [N,3], log_scales [N,3], rotations [N,4] (w,x,y,z), opacity_logits [N],
 //   sh_dc [N,3], sh_rest [N,K,3] (K >= (deg+1)^2-1), cam = [R (9, row-major), t (3), fx, fy,
 //   cx, cy] float64.
@@ -231,10 +273,8 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
   const int gx = (W + BLOCK - 1) / BLOCK, gy = (H + BLOCK - 1) / BLOCK;
   const float Rf[9] = {(float)cm[0], (float)cm[1], (float)cm[2], (float)cm[3], (float)cm[4],
                        (float)cm[5], (float)cm[6], (float)cm[7], (float)cm[8]};
-  // Camera centre -R^T t, as float (render.py: torch.from_numpy(camera.center).float()).
   float campos[3];
-  for (int i = 0; i < 3; ++i)
-    campos[i] = (float)(-(cm[0 + i] * cm[9] + cm[3 + i] * cm[10] + cm[6 + i] * cm[11]));
+  camera_centre(cm, campos);
   const float limx = (float)(1.3 * (W / (2.0 * fx))), limy = (float)(1.3 * (H / (2.0 * fy)));
   const float ffx = (float)fx, ffy = (float)fy, smod = (float)scale_modifier;
 
@@ -242,7 +282,6 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
   auto conic = torch::empty({N, 3}, torch::kFloat32);
   auto opac = torch::empty({N}, torch::kFloat32);
   auto colors = torch::zeros({N, 3}, torch::kFloat32);
-  auto rects = torch::zeros({N, 4}, torch::kInt32);
   auto boxes = torch::zeros({N, 4}, torch::kInt32);
   auto depth = torch::empty({N}, torch::kFloat32);
   std::vector<uint8_t> valid(N, 0);
@@ -254,7 +293,7 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
   const float* REST = K ? sh_rest.data_ptr<float>() : nullptr;
   float* mp = means.data_ptr<float>(); float* cp = conic.data_ptr<float>();
   float* op = opac.data_ptr<float>(); float* colp = colors.data_ptr<float>();
-  int32_t* rp = rects.data_ptr<int32_t>(); int32_t* bp = boxes.data_ptr<int32_t>();
+  int32_t* bp = boxes.data_ptr<int32_t>();
   float* dp = depth.data_ptr<float>();
 
   parallel_chunks(N, num_threads, [&](int64_t begin, int64_t end) {
@@ -317,7 +356,6 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
       dp[i] = tz;
       mp[2 * i] = mx; mp[2 * i + 1] = my;
       cp[3 * i] = ca; cp[3 * i + 1] = cb; cp[3 * i + 2] = cc;
-      rp[4 * i] = x0; rp[4 * i + 1] = y0; rp[4 * i + 2] = x1; rp[4 * i + 3] = y1;
       const float o = 1.0f / (1.0f + std::exp(-O[i]));
       op[i] = o;
       // Conservative box of the alpha >= 1/255 region, in double. alpha >= 1/255 needs
@@ -348,56 +386,64 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
             bx[1] = cl(std::ceil(my - hy), H); bx[3] = cl(std::floor(my + hy) + 1, H);
           }
         }
+        // Cut to the pixels of the graphdeco tile rectangle: rasterize then bins into the
+        // rectangle's tiles that meet the box and visits, in each, the pixels of the box -- what
+        // it did with the rectangle and the box apart (no [N, 4] rectangle array).
+        bx[0] = std::max(bx[0], x0 * BLOCK); bx[2] = std::min(bx[2], x1 * BLOCK);
+        bx[1] = std::max(bx[1], y0 * BLOCK); bx[3] = std::min(bx[3], y1 * BLOCK);
+        if (bx[2] <= bx[0] || bx[3] <= bx[1]) bx[0] = bx[1] = bx[2] = bx[3] = 0;
       }
-      if (want_color) {
-        float dx = P[3 * i] - campos[0], dy = P[3 * i + 1] - campos[1], dz = P[3 * i + 2] - campos[2];
-        const float dn = std::sqrt(dx * dx + dy * dy + dz * dz);
-        const float x = dx / dn, y = dy / dn, z = dz / dn;
-        const float* rs = REST ? REST + 3 * K * i : nullptr;
-        for (int ch = 0; ch < 3; ++ch) {
-          auto sh = [&](int k) { return rs[3 * k + ch]; };
-          float res = (float)0.28209479177387814 * DC[3 * i + ch];
-          if (deg > 0) {
-            const float C1 = (float)0.4886025119029199;
-            res = res - C1 * y * sh(0) + C1 * z * sh(1) - C1 * x * sh(2);
-            if (deg > 1) {
-              const float xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
-              res = res + (float)1.0925484305920792 * xy * sh(3) + (float)-1.0925484305920792 * yz * sh(4) +
-                    (float)0.31539156525252005 * (2.0f * zz - xx - yy) * sh(5) +
-                    (float)-1.0925484305920792 * xz * sh(6) + (float)0.5462742152960396 * (xx - yy) * sh(7);
-              if (deg > 2) {
-                res = res + (float)-0.5900435899266435 * y * (3.0f * xx - yy) * sh(8) +
-                      (float)2.890611442640554 * xy * z * sh(9) +
-                      (float)-0.4570457994644658 * y * (4.0f * zz - xx - yy) * sh(10) +
-                      (float)0.3731763325901154 * z * (2.0f * zz - 3.0f * xx - 3.0f * yy) * sh(11) +
-                      (float)-0.4570457994644658 * x * (4.0f * zz - xx - yy) * sh(12) +
-                      (float)1.445305721320277 * z * (xx - yy) * sh(13) +
-                      (float)-0.5900435899266435 * x * (xx - 3.0f * yy) * sh(14);
-              }
-            }
-          }
-          colp[3 * i + ch] = std::max(res + 0.5f, 0.0f);
-        }
-      }
+      if (want_color) sh_color(P + 3 * i, DC + 3 * i, REST ? REST + 3 * K * i : nullptr, deg, campos, colp + 3 * i);
     }
   });
   // Front-to-back order of the visible Gaussians; stable so equal depths keep index order.
   // Key = (float bits of the depth, index): depths are > 0.2, so their IEEE bit patterns sort
   // like the numbers, and the index in the low word breaks ties exactly as a stable sort would.
+  // The keys are sorted in `order` itself (no second [M] array): a positive float's bits are
+  // below 2^31, so every key is a non-negative int64 and sorts as the unsigned key would.
   TORCH_CHECK(N < (int64_t(1) << 32), "too many Gaussians");
-  std::vector<uint64_t> keys;
-  keys.reserve(N);
-  for (int64_t i = 0; i < N; ++i) {
+  int64_t count = 0;
+  for (int64_t i = 0; i < N; ++i) count += valid[i];
+  auto order = torch::empty({count}, torch::kInt64);
+  int64_t* orp = order.data_ptr<int64_t>();
+  for (int64_t i = 0, j = 0; i < N; ++i) {
     if (!valid[i]) continue;
     uint32_t bits;
     std::memcpy(&bits, dp + i, sizeof(bits));
-    keys.push_back((static_cast<uint64_t>(bits) << 32) | static_cast<uint64_t>(i));
+    orp[j++] = static_cast<int64_t>((static_cast<uint64_t>(bits) << 32) | static_cast<uint64_t>(i));
   }
-  std::sort(keys.begin(), keys.end());
-  auto order = torch::empty({(int64_t)keys.size()}, torch::kInt64);
-  int64_t* orp = order.data_ptr<int64_t>();
-  for (size_t j = 0; j < keys.size(); ++j) orp[j] = static_cast<int64_t>(keys[j] & 0xffffffffu);
-  return {means, conic, opac, colors, rects, boxes, order};
+  depth = torch::Tensor();                       // freed before the sort
+  std::vector<uint8_t>().swap(valid);
+  std::sort(orp, orp + count);
+  for (int64_t j = 0; j < count; ++j) orp[j] &= 0xffffffff;
+  return {means, conic, opac, colors, boxes, order};
+}
+
+// The colours preprocess computes (want_color), of every row of a row range: positions [n,3],
+// sh_dc [n,3], sh_rest [n,K,3], cam as preprocess's -> out [n,3] f32 (contiguous, written in
+// place). A caller whose SH rest is made a row range at a time (render.py) fills preprocess's
+// colours with it; rows preprocess culls are never read by rasterize.
+void sh_colors(torch::Tensor positions, torch::Tensor sh_dc, torch::Tensor sh_rest, torch::Tensor cam,
+               int64_t deg, torch::Tensor out, int64_t num_threads) {
+  positions = positions.contiguous(); sh_dc = sh_dc.contiguous(); sh_rest = sh_rest.contiguous();
+  cam = cam.contiguous();
+  TORCH_CHECK(cam.dtype() == torch::kFloat64 && cam.numel() == 16, "cam: 16 float64 expected");
+  TORCH_CHECK(out.dtype() == torch::kFloat32 && out.is_contiguous(), "out: contiguous float32 expected");
+  const int64_t n = positions.size(0);
+  const int64_t K = sh_rest.dim() == 3 ? sh_rest.size(1) : 0;
+  TORCH_CHECK((deg + 1) * (deg + 1) - 1 <= K, "sh_rest too small for the SH degree");
+  TORCH_CHECK(sh_dc.size(0) == n && (K == 0 || sh_rest.size(0) == n) && out.size(0) == n,
+              "row counts differ");
+  float campos[3];
+  camera_centre(cam.data_ptr<double>(), campos);
+  const float* P = positions.data_ptr<float>();
+  const float* DC = sh_dc.data_ptr<float>();
+  const float* REST = K ? sh_rest.data_ptr<float>() : nullptr;
+  float* colp = out.data_ptr<float>();
+  parallel_chunks(n, num_threads, [&](int64_t begin, int64_t end) {
+    for (int64_t i = begin; i < end; ++i)
+      sh_color(P + 3 * i, DC + 3 * i, REST ? REST + 3 * K * i : nullptr, deg, campos, colp + 3 * i);
+  });
 }
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
@@ -406,5 +452,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("preprocess", &preprocess, "gsz CPU 3DGS per-Gaussian preprocessing",
         py::call_guard<py::gil_scoped_release>());
   m.def("rasterize", &rasterize, "gsz CPU 3DGS tile rasteriser (forward + importance)",
+        py::call_guard<py::gil_scoped_release>());
+  m.def("sh_colors", &sh_colors, "gsz CPU 3DGS SH colours of a row range",
         py::call_guard<py::gil_scoped_release>());
 }

@@ -120,6 +120,20 @@ def test_channel_weights_are_measured_sensitivities():
     assert channel_weights(c, cams) == w
 
 
+def test_noised_rows_are_one_draw_in_row_order():
+    """The sensitivity's noised SH, made a row range at a time for its renders, are the rows of
+    one whole draw, whatever the reads' order and sizes; the caller's generator is not moved."""
+    from gsz.encoder.search.sensitivity import noised_rows
+    x = np.random.default_rng(1).normal(0, 1, (150_000, 15, 3)).astype(np.float32)
+    rng = np.random.default_rng(9)
+    rows = noised_rows(x, rng, 0.01)
+    want = (x + np.random.default_rng(9).normal(0, 0.01, x.shape)).astype(np.float32)
+    assert np.array_equal(np.asarray(rows), want)
+    assert np.array_equal(rows[70_000:140_001], want[70_000:140_001])
+    assert np.array_equal(rows[5:9], want[5:9]) and np.array_equal(rows[9:20], want[9:20])
+    assert rng.random() == np.random.default_rng(9).random()
+
+
 def test_budget_above_full_quality_buys_a_deeper_octree(imp_cache):
     """When every group is at its best width and the file is still below the budget, the
     position error of the voxel grid limits fidelity: the search tries deeper octrees, keeps the

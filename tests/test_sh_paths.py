@@ -97,3 +97,32 @@ def test_a_stage_without_the_codebook_path_still_yields_a_file():
         others = paths(sopts, False)
         assert others and "vq" not in others
         assert paths(dataclasses.replace(sopts, sh_scalar=False, sh_classes=False), False) == ["vq"]
+
+
+@pytest.mark.parametrize("keep, classes, widths", [(0, 1, None), (700, 1, 12), (3000, 8, "mixed"), (3000, 1, None)])
+def test_decoded_rows_are_the_coded_sh_bit_for_bit(keep, classes, widths):
+    """The SH a render of a candidate reads a row range at a time (ShPayloads.decoded_rows) are
+    the coded payloads' reconstruction bit for bit: codewords, kept vectors at any width (0 =
+    constant groups, more than 8 bits), importance classes, several tiles and layers."""
+    import numpy as np
+
+    from gsz.decoder.groups import blocks_for
+    from gsz.encoder.pipeline import ShPayloads, prepare_stage
+    c = sample("sh3", 3000)
+    imp = np.random.default_rng(0).random(len(c))
+    st = prepare_stage(c, imp, 0.9, layers=2, tile_gaussians=1024)
+    assert st.num_tiles > 1 and len(st.layers) > st.num_tiles
+    cb = np.random.default_rng(2).normal(0, 0.3, (64, c.sh_rest[0].size)).astype(np.float32)
+    pay = ShPayloads(st, cb, keep, 8, 16, classes=classes)
+    bits = None
+    if widths is not None:
+        rng = np.random.default_rng(3)
+        bits = []
+        for sel, kb in pay.kept_sets:
+            shape = (st.sh.shape[1], blocks_for(sel.size, kb) if sel.size else 1)
+            bits.append(np.full(shape, widths) if widths != "mixed" else rng.integers(0, 11, shape))
+    want = pay.payloads(bits)[1]
+    got = pay.decoded_rows(bits)
+    assert got.shape == want.shape
+    assert np.array_equal(np.asarray(got), want)
+    assert np.array_equal(got[1000:1100], want[1000:1100])

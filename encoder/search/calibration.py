@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...decoder.pages import trim_heap
+
 from ..pipeline import attribute_chunks, decoded_cloud, write_file
 from .candidate import Encoded
 from .sh_model import ShPlan
@@ -114,6 +116,7 @@ class _Rounds:
         layer_bits = split_bits(pick[:self.n_attr], self.attr_shapes)
         kept_bits = split_kept_bits(pick[self.n_attr:], self.shapes[len(self.attr_shapes):],
                                     self.kept_layers, len(stage.layers))
+        trim_heap()         # a round's coding (every kept SH vector on the scalar path) peaks a stage
         with self.progress.stage("calibrate", f"tau {stage.reserve} round {rnd + 1}"):
             attr, decoded, attr_stats = attribute_chunks(stage, layer_bits, self.sopts.blocks)
             if sh_plan is None:

@@ -329,6 +329,7 @@ class BudgetSearch:
                 p, views, partial = self.judge.score(enc.cloud, rival)
             enc.release()
             if partial:
+                enc.drop_data()
                 progress.log(f"{what}: {enc.size:,} bytes, {partial} hardest train views "
                              f"{EVAL_DROP_MARGIN_DB:g}+ dB below the best candidate's: dropped")
                 self.dropped.append({"reserve": tau, "depth": d, "bytes": enc.size, "views": partial,
@@ -336,6 +337,13 @@ class BudgetSearch:
                 continue
             progress.log(f"{what}: {enc.size:,} bytes, train PSNR {p:.2f} dB")
             scored.append(Candidate(p, tau, d, fl, views, enc))
+            # only the stage's best path becomes a candidate, and best_of keeps the first of
+            # equals, so a path beaten here is never that best: its bytes go before the next
+            # path's render (~120 MB a file at 6 M Gaussians)
+            top = best_of(scored)
+            for c in scored:
+                if c is not top:
+                    c.encoded.drop_data()
         if not paths:
             progress.log(f"tau {tau}: budget not reachable")
             return

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...decoder.pages import trim_heap
 from ...evaluation.cameras import load_cameras
 from .options import SearchOptions
 from .sensitivity import channel_weights
@@ -38,12 +39,15 @@ def train_psnr(refs, cloud, cameras, best_views=None) -> tuple[float, list, int]
     from ...evaluation.evaluate import render_views
     from ...evaluation.metrics import psnr
     if best_views is None:
-        imgs = render_views(cloud, cameras)
-        views = [psnr(r, i) for r, i in zip(refs, imgs)]
+        views = []
+        for r, c in zip(refs, cameras):
+            trim_heap()         # a whole candidate's renders are a search's peak: from a trimmed heap
+            views.append(psnr(r, render_views(cloud, [c])[0]))
         return float(np.mean(views)), views, 0
     views = [None] * len(cameras)
     diffs = []
     for i in np.argsort(np.asarray(best_views), kind="stable"):
+        trim_heap()             # the heap grew ~12 MB a view at 6 M Gaussians
         views[i] = psnr(refs[i], render_views(cloud, [cameras[i]])[0])
         diffs.append(views[i] - best_views[i])
         if EVAL_MIN_VIEWS <= len(diffs) < len(cameras) and float(np.mean(diffs)) < -EVAL_DROP_MARGIN_DB:
@@ -71,6 +75,7 @@ def screen_psnr(refs, cloud, cameras, best_views) -> tuple[float, int]:
     order = np.argsort(np.asarray(best_views), kind="stable")
     vals, diffs = [], []
     for i in order:
+        trim_heap()
         vals.append(psnr(refs[i], render_views(cloud, [cameras[i]])[0]))
         diffs.append(vals[-1] - best_views[i])
         if SCREEN_MIN_VIEWS <= len(vals) < len(cameras) and float(np.mean(diffs)) > SCREEN_PASS_MARGIN_DB:
@@ -92,6 +97,7 @@ class Judge:
             self.refs = [quantize_8bit(np.asarray(img)) for img in ref_float]
         self.weights = None
         if sopts.weight_channels:
+            trim_heap()
             with progress.stage("sensitivity", "per-channel rendering weights of Omega"):
                 self.weights = channel_weights(cloud, self.cameras[:2], seed=sopts.seed,
                                                base_images=ref_float[:2])

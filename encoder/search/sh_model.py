@@ -8,9 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...decoder.cloud import MadeRows
 from ...decoder.groups import blocks_for
 
-from ..pipeline import ShPayloads, Stage, sh_set_blocks, tile_assignment
+from ..pipeline import ROW_CHUNK, ShPayloads, Stage, sh_set_blocks, tile_assignment
 from .options import SH_BITS
 
 #: Fractions of the Gaussians whose SH vectors are kept exact (most important first), tried
@@ -32,14 +33,13 @@ class ShPlan:
     est_loss: float
     payloads: ShPayloads      # the same with the kept vectors' widths open (calibration.spend_saturated)
 
-    def decoded_sh(self, kept_bits=None) -> np.ndarray:
-        """[M, K, 3] the SH a decoder reconstructs (``kept_bits``: ShPayloads.payloads'), coded
-        again: a plan keeps no such array (1 GB at 6 M voxels), only the file rendered needs it."""
-        return self.payloads.payloads(kept_bits)[1]
+    def decoded_sh(self, kept_bits=None) -> MadeRows:
+        """[M, K, 3] the SH a decoder reconstructs (``kept_bits``: ShPayloads.payloads'), made a
+        row range at a time as the renderer reads them (ShPayloads.decoded_rows): no plan or
+        render holds such an array (1 GB at 6 M voxels)."""
+        return self.payloads.decoded_rows(kept_bits)
 
 
-#: rows per step where a pass over every voxel's SH vector would otherwise gather [M, D] copies
-ROW_CHUNK = 65536
 
 
 def row_sse(x: np.ndarray, ref, step: int = 16384) -> np.ndarray:
