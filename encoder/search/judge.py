@@ -30,25 +30,28 @@ EVAL_MIN_VIEWS = 3
 EVAL_DROP_MARGIN_DB = 1.0
 
 
+def view_psnr(refs, cloud, cameras, i: int) -> float:
+    """PSNR of ``cloud``'s 8-bit render of view ``i`` against ``refs[i]``, rendered from a trimmed
+    heap (a whole scene's render is a search's peak; the heap grew ~12 MB a view at 6 M)."""
+    from ...evaluation.evaluate import render_views
+    from ...evaluation.metrics import psnr
+    trim_heap()
+    return psnr(refs[i], render_views(cloud, [cameras[i]])[0])
+
+
 def train_psnr(refs, cloud, cameras, best_views=None) -> tuple[float, list, int]:
     """(mean PSNR over the views rendered, per-view PSNRs (None where not rendered), 0 when every
     view was rendered else how many were) with gsz-eval's protocol (8-bit renders, per-view PSNR,
     plain mean) -- all the search compares candidates by; SSIM would cost more than the renders.
     With ``best_views`` (the best candidate's per-view PSNRs) the candidate may be dropped early,
     see EVAL_DROP_MARGIN_DB."""
-    from ...evaluation.evaluate import render_views
-    from ...evaluation.metrics import psnr
     if best_views is None:
-        views = []
-        for r, c in zip(refs, cameras):
-            trim_heap()         # a whole candidate's renders are a search's peak: from a trimmed heap
-            views.append(psnr(r, render_views(cloud, [c])[0]))
+        views = [view_psnr(refs, cloud, cameras, i) for i in range(len(cameras))]
         return float(np.mean(views)), views, 0
     views = [None] * len(cameras)
     diffs = []
     for i in np.argsort(np.asarray(best_views), kind="stable"):
-        trim_heap()             # the heap grew ~12 MB a view at 6 M Gaussians
-        views[i] = psnr(refs[i], render_views(cloud, [cameras[i]])[0])
+        views[i] = view_psnr(refs, cloud, cameras, i)
         diffs.append(views[i] - best_views[i])
         if EVAL_MIN_VIEWS <= len(diffs) < len(cameras) and float(np.mean(diffs)) < -EVAL_DROP_MARGIN_DB:
             return float(np.mean([v for v in views if v is not None])), views, len(diffs)
@@ -70,13 +73,10 @@ def screen_psnr(refs, cloud, cameras, best_views) -> tuple[float, int]:
     view by view and stops early when the tau clearly passes (see SCREEN_PASS_MARGIN_DB).
     The views go hardest first (lowest PSNR of the best candidate): there pruning error, which
     the bound keeps, dominates quantisation error, which it drops, so the bound is tightest."""
-    from ...evaluation.evaluate import render_views
-    from ...evaluation.metrics import psnr
     order = np.argsort(np.asarray(best_views), kind="stable")
     vals, diffs = [], []
     for i in order:
-        trim_heap()
-        vals.append(psnr(refs[i], render_views(cloud, [cameras[i]])[0]))
+        vals.append(view_psnr(refs, cloud, cameras, i))
         diffs.append(vals[-1] - best_views[i])
         if SCREEN_MIN_VIEWS <= len(vals) < len(cameras) and float(np.mean(diffs)) > SCREEN_PASS_MARGIN_DB:
             return float(np.mean(vals)), len(vals)
