@@ -1075,6 +1075,20 @@ class ShPayloads:
         lo, step, top = np.concatenate(lo), np.concatenate(step), np.concatenate(top)
         del pos
         sh = self.stage.sh
+        from ..decoder import native
+        if native.enabled() and sh.dtype == np.float32 and d:
+            # one C pass per row, the same operations (the NumPy rows below are the reference)
+            flat = np.ascontiguousarray(sh).reshape(len(sh), d)
+            order64 = np.ascontiguousarray(order, np.int64)
+            books32 = np.ascontiguousarray(books, np.float32)
+            lo, step, top = (np.ascontiguousarray(v, np.float64) for v in (lo, step, top))
+
+            def rows_native(a: int, b: int) -> np.ndarray:
+                out = np.empty((b - a, d), np.float32)
+                native.module().sh_requant_rows(flat, order64[a:b], group[a:b], cw_row[a:b], books32,
+                                                lo, step, top, out)
+                return out.reshape(b - a, -1, 3)
+            return MadeRows((m, d // 3, 3), rows_native)
 
         def rows(a: int, b: int) -> np.ndarray:
             out = np.empty((b - a, d), np.float32)

@@ -321,3 +321,19 @@ def test_depth_walk_goes_past_its_range_while_each_level_gains_a_lot():
     weak = _WalkScene({12: 47.0, 13: 48.0, 14: 48.8, 15: 49.3, 16: 49.6}, 12)
     walk_depth(weak)
     assert weak.best().depth == 15 and (1.0, 16) not in weak.evaluated
+
+
+def test_depth_walk_steps_two_levels_while_levels_gain_a_lot():
+    """While a level gains STRIDE_GAIN_DB or more the walk steps two levels (fewer encodes on
+    the way down); a double step that does not pay tries the level it stepped over."""
+    from gsz.encoder.search.depth_walk import STRIDE_GAIN_DB, walk_depth
+    assert STRIDE_GAIN_DB >= 1.5
+    walk = _WalkScene({12: 47.0, 13: 50.5, 14: 53.7, 15: 56.4, 16: 57.6, 17: 57.75, 18: 57.5}, 12)
+    walk_depth(walk)
+    # 13 gained 3.5 dB: 15 next (2.95 dB a level), then 17 (0.68 a level): 14 and 16 not encoded
+    assert walk.best().depth == 17
+    assert {d for _, d in walk.evaluated} == {12, 13, 15, 17}
+    # 13 gained 3 dB, the double step to 15 lost: 14, the level between, wins
+    over = _WalkScene({12: 47.0, 13: 50.0, 14: 51.0, 15: 49.5}, 12)
+    walk_depth(over)
+    assert over.best().depth == 14 and {d for _, d in over.evaluated} == {12, 13, 14, 15}

@@ -99,11 +99,13 @@ def test_a_stage_without_the_codebook_path_still_yields_a_file():
         assert paths(dataclasses.replace(sopts, sh_scalar=False, sh_classes=False), False) == ["vq"]
 
 
+@pytest.mark.usefixtures("each_decoder_path")
 @pytest.mark.parametrize("keep, classes, widths", [(0, 1, None), (700, 1, 12), (3000, 8, "mixed"), (3000, 1, None)])
 def test_decoded_rows_are_the_coded_sh_bit_for_bit(keep, classes, widths):
     """The SH a render of a candidate reads a row range at a time (ShPayloads.decoded_rows) are
     the coded payloads' reconstruction bit for bit: codewords, kept vectors at any width (0 =
-    constant groups, more than 8 bits), importance classes, several tiles and layers."""
+    constant groups, more than 8 bits), importance classes, several tiles and layers; made by
+    the C kernel and by the NumPy rows."""
     import numpy as np
 
     from gsz.decoder.groups import blocks_for

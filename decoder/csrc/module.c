@@ -1100,6 +1100,51 @@ static PyObject *py_quantize_groups(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(sh_requant_rows_doc,
+"sh_requant_rows(sh, order, group, cw_row, books, lo, step, top, out)\n\n"
+"The size search's decoded SH rest rows (gsz.encoder.pipeline ShPayloads.decoded_rows): sh\n"
+"float32 [N, D], order int64 [n], group/cw_row int32 [n], books float32 [C, D], lo/step/top\n"
+"float64 [G, D], out float32 [n, D]; row i is sh[order[i]] quantised again with group[i]'s\n"
+"parameters where group[i] >= 0, else books[cw_row[i]], bit-identical to the NumPy rows.");
+
+static PyObject *py_sh_requant_rows(PyObject *self, PyObject *args)
+{
+    PyObject *o[9];
+    if (!PyArg_ParseTuple(args, "OOOOOOOOO", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7],
+                          &o[8])) return NULL;
+    Py_buffer v[9];
+    int nv = 0;
+    static const Py_ssize_t size[9] = {4, 8, 4, 4, 4, 8, 8, 8, 4};
+    static const char kind[9] = {'f', 'i', 'i', 'i', 'f', 'f', 'f', 'f', 'f'};
+    for (; nv < 9; nv++) {
+        if (getbuf(o[nv], &v[nv], size[nv], kind[nv], nv == 8, "sh_requant_rows argument") < 0) {
+            release_views(v, nv);
+            return NULL;
+        }
+    }
+    const int64_t n = v[1].len / 8;
+    const int64_t d = n ? (v[8].len / 4) / n : 0;
+    int ok = v[2].len / 4 == n && v[3].len / 4 == n && (int64_t)(v[8].len / 4) == n * d
+             && (d == 0 || ((v[0].len / 4) % d == 0 && (v[4].len / 4) % d == 0
+                            && (v[5].len / 8) % d == 0))
+             && v[6].len == v[5].len && v[7].len == v[5].len;
+    int rc = 0;
+    if (ok && n && d) {
+        Py_BEGIN_ALLOW_THREADS
+        rc = sh_requant_rows(v[0].buf, (v[0].len / 4) / d, d, v[1].buf, v[2].buf, v[3].buf, n,
+                             v[4].buf, (v[4].len / 4) / d, v[5].buf, v[6].buf, v[7].buf,
+                             (v[5].len / 8) / d, v[8].buf);
+        Py_END_ALLOW_THREADS
+    }
+    release_views(v, nv);
+    if (!ok || rc < 0) {
+        PyErr_SetString(PyExc_ValueError, ok ? "sh_requant_rows: an index out of range"
+                                             : "sh_requant_rows: inconsistent arguments");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
 /* ================================================================== module */
 static PyMethodDef methods[] = {
     {"octree_decode", py_octree_decode, METH_VARARGS, octree_decode_doc},
@@ -1124,6 +1169,7 @@ static PyMethodDef methods[] = {
     {"loss_all_bits", py_loss_all_bits, METH_VARARGS, loss_all_bits_doc},
     {"quantize_groups", py_quantize_groups, METH_VARARGS, quantize_groups_doc},
     {"rate_group_stats", py_rate_group_stats, METH_VARARGS, rate_group_stats_doc},
+    {"sh_requant_rows", py_sh_requant_rows, METH_VARARGS, sh_requant_rows_doc},
     {NULL, NULL, 0, NULL},
 };
 

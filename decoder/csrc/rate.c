@@ -266,3 +266,40 @@ void quantize_row_run(const float *x, int64_t length, int64_t nb, const float *m
         }
     }
 }
+
+/* The size search's decoded SH rest, rows [0, n) of an output range: row i is voxel order[i];
+ * with group[i] >= 0 its kept vector quantised again with that group's float64 parameters
+ * (gsz.kernels.quantize_cpu's k = min(max(rint((x - lo) / step), 0), top), then the decoder's
+ * step * k + lo, rounded once to float32: the operations and roundings of the NumPy rows it
+ * replaces), else codeword cw_row[i] of books.  One pass per row instead of a dozen NumPy
+ * passes over float64 temporaries (the judge reads every candidate's rows once per view). */
+int sh_requant_rows(const float *sh, int64_t num_sh, int64_t d, const int64_t *order,
+                    const int32_t *group, const int32_t *cw_row, int64_t n, const float *books,
+                    int64_t num_books, const double *lo, const double *step, const double *top,
+                    int64_t num_groups, float *out)
+{
+    for (int64_t i = 0; i < n; i++) {
+        float *o = out + i * d;
+        const int64_t g = group[i];
+        if (g >= 0) {
+            const int64_t r = order[i];
+            if (g >= num_groups || r < 0 || r >= num_sh) return -1;
+            const float *x = sh + r * d;
+            const double *m = lo + g * d, *s = step + g * d, *t = top + g * d;
+            for (int64_t c = 0; c < d; c++) {
+                double v = ((double)x[c] - m[c]) / s[c];
+                v = rint(v);
+                v = (v > 0.0 || v != v) ? v : 0.0;       /* np.maximum(v, 0): -0.0 -> 0.0 */
+                v = (v < t[c] || v != v) ? v : t[c];     /* np.minimum(v, top) */
+                v *= s[c];
+                v += m[c];
+                o[c] = (float)v;
+            }
+        } else {
+            const int64_t w = cw_row[i];
+            if (w < 0 || w >= num_books) return -1;
+            memcpy(o, books + w * d, (size_t)d * sizeof(float));
+        }
+    }
+    return 0;
+}

@@ -64,6 +64,12 @@ void loss_all_bits_run(const float *x, int64_t length, int64_t nb, const float *
 void quantize_row_run(const float *x, int64_t length, int64_t nb, const float *mins,
                       const float *maxs, const int64_t *bits, int32_t *sym);
 
+/* The size search's decoded SH rest rows (ShPayloads.decoded_rows): -1 on an index out of range. */
+int sh_requant_rows(const float *sh, int64_t num_sh, int64_t d, const int64_t *order,
+                    const int32_t *group, const int32_t *cw_row, int64_t n, const float *books,
+                    int64_t num_books, const double *lo, const double *step, const double *top,
+                    int64_t num_groups, float *out);
+
 #if defined(__GNUC__) && !defined(_WIN32)
 #pragma GCC visibility pop
 #endif

@@ -146,11 +146,21 @@ class _Rounds:
                        loss=float(self.loss[g, pick].sum()))
 
 
+#: Bound of the estimate error carried from one calibration to the next (a fraction of the
+#: allocated bytes).
+MAX_CARRIED_ERROR = 0.2
+
+
 def calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_plan,
-              kept=None) -> Calibrated | None:
+              kept=None, errors: dict | None = None, path=None) -> Calibrated | None:
     """Find the largest solver budget whose real file fits (the attributes' allocation; with
     ``kept`` -- :func:`sh_model.kept_tables` -- the kept SH vectors' groups are allocated with
-    them).  None when no allocation fits."""
+    them).  None when no allocation fits.
+
+    ``errors``: {path: how much the rate estimate over-predicted the allocated bytes, as a
+    fraction, in the last calibration of that SH path}; the first round corrects by it and this
+    one's is stored.  The error drifts slowly from one depth or tau to the next, so the first
+    round often lands within the tolerance (docs/design/search-speed.md)."""
     from ..bit_allocation import InfeasibleBudgetError
 
     r = _Rounds(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh_plan, kept)
@@ -158,6 +168,9 @@ def calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh
     lo_ok = target * (1.0 - sopts.tolerance)
     budget_bytes = float(target - r.fixed - r.group_meta)
     steps = _BudgetSteps(target * (1 - 0.5 * sopts.tolerance))
+    carried = None if errors is None else errors.get(path)
+    if carried is not None and steps.aim > r.fixed + r.group_meta:
+        budget_bytes = (steps.aim - r.fixed - r.group_meta) / (1.0 - carried)
     best, tried, history = None, {}, []
     saturated = False
     cheapest = np.argmin(np.where(np.isfinite(rate), rate, np.inf), axis=1)
@@ -198,4 +211,9 @@ def calibrate(stage, target, sopts, progress, loss, rate, shapes, base_fixed, sh
         progress.log(f"tau {stage.reserve}: no allocation fits ({len(history)} calibration round(s)"
                      + (f", smallest {smallest:,} bytes)" if smallest else ")"))
         return None
+    if errors is not None:
+        allocated = best.predicted_bytes - r.fixed - r.group_meta
+        if allocated > 0:
+            errors[path] = min(MAX_CARRIED_ERROR, max(-MAX_CARRIED_ERROR,
+                                                      (best.predicted_bytes - best.size) / allocated))
     return Calibrated(best, history, saturated, sh_plan, r.fixed)

@@ -164,6 +164,7 @@ class BudgetSearch:
         self.dropped: list = []           # candidates dropped after their hardest views
         self.lost_paths: set = set()      # SH paths not weighed again (_note_lost_paths)
         self.narrow_losses: dict = {}     # SH path -> stages it lost by < PATH_LOST_MARGIN_DB
+        self.estimate_errors: dict = {}   # SH path -> the rate estimate's last error (calibrate)
         self.t0 = self.c0 = None
 
     # --- stages -------------------------------------------------------------------------------
@@ -318,7 +319,7 @@ class BudgetSearch:
                           dataclasses.replace(sopts, sh_scalar=sopts.sh_scalar and "scalar" not in self.lost_paths,
                                               sh_classes=sopts.sh_classes and "classes" not in self.lost_paths),
                           self.sh_models(stage), progress, self.log, self.judge.weights, min_keep=min_keep,
-                          codebook="vq" not in self.lost_paths)
+                          codebook="vq" not in self.lost_paths, errors=self.estimate_errors)
         # re-split / kept-layer-0 variants may be chosen despite a lower PSNR: render them fully
         rival = self.best().view_psnr if self.candidates and regular else None
         scored, paths = [], []

@@ -17,7 +17,7 @@ from .tables import attribute_tables, container_overhead, group_meta_bytes, num_
 
 def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list, progress,
                log: list, weights: dict | None = None, min_keep: int = 0,
-               codebook: bool = True) -> Iterator[Encoded]:
+               codebook: bool = True, errors: dict | None = None) -> Iterator[Encoded]:
     """Allocate + calibrate one tau.  Yields its encodes at or below target, none when the
     budget is unreachable at this tau (one at a time: the caller scores and releases each scene
     before the next is made): the codebook path's, and the scalar SH path's too when
@@ -26,7 +26,8 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
     this many exact SH vectors (the most important ones).  ``codebook`` False: the codebook path
     lost to another SH path as rendered earlier in the search, so where most vectors are kept
     exact it is encoded only when no other path fits (and the scalar path is weighed without
-    its estimate)."""
+    its estimate).  ``errors``: the search's rate-estimate errors per SH path
+    (:func:`calibration.calibrate`), read and updated."""
     with progress.stage("tables", f"tau {stage.reserve}: loss + rate matrices"):
         loss, rate, shapes = attribute_tables(stage, sopts.blocks, weights)
     meta_guess = 400
@@ -34,7 +35,7 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
                   + (2 + 8 * 7) * len(stage.layers) + group_meta_bytes(shapes))
     args = (stage, target, sopts, progress, loss, rate, shapes, base_fixed)
     if not sh_models:
-        res = calibrate(*args, None)
+        res = calibrate(*args, None, errors=errors, path=None)
         if res is not None:
             yield _finish(stage, res, res.left_over(target, sopts.tolerance), "vq", log)
         return
@@ -66,7 +67,7 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
                          f"codebook: both are encoded and rendered")
     saturated, found = False, False
     if codebook:
-        res, saturated = _codebook_path(args, sh_model, keep, weights)
+        res, saturated = _codebook_path(args, sh_model, keep, weights, errors)
         if res is not None:
             keep = res.sh_plan.keep
             found = True
@@ -81,12 +82,12 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
         keep = min(m, max(keep, int(round(CLASSES_MIN_KEEP * m))))
     if (sopts.sh_classes and keep >= SH_CLASS_MIN_SIZE * SH_CLASSES
             and not (saturated and keep < m)):
-        res = calibrate(*args, *classes_plan(keep))
+        res = calibrate(*args, *classes_plan(keep), errors=errors, path="classes")
         if res is not None and not codebook and keep < m and res.left_over(target, sopts.tolerance):
             # without the codebook path's spend_saturated: every group at its best width and
             # bytes left, so every vector kept (the allocation then trades their widths)
             keep = m
-            res = calibrate(*args, *classes_plan(m)) or res
+            res = calibrate(*args, *classes_plan(m), errors=errors, path="classes") or res
         if keep >= m:
             scalar = None           # every vector kept in classes is the scalar path's file
         if res is not None:
@@ -94,19 +95,19 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
             yield _finish(stage, res, _attributes_at_max(res, loss, rate), "classes", log)
             res = None
     if scalar is not None:
-        res = calibrate(*args, scalar[0], kept=scalar[1])
+        res = calibrate(*args, scalar[0], kept=scalar[1], errors=errors, path="scalar")
         if res is not None:
             found = True
             # the SH take every byte the attributes leave: what the depth walk reads is whether
             # every attribute group sits at its best width (as the codebook path's saturation)
             yield _finish(stage, res, _attributes_at_max(res, loss, rate), "scalar", log)
     if not codebook and not found:
-        res, saturated = _codebook_path(args, sh_model, keep_estimate, weights)
+        res, saturated = _codebook_path(args, sh_model, keep_estimate, weights, errors)
         if res is not None:
             yield _finish(stage, res, saturated, "vq", log)
 
 
-def _codebook_path(args, sh_model: ShModel, keep: int, weights) -> tuple[Calibrated | None, bool]:
+def _codebook_path(args, sh_model: ShModel, keep: int, weights, errors=None) -> tuple[Calibrated | None, bool]:
     """(calibrated, saturated) of the codebook path: a codebook for the SH and ``keep`` vectors
     exact at SH_BITS, the rest spent on more exact vectors when the attributes saturate."""
     stage, target, sopts, progress, loss, rate, shapes, base_fixed = args
@@ -114,7 +115,7 @@ def _codebook_path(args, sh_model: ShModel, keep: int, weights) -> tuple[Calibra
         sh_plan = sh_model.encode(keep)
         progress.log(f"tau {stage.reserve}: keep {sh_plan.keep} exact SH vectors "
                      f"(SH chunks {sum(map(len, sh_plan.chunk)):,} B)")
-    res = calibrate(*args, sh_plan)
+    res = calibrate(*args, sh_plan, errors=errors, path="vq")
     # every attribute group at its best width and the file still short of the budget (the depth
     # walk reads this, whether or not the SH then spend the rest)
     saturated = res is not None and res.left_over(target, sopts.tolerance)
