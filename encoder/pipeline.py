@@ -38,7 +38,7 @@ from ..evaluation.cameras import DEFAULT_VIEW_WIDTH
 from .encode_report import MODE_FIXED, EncodeReport, FixedDetails
 from .executor import in_order
 from .geometry import write_geometry
-from .groups import write_channel_set
+from .groups import QUANT_CHANNELS, write_channel_set
 from .progress import Progress
 from .voxelize import SourcedRows  # noqa: F401  (a Stage's SH rows; re-exported)
 
@@ -858,8 +858,6 @@ def sh_chunk(stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks
 
 #: rows per step where a pass over every voxel's SH vector would otherwise gather [M, D] copies
 ROW_CHUNK = 65536
-#: SH channels quantised at a time where only the symbols are wanted (ShPayloads.decoded_rows)
-QUANT_CHANNELS = 8
 
 
 class ShPayloads:

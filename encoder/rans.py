@@ -165,13 +165,16 @@ def _histograms(symbols: np.ndarray, model_ids: np.ndarray, num_models: int,
     return h
 
 
-def _histograms_rows(symbols: np.ndarray, lens: np.ndarray) -> _Hist:
+def _histograms_rows(symbols, lens: np.ndarray) -> _Hist:
     """``_histograms(symbols.ravel(), ids, C * B, symbol_entries=True)`` of a [C, L] channel
     set whose model ids are its (channel, block) groups, c * B + block (blocks of ``lens``
     symbols, contiguous along L): the same histograms, one channel at a time, with neither a
     per-symbol model-id array nor [C * L]-sized temporaries besides the symbols' entries (at
-    1.2 M kept SH vectors those passes over 34 M int64 values took most of a calibration round)."""
-    sym2 = np.asarray(symbols)
+    1.2 M kept SH vectors those passes over 34 M int64 values took most of a calibration round).
+    ``symbols``: the [C, L] array, or any object with its ``shape`` whose ``[c]`` gives channel
+    c's symbols (read once each, in channel order: groups.write_channel_set makes them a few
+    channels at a time)."""
+    sym2 = symbols if hasattr(symbols, "shape") else np.asarray(symbols)
     c, length = sym2.shape
     lens = np.asarray(lens, dtype=np.int64)
     b = lens.size
@@ -194,7 +197,8 @@ def _histograms_rows(symbols: np.ndarray, lens: np.ndarray) -> _Hist:
             hi_r[full] = np.maximum.reduceat(x, first)
         span_r = hi_r - lo_r
         if np.any((span_r > MAX_SPAN) | (lo_r < -VALUE_LIMIT) | (hi_r >= VALUE_LIMIT)):
-            return _histograms(sym2.ravel(), np.arange(m_count, dtype=np.int64).reshape(c, b)[:, block_of].ravel(),
+            whole = np.stack([np.asarray(sym2[i]) for i in range(c)])
+            return _histograms(whole.ravel(), np.arange(m_count, dtype=np.int64).reshape(c, b)[:, block_of].ravel(),
                                m_count, symbol_entries=True)     # its error names the model
         size = np.where(full, span_r + 1, 0)
         ends = np.cumsum(size)
@@ -1145,11 +1149,11 @@ def encode_stream_pair(symbols: np.ndarray, model_ids: np.ndarray, num_models: i
     return _encode_pair(h, merge, merged_models)
 
 
-def encode_group_streams(symbols: np.ndarray, lens: np.ndarray, merge: np.ndarray,
+def encode_group_streams(symbols, lens: np.ndarray, merge: np.ndarray,
                          merged_models: int) -> tuple[bytes, bytes]:
     """:func:`encode_stream_pair` of a [C, L] channel set whose model ids are its (channel,
     block) groups c * B + block, blocks of ``lens`` symbols (GSZ.md §5 model mode 0): the same
-    bytes, without a per-symbol model-id array."""
+    bytes, without a per-symbol model-id array.  ``symbols``: as :func:`_histograms_rows`."""
     return _encode_pair(_histograms_rows(symbols, lens), merge, merged_models)
 
 

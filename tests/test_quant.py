@@ -164,8 +164,8 @@ def test_bad_input_raises_gsz_errors():
 
 
 def test_channel_set_float32_reconstruction_is_the_decoders_values_rounded():
-    """The SH writer keeps its reconstruction float32 (half the memory): the same bytes, and
-    the decoder's float64 values rounded, constant groups included."""
+    """The SH writer keeps its reconstruction float32 (half the memory), or none: the same
+    bytes, and the decoder's float64 values rounded, constant groups included."""
     from gsz.decoder.bytesio import Reader
     from gsz.decoder.groups import read_channel_set
     from gsz.encoder.groups import write_channel_set
@@ -175,6 +175,9 @@ def test_channel_set_float32_reconstruction_is_the_decoders_values_rounded():
     data64, rec64 = write_channel_set(x, bits, 8)
     data32, rec32 = write_channel_set(x, bits, 8, recon_dtype=np.float32)
     assert data32 == data64 and rec32.dtype == np.float32
+    # bytes only: the symbols made a few channels at a time (19 channels: 3 chunks, the last short)
+    only, none = write_channel_set(x, bits, 8, recon_dtype=None)
+    assert only == data64 and none is None
     decoded = read_channel_set(Reader(data32), max_length=5000)
     np.testing.assert_array_equal(rec64, decoded)
     np.testing.assert_array_equal(rec32, decoded.astype(np.float32))
