@@ -288,6 +288,7 @@ class _WalkScene:
     def __init__(self, psnr: dict, start: int):
         from types import SimpleNamespace
         self.psnr, self.depth, self.evaluated, self.candidates = psnr, start, set(), []
+        self.near_ties = set()
         self.sopts = SimpleNamespace(depth_steps=3, max_extra_depth=3)
         self.progress = SimpleNamespace(log=lambda msg: None)
         self.try_tau(1.0, start)
@@ -330,10 +331,24 @@ def test_depth_walk_steps_two_levels_while_levels_gain_a_lot():
     assert STRIDE_GAIN_DB >= 1.5
     walk = _WalkScene({12: 47.0, 13: 50.5, 14: 53.7, 15: 56.4, 16: 57.6, 17: 57.75, 18: 57.5}, 12)
     walk_depth(walk)
-    # 13 gained 3.5 dB: 15 next (2.95 dB a level), then 17 (0.68 a level): 14 and 16 not encoded
+    # 13 gained 3.5 dB: 15 next (2.95 dB a level), then 17 (0.68 a level: 16, the level
+    # between, is tried too and loses): 14 not encoded
     assert walk.best().depth == 17
-    assert {d for _, d in walk.evaluated} == {12, 13, 15, 17}
+    assert {d for _, d in walk.evaluated} == {12, 13, 15, 16, 17}
+    # the gain falls inside a double step and the level between is the peak
+    peak = _WalkScene({11: 53.6, 12: 58.0, 13: 61.0, 14: 63.2, 15: 63.97, 16: 63.9}, 11)
+    walk_depth(peak)
+    assert peak.best().depth == 15 and {d for _, d in peak.evaluated} == {11, 12, 14, 15, 16}
     # 13 gained 3 dB, the double step to 15 lost: 14, the level between, wins
     over = _WalkScene({12: 47.0, 13: 50.0, 14: 51.0, 15: 49.5}, 12)
     walk_depth(over)
     assert over.best().depth == 14 and {d for _, d in over.evaluated} == {12, 13, 14, 15}
+
+
+def test_depth_walk_notes_the_depths_as_good_as_its_best():
+    """A level that renders within DEPTH_STEP_MIN_GAIN_DB of the best is noted (refine_tau
+    tries it again where tau moves: which of two such depths wins can change with tau)."""
+    from gsz.encoder.search.depth_walk import walk_depth
+    tie = _WalkScene({9: 35.0, 10: 35.89, 11: 35.89, 12: 35.36}, 11)
+    walk_depth(tie)
+    assert tie.best().depth == 11 and tie.near_ties == {10}

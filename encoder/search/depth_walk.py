@@ -30,8 +30,8 @@ MERGED_FRACTION_EXTRA_DEPTH = 0.01
 STRONG_GAIN_EXTRA_DEPTH_DB = 1.0
 #: While the last level gained at least this much train PSNR the walk steps two levels at a
 #: time (a gain that large says the next level will gain too: the 1.2 M bench at 12x gained
-#: 3.8, 3.3, 2.7, 1.8 dB at depths 13-16); a double step that does not pay tries the level
-#: it stepped over.
+#: 3.8, 3.3, 2.7, 1.8 dB at depths 13-16); a double step that does not pay, or gains less
+#: than STRONG_GAIN_EXTRA_DEPTH_DB a level, tries the level it stepped over.
 STRIDE_GAIN_DB = 2.0
 #: A first depth step that improves train PSNR by less than this does not commit the walk to
 #: its direction: the other direction is tried as well (houseplant noised 40x: depth 11 -> 12
@@ -115,6 +115,10 @@ def _walk(search, best: Candidate, step: int, lo_d: int, hi_d: int) -> bool:
                             f"{before.depth}, {before.train_psnr:.2f} dB train PSNR)")
         search.try_tau(before.reserve, nxt)
         if search.best() is before:
+            made = search.candidates[-1] if search.candidates else None
+            if (made is not None and made is not before and made.depth == nxt
+                    and before.train_psnr - made.train_psnr < DEPTH_STEP_MIN_GAIN_DB):
+                search.near_ties.add(nxt)       # tried again where tau moves (refine_tau)
             if stride > 1:
                 stride = 1          # the double step did not pay: the level it stepped over may
                 continue
@@ -134,6 +138,14 @@ def _walk(search, best: Candidate, step: int, lo_d: int, hi_d: int) -> bool:
             # a first step that gains only hundredths of a dB says little about this direction:
             # try the other one too (the new candidate stays in the pool)
             break
+        if stride > 1 and gain < STRONG_GAIN_EXTRA_DEPTH_DB and (before.reserve, nxt - step) not in search.evaluated:
+            # the gain fell inside the double step: the level it stepped over may be the peak
+            # (houseplant at SOG's bytes, depths 14, 16: 63.22, 63.90 dB train; 15 won before)
+            top = search.best()
+            search.progress.log(f"depth {nxt - step} at tau {before.reserve} (the level between)")
+            search.try_tau(before.reserve, nxt - step)
+            if search.best() is not top:
+                return True
         d = nxt
         moved, looked_past = True, False
         if d > hi_d and gain < SATURATED_MIN_GAIN_DB:

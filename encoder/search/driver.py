@@ -164,6 +164,7 @@ class BudgetSearch:
         self.dropped: list = []           # candidates dropped after their hardest views
         self.lost_paths: set = set()      # SH paths not weighed again (_note_lost_paths)
         self.narrow_losses: dict = {}     # SH path -> stages it lost by < PATH_LOST_MARGIN_DB
+        self.near_ties: set = set()       # depths the walk found within DEPTH_STEP_MIN_GAIN_DB of its best
         self.estimate_errors: dict = {}   # SH path -> the rate estimate's last error (calibrate)
         self.t0 = self.c0 = None
 
@@ -391,8 +392,12 @@ class BudgetSearch:
                               f"{SH_PATH_NAMES[best.encoded.sh_path]} path: {then}")
 
     def refine_tau(self) -> None:
-        """The grid neighbours of the best candidate's tau (at its depth), while they improve."""
+        """The grid neighbours of the best candidate's tau (at its depth), while they improve;
+        where tau moved, also the depths the walk found (nearly) as good as its best at the
+        tau before -- which of two such depths wins can change with tau (houseplant noised 18x:
+        depths 10 and 11 both 35.89 dB train at tau 0.6; tau 0.7 at depth 11 36.58 dB)."""
         taus = self.taus
+        start = self.best().reserve if self.candidates else None
         for _ in range(self.sopts.refine_steps):
             if not self.candidates:
                 return
@@ -401,9 +406,16 @@ class BudgetSearch:
             nbrs = [taus[j] for j in (i - 1, i + 1)
                     if 0 <= j < len(taus) and (taus[j], d) not in self.evaluated]
             if not nbrs:
-                return
+                break
             for tau in nbrs:
                 self.try_tau(tau, d)
+        best = self.best()
+        if best.reserve != start:
+            for d in sorted(self.near_ties):
+                if (best.reserve, d) not in self.evaluated:
+                    self.progress.log(f"depth {d} at tau {best.reserve} (as good as the best depth "
+                                      f"at tau {start})")
+                    self.try_tau(best.reserve, d)
 
     def try_without_sh(self) -> None:
         """Where the best candidate keeps no SH vector exact, the same budget without the SH
