@@ -1075,16 +1075,19 @@ class ShPayloads:
         sh = self.stage.sh
         from ..decoder import native
         if native.enabled() and sh.dtype == np.float32 and d:
-            # one C pass per row, the same operations (the NumPy rows below are the reference)
-            flat = np.ascontiguousarray(sh).reshape(len(sh), d)
-            order64 = np.ascontiguousarray(order, np.int64)
+            # one C pass per row, the same operations (the NumPy rows below are the reference);
+            # the kept rows gathered a range at a time as there (the stage's SH rows are
+            # references to the input's: whole, 1 GB at 6 M voxels)
             books32 = np.ascontiguousarray(books, np.float32)
             lo, step, top = (np.ascontiguousarray(v, np.float64) for v in (lo, step, top))
 
             def rows_native(a: int, b: int) -> np.ndarray:
                 out = np.empty((b - a, d), np.float32)
-                native.module().sh_requant_rows(flat, order64[a:b], group[a:b], cw_row[a:b], books32,
-                                                lo, step, top, out)
+                gr = group[a:b]
+                kept = gr >= 0
+                src = np.ascontiguousarray(sh[order[a:b][kept]], np.float32).reshape(-1, d)
+                at = np.cumsum(kept, dtype=np.int64) - 1          # a kept row's row of src
+                native.module().sh_requant_rows(src, at, gr, cw_row[a:b], books32, lo, step, top, out)
                 return out.reshape(b - a, -1, 3)
             return MadeRows((m, d // 3, 3), rows_native)
 
