@@ -409,6 +409,8 @@ class BudgetSearch:
                 break
             for tau in nbrs:
                 self.try_tau(tau, d)
+        if not self.candidates:
+            return
         best = self.best()
         if best.reserve != start:
             for d in sorted(self.near_ties):
