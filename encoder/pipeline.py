@@ -1074,32 +1074,28 @@ class ShPayloads:
         del pos
         sh = self.stage.sh
         from ..decoder import native
-        if native.enabled() and sh.dtype == np.float32 and d:
-            # one C pass per row, the same operations (the NumPy rows below are the reference);
-            # the kept rows gathered a range at a time as there (the stage's SH rows are
-            # references to the input's: whole, 1 GB at 6 M voxels)
-            books32 = np.ascontiguousarray(books, np.float32)
-            lo, step, top = (np.ascontiguousarray(v, np.float64) for v in (lo, step, top))
-
-            def rows_native(a: int, b: int) -> np.ndarray:
-                out = np.empty((b - a, d), np.float32)
-                gr = group[a:b]
-                kept = gr >= 0
-                src = np.ascontiguousarray(sh[order[a:b][kept]], np.float32).reshape(-1, d)
-                at = np.cumsum(kept, dtype=np.int64) - 1          # a kept row's row of src
-                native.module().sh_requant_rows(src, at, gr, cw_row[a:b], books32, lo, step, top, out)
-                return out.reshape(b - a, -1, 3)
-            return MadeRows((m, d // 3, 3), rows_native)
+        # one C pass per row where the accelerator is built, the same operations (the NumPy
+        # below is the reference)
+        in_c = native.enabled() and d > 0 and sh.dtype == np.float32
+        books = np.ascontiguousarray(books, np.float32)
 
         def rows(a: int, b: int) -> np.ndarray:
             out = np.empty((b - a, d), np.float32)
             gr = group[a:b]
             kept = gr >= 0
+            # the kept rows gathered a range at a time (the stage's SH rows are references to
+            # the input's: whole, 1 GB at 6 M voxels)
+            src = sh[order[a:b][kept]]
+            if in_c:
+                src = np.ascontiguousarray(src, np.float32).reshape(-1, d)
+                at = np.cumsum(kept, dtype=np.int64) - 1          # a kept row's row of src
+                native.module().sh_requant_rows(src, at, gr, cw_row[a:b], books, lo, step, top, out)
+                return out.reshape(b - a, -1, 3)
             if kept.any():
                 gr = gr[kept]
                 # quantize_cpu.quantize's k = min(max(rint((x - m) / s), 0), 2^q - 1), then
                 # dequantize_groups' s * k + m, both in float64
-                v = sh[order[a:b][kept]].astype(np.float64)
+                v = src.astype(np.float64)
                 m_g, s_g = lo[gr], step[gr]
                 v -= m_g
                 v /= s_g
