@@ -34,7 +34,7 @@ DEFAULT_POINTS = ("plaza_taebak_crop_sh0:grid:12,flowers_daffodils_sh2:grid:27,h
                   "tiny_graphdeco_iter7000_sh3:grid:18")
 #: name -> (views, width): generated train views (a spiral of views + 1, as the search makes them)
 TRAIN_SETS = {"6@640": (6, 640), "6@800": (6, 800), "6@1024": (6, 1024), "4@800": (4, 800),
-              "8@800": (8, 800), "12@640": (12, 640)}
+              "8@800": (8, 800), "12@640": (12, 640), "12@800": (12, 800), "24@800": (24, 800)}
 
 
 def main(argv=None) -> int:
@@ -58,15 +58,16 @@ def main(argv=None) -> int:
     from gsz.encoder.progress import Progress
 
     # keep every fully rendered candidate's decoded cloud (the search keeps only the winner)
+    from gsz.encoder.search import judge as J
     kept = []
-    original = S._train_psnr
+    original = J.train_psnr
 
     def keeping(refs, cloud, cameras, best_views=None):
         r = original(refs, cloud, cameras, best_views)
         if not r[2]:                  # dropped candidates (partial renders) never win
             kept.append(cloud)
         return r
-    S._train_psnr = keeping
+    J.train_psnr = keeping
 
     sopts = S.SearchOptions()
     if a.search_width:
@@ -114,7 +115,7 @@ def main(argv=None) -> int:
         results.append({"scene": scene, "variant": variant, "ratio": float(ratio), "search_seconds": seconds,
                         "eval_width": sopts.eval_width,
                         "importance_width": sopts.importance_width, "candidates": rows, "picks": picks})
-    S._train_psnr = original
+    J.train_psnr = original
     if results:
         print("\n| train views | points with regret 0 | mean regret dB | max regret dB |\n|---|---|---|---|")
         for k in results[0]["picks"]:

@@ -14,11 +14,11 @@
 //   conic   [N, 3] f32   inverse 2D covariance (a, b, c): power = -0.5(a dx^2 + c dy^2) - b dx dy
 //   opac    [N]    f32   sigmoid(opacity)
 //   colors  [N, 3] f32   SH colour (+0.5, clamped at 0)
-//   boxes   [N, 4] i32   pixel box (x0, y0, x1, y1), x1/y1 exclusive: a conservative box
+//   boxes   [N, 4] i16   pixel box (x0, y0, x1, y1), x1/y1 exclusive: a conservative box
 //                        outside of which alpha < 1/255 everywhere (so skipping it is exact), cut
 //                        to the graphdeco tile rectangle (the pixels graphdeco lets the Gaussian
 //                        reach); empty = never drawn. Its tiles are the tiles binned into.
-//   order   [M]    i64   visible Gaussians, front to back
+//   order   [M]    i32   visible Gaussians (rows), front to back
 // Outputs: image [H, W, 3] f32 (without background), trans [H, W] f32 (final T),
 //          importance [N] f64 (sum over pixels of alpha*T) when want_importance.
 //
@@ -48,8 +48,8 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
   TORCH_CHECK(means.dtype() == torch::kFloat32 && conic.dtype() == torch::kFloat32 &&
                   opac.dtype() == torch::kFloat32 && colors.dtype() == torch::kFloat32,
               "float32 inputs expected");
-  TORCH_CHECK(boxes.dtype() == torch::kInt32, "int32 boxes expected");
-  TORCH_CHECK(order.dtype() == torch::kInt64, "int64 order expected");
+  TORCH_CHECK(boxes.dtype() == torch::kInt16, "int16 boxes expected");
+  TORCH_CHECK(order.dtype() == torch::kInt32, "int32 order expected");
   order = order.contiguous();
   means = means.contiguous();
   conic = conic.contiguous();
@@ -58,7 +58,7 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
   boxes = boxes.contiguous();
   const int64_t N = means.size(0);      // rows of the per-Gaussian arrays
   const int64_t M = order.size(0);      // visible Gaussians, front to back
-  const int64_t* ordp = order.data_ptr<int64_t>();
+  const int32_t* ordp = order.data_ptr<int32_t>();
   TORCH_CHECK(N < (int64_t(1) << 31), "too many Gaussians");
   const int W = static_cast<int>(width), H = static_cast<int>(height);
   const int gx = (W + BLOCK - 1) / BLOCK, gy = (H + BLOCK - 1) / BLOCK;
@@ -68,11 +68,11 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
   const float* cp = conic.data_ptr<float>();
   const float* op = opac.data_ptr<float>();
   const float* colp = colors.data_ptr<float>();
-  const int32_t* bp = boxes.data_ptr<int32_t>();
+  const int16_t* bp = boxes.data_ptr<int16_t>();
   // The tiles a box meets (x0, y0, x1, y1), none for an empty box: as the box lies within the
   // graphdeco rectangle, those of the rectangle that can receive a contribution.
   auto tiles = [bp](int64_t g, int t[4]) {
-    const int32_t* b = bp + 4 * g;
+    const int16_t* b = bp + 4 * g;
     if (b[2] > b[0] && b[3] > b[1]) {
       t[0] = b[0] / BLOCK; t[1] = b[1] / BLOCK;
       t[2] = (b[2] - 1) / BLOCK + 1; t[3] = (b[3] - 1) / BLOCK + 1;
@@ -102,7 +102,7 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
       tiles(ordp[j], r);
       for (int ty = r[1]; ty < r[3]; ++ty)
         for (int tx = r[0]; tx < r[2]; ++tx)
-          entries[fill[static_cast<int64_t>(ty) * gx + tx]++] = static_cast<int32_t>(ordp[j]);
+          entries[fill[static_cast<int64_t>(ty) * gx + tx]++] = ordp[j];
     }
   }
   std::vector<double> entry_imp(want_importance ? E : 0, 0.0);
@@ -129,9 +129,9 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
       int ndone = 0;
       for (int64_t e = offsets[tile]; e < offsets[tile + 1] && ndone < npix; ++e) {
         const int64_t g = entries[e];
-        const int32_t* b = bp + 4 * g;
-        const int bx0 = std::max(px0, b[0]), by0 = std::max(py0, b[1]);
-        const int bx1 = std::min(px1, b[2]), by1 = std::min(py1, b[3]);
+        const int16_t* b = bp + 4 * g;
+        const int bx0 = std::max<int>(px0, b[0]), by0 = std::max<int>(py0, b[1]);
+        const int bx1 = std::min<int>(px1, b[2]), by1 = std::min<int>(py1, b[3]);
         if (bx1 <= bx0 || by1 <= by0) continue;
         const float mx = mp[2 * g], my = mp[2 * g + 1];
         const float ca = cp[3 * g], cb = cp[3 * g + 1], cc = cp[3 * g + 2];
@@ -249,8 +249,10 @@ static void camera_centre(const double* cm, float campos[3]) {
 
 // Per-Gaussian preprocessing, the same steps as render.py::_preprocess (see there for the
 // graphdeco references). Returns the per-Gaussian arrays means, conic, opac, colors, boxes (N
-// rows; rows of culled Gaussians are garbage) and `order` [M] int64: the visible Gaussians
-// sorted front to back, ties by index.
+// rows; rows of culled Gaussians are garbage) and `order` [M] int32: the visible Gaussians
+// sorted front to back, ties by index. The arrays are as narrow as rasterize allows (int16
+// boxes, int32 order, no visibility mask: a culled row keeps depth 0): at 6 M Gaussians a
+// render's arrays are a search's memory peak.
 //   positions [N,3], log_scales [N,3], rotations [N,4] (w,x,y,z), opacity_logits [N],
 //   sh_dc [N,3], sh_rest [N,K,3] (K >= (deg+1)^2-1), cam = [R (9, row-major), t (3), fx, fy,
 //   cx, cy] float64.
@@ -277,14 +279,15 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
   camera_centre(cm, campos);
   const float limx = (float)(1.3 * (W / (2.0 * fx))), limy = (float)(1.3 * (H / (2.0 * fy)));
   const float ffx = (float)fx, ffy = (float)fy, smod = (float)scale_modifier;
+  TORCH_CHECK(W > 0 && H > 0 && W <= 32767 && H <= 32767, "image size out of range (1..32767)");
+  TORCH_CHECK(N < (int64_t(1) << 31), "too many Gaussians");
 
   auto means = torch::empty({N, 2}, torch::kFloat32);
   auto conic = torch::empty({N, 3}, torch::kFloat32);
   auto opac = torch::empty({N}, torch::kFloat32);
   auto colors = torch::zeros({N, 3}, torch::kFloat32);
-  auto boxes = torch::zeros({N, 4}, torch::kInt32);
-  auto depth = torch::empty({N}, torch::kFloat32);
-  std::vector<uint8_t> valid(N, 0);
+  auto boxes = torch::zeros({N, 4}, torch::kInt16);
+  auto depth = torch::zeros({N}, torch::kFloat32);   // > 0.2 for a visible row, 0 for a culled one
   const float* P = positions.data_ptr<float>();
   const float* S = log_scales.data_ptr<float>();
   const float* Q = rotations.data_ptr<float>();
@@ -293,7 +296,7 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
   const float* REST = K ? sh_rest.data_ptr<float>() : nullptr;
   float* mp = means.data_ptr<float>(); float* cp = conic.data_ptr<float>();
   float* op = opac.data_ptr<float>(); float* colp = colors.data_ptr<float>();
-  int32_t* bp = boxes.data_ptr<int32_t>();
+  int16_t* bp = boxes.data_ptr<int16_t>();
   float* dp = depth.data_ptr<float>();
 
   parallel_chunks(N, num_threads, [&](int64_t begin, int64_t end) {
@@ -352,7 +355,6 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
       const int x1 = clampi((mx + radius + (BLOCK - 1)) / BLOCK, gx);
       const int y1 = clampi((my + radius + (BLOCK - 1)) / BLOCK, gy);
       if (!(radius > 0) || (int64_t)(x1 - x0) * (y1 - y0) <= 0) continue;
-      valid[i] = 1;
       dp[i] = tz;
       mp[2 * i] = mx; mp[2 * i + 1] = my;
       cp[3 * i] = ca; cp[3 * i + 1] = cb; cp[3 * i + 2] = cc;
@@ -367,7 +369,7 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
       {
         const double qa = ca, qb = cb, qc = cc, od = o;
         const double detq = qa * qc - qb * qb;
-        int32_t* bx = bp + 4 * i;
+        int32_t bx[4];
         if (255.0 * od < 1.0 - 1e-4) {
           bx[0] = bx[1] = bx[2] = bx[3] = 0;
         } else {
@@ -392,6 +394,7 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
         bx[0] = std::max(bx[0], x0 * BLOCK); bx[2] = std::min(bx[2], x1 * BLOCK);
         bx[1] = std::max(bx[1], y0 * BLOCK); bx[3] = std::min(bx[3], y1 * BLOCK);
         if (bx[2] <= bx[0] || bx[3] <= bx[1]) bx[0] = bx[1] = bx[2] = bx[3] = 0;
+        for (int k = 0; k < 4; ++k) bp[4 * i + k] = static_cast<int16_t>(bx[k]);  // <= W, H
       }
       if (want_color) sh_color(P + 3 * i, DC + 3 * i, REST ? REST + 3 * K * i : nullptr, deg, campos, colp + 3 * i);
     }
@@ -399,23 +402,21 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
   // Front-to-back order of the visible Gaussians; stable so equal depths keep index order.
   // Key = (float bits of the depth, index): depths are > 0.2, so their IEEE bit patterns sort
   // like the numbers, and the index in the low word breaks ties exactly as a stable sort would.
-  // The keys are sorted in `order` itself (no second [M] array): a positive float's bits are
-  // below 2^31, so every key is a non-negative int64 and sorts as the unsigned key would.
-  TORCH_CHECK(N < (int64_t(1) << 32), "too many Gaussians");
+  // The keys are sorted, then their low words (the rows) go to the int32 order.
   int64_t count = 0;
-  for (int64_t i = 0; i < N; ++i) count += valid[i];
-  auto order = torch::empty({count}, torch::kInt64);
-  int64_t* orp = order.data_ptr<int64_t>();
+  for (int64_t i = 0; i < N; ++i) count += dp[i] > 0.0f;
+  std::vector<uint64_t> keys(count);
   for (int64_t i = 0, j = 0; i < N; ++i) {
-    if (!valid[i]) continue;
+    if (!(dp[i] > 0.0f)) continue;
     uint32_t bits;
     std::memcpy(&bits, dp + i, sizeof(bits));
-    orp[j++] = static_cast<int64_t>((static_cast<uint64_t>(bits) << 32) | static_cast<uint64_t>(i));
+    keys[j++] = (static_cast<uint64_t>(bits) << 32) | static_cast<uint64_t>(i);
   }
   depth = torch::Tensor();                       // freed before the sort
-  std::vector<uint8_t>().swap(valid);
-  std::sort(orp, orp + count);
-  for (int64_t j = 0; j < count; ++j) orp[j] &= 0xffffffff;
+  std::sort(keys.begin(), keys.end());
+  auto order = torch::empty({count}, torch::kInt32);
+  int32_t* orp = order.data_ptr<int32_t>();
+  for (int64_t j = 0; j < count; ++j) orp[j] = static_cast<int32_t>(keys[j] & 0xffffffffu);
   return {means, conic, opac, colors, boxes, order};
 }
 
