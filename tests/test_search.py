@@ -352,3 +352,64 @@ def test_depth_walk_notes_the_depths_as_good_as_its_best():
     tie = _WalkScene({9: 35.0, 10: 35.89, 11: 35.89, 12: 35.36}, 11)
     walk_depth(tie)
     assert tie.best().depth == 11 and tie.near_ties == {10}
+
+
+class _TauWalkScene(_WalkScene):
+    """_WalkScene with train PSNR per (tau, depth)."""
+
+    def try_tau(self, tau, d) -> None:
+        from types import SimpleNamespace
+
+        from gsz.encoder.search.candidate import Candidate
+        self.evaluated.add((tau, d))
+        enc = SimpleNamespace(attributes_saturated=False, mean_attribute_bits=lambda: 10.0)
+        self.candidates.append(Candidate(self.psnr[(tau, d)], tau, d, 0.0, [], enc))
+
+
+def test_depth_is_walked_again_where_tau_moved():
+    """The walk's verdict holds at the tau it ran at: where the tau refinement then prunes more,
+    deeper levels are tried again, and where it prunes less, shallower ones (showroom crop at
+    18x: depth 13 lost at tau 0.6; at tau 0.5 it wins by 0.02 dB and 14 by 0.13 dB).  A tau
+    that did not move walks nothing."""
+    from gsz.encoder.search.depth_walk import rewalk_depth
+    table = {(0.6, 12): 48.79, (0.6, 11): 47.90, (0.6, 13): 48.16,
+             (0.5, 12): 49.58, (0.5, 13): 49.60, (0.5, 14): 49.71, (0.5, 15): 49.26,
+             (0.7, 12): 47.0, (0.7, 11): 49.3, (0.7, 10): 49.1, (1.0, 12): 23.41}
+    s = _TauWalkScene(table, 12)
+    s.try_tau(0.6, 12)
+    assert not rewalk_depth(s, 0.6) and len(s.candidates) == 2
+    s.try_tau(0.5, 12)                      # the refinement moved tau down: deeper pays
+    assert rewalk_depth(s, 0.6)
+    assert (s.best().reserve, s.best().depth) == (0.5, 14)
+    assert {d for t, d in s.evaluated if t == 0.5} == {12, 13, 14, 15}
+    up = _TauWalkScene(table, 12)
+    up.try_tau(0.6, 12)
+    up.psnr[(0.7, 12)] = 49.0
+    up.try_tau(0.7, 12)                     # tau moved up (prunes less): shallower
+    assert rewalk_depth(up, 0.6) and up.best().depth == 11
+    assert (0.7, 13) not in up.evaluated
+
+
+def test_tau_refinement_tries_the_smaller_tau_a_level_deeper():
+    """Where the next smaller tau loses at the best depth, it is tried a level deeper (it leaves
+    more bytes for each Gaussian, which a deeper octree can use: showroom noised 18x, tau 0.4
+    dropped at depth 12 and 1 dB better at depth 13-15); within the walk's range only."""
+    from types import SimpleNamespace
+
+    from gsz.encoder.search.driver import BudgetSearch
+    table = {(1.0, 12): 23.0, (0.6, 12): 48.74, (0.7, 12): 47.0, (0.5, 12): 49.45,
+             (0.4, 12): 47.5, (0.4, 13): 50.23, (0.5, 13): 49.38, (0.3, 13): 49.0,
+             (0.3, 14): 49.9}
+    s = _TauWalkScene(table, 12)
+    s.taus = [1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2]
+    s.sopts.refine_steps = 4
+    s.try_tau(0.6, 12)
+    BudgetSearch.refine_tau(s)
+    assert (s.best().reserve, s.best().depth) == (0.4, 13)
+    assert (0.4, 13) in s.evaluated and (0.3, 14) in s.evaluated
+    # at the end of the walk's range (start 12, 3 levels) no deeper level is tried
+    edge = _TauWalkScene({(1.0, 12): 23.0, (0.6, 15): 48.0, (0.7, 15): 47.0, (0.5, 15): 47.5}, 12)
+    edge.taus, edge.sopts.refine_steps = s.taus, 4
+    edge.try_tau(0.6, 15)
+    BudgetSearch.refine_tau(edge)
+    assert edge.best().reserve == 0.6 and {d for _, d in edge.evaluated} == {12, 15}
