@@ -597,6 +597,7 @@ def main(argv=None):
                          "encode_s": t_imp + t_search, "decode_s": t_dec, "importance_s": t_imp,
                          "search_s": t_search, "reserve": rep.reserve, "sh_keep": rep.sh_keep,
                          "depth": rep.depth, "codebook_size": rep.codebook_size,
+                         "train_psnr": rep.search.train_psnr,
                          "candidates": len(rep.search.candidates), "screened": len(rep.search.screened),
                          "rounds": len(rep.search.calibration), "cpu_s": rep.cpu_seconds,
                          "load": [load0, os.getloadavg()[0]], "note": rep.search.note,
