@@ -300,13 +300,16 @@ class _WalkScene:
     def merged_fraction(self, tau, d) -> float:
         return 0.001
 
+    def score(self, tau, d) -> float:
+        return self.psnr[d]
+
     def try_tau(self, tau, d) -> None:
         from types import SimpleNamespace
 
         from gsz.encoder.search.candidate import Candidate
         self.evaluated.add((tau, d))
         enc = SimpleNamespace(attributes_saturated=False, mean_attribute_bits=lambda: 10.0)
-        self.candidates.append(Candidate(self.psnr[d], tau, d, 0.0, [], enc))
+        self.candidates.append(Candidate(self.score(tau, d), tau, d, 0.0, [], enc))
 
 
 def test_depth_walk_goes_past_its_range_while_each_level_gains_a_lot():
@@ -357,13 +360,8 @@ def test_depth_walk_notes_the_depths_as_good_as_its_best():
 class _TauWalkScene(_WalkScene):
     """_WalkScene with train PSNR per (tau, depth)."""
 
-    def try_tau(self, tau, d) -> None:
-        from types import SimpleNamespace
-
-        from gsz.encoder.search.candidate import Candidate
-        self.evaluated.add((tau, d))
-        enc = SimpleNamespace(attributes_saturated=False, mean_attribute_bits=lambda: 10.0)
-        self.candidates.append(Candidate(self.psnr[(tau, d)], tau, d, 0.0, [], enc))
+    def score(self, tau, d) -> float:
+        return self.psnr[(tau, d)]
 
 
 def test_depth_is_walked_again_where_tau_moved():
@@ -394,8 +392,6 @@ def test_tau_refinement_tries_the_smaller_tau_a_level_deeper():
     """Where the next smaller tau loses at the best depth, it is tried a level deeper (it leaves
     more bytes for each Gaussian, which a deeper octree can use: showroom noised 18x, tau 0.4
     dropped at depth 12 and 1 dB better at depth 13-15); within the walk's range only."""
-    from types import SimpleNamespace
-
     from gsz.encoder.search.driver import BudgetSearch
     table = {(1.0, 12): 23.0, (0.6, 12): 48.74, (0.7, 12): 47.0, (0.5, 12): 49.45,
              (0.4, 12): 47.5, (0.4, 13): 50.23, (0.5, 13): 49.38, (0.3, 13): 49.0,
