@@ -17,10 +17,11 @@ from .container import Container, read_container
 from .errors import GszError, GszFormatError, GszTruncatedError
 from .glb import gsz_payload, is_glb
 # LAYER_DATA_CHUNKS, open_gsz and the layer names stay importable from here (their old home)
-from .layer import (FIELDS, GAUSSIANS_PER_BYTE, LAYER_DATA_CHUNKS, LayerState, _cores,  # noqa: F401
+from .layer import (FIELDS, GAUSSIANS_PER_BYTE, LAYER_DATA_CHUNKS, LayerState,  # noqa: F401
                     check_header_counts, check_max_gaussians, check_part_density, check_tile_complete,
                     concat_clouds, decode_layer, guard, load_bytes, open_gsz, plan_layers, plan_parts,
                     tile_table)
+from .threads import cores
 from .geometry import read_geometry_header
 from .layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_TILE,
                      KNOWN_CHUNKS)
@@ -103,7 +104,7 @@ def decode_parts(container: Container, plan, tiles: list, chosen: list, count: i
     # tiles decode in parallel threads on the native path only: the NumPy path's row loops hold
     # the GIL, and two tiles (each overlapping its geometry with its attributes) contending for
     # it were slower than one after the other (1.2 M, 2 tiles: 2.65 s against 2.05 s)
-    workers = min(len(chosen), threads or _cores()) if native.enabled() else 1
+    workers = min(len(chosen), threads or cores()) if native.enabled() else 1
     if workers <= 1:
         clouds = {t: _decode_tile(container, by_tile[t], h, states[t], True, tiled, rows=rows) for t in chosen}
     else:
@@ -111,7 +112,7 @@ def decode_parts(container: Container, plan, tiles: list, chosen: list, count: i
         # no more tiles than cores: each tile also overlaps its geometry with its attributes (a
         # large tile's traversal is the critical path) on a worker of its own (the decoder's
         # one worker would run one tile's jobs at a time); else the tiles fill the cores
-        overlap = len(chosen) <= (threads or _cores())
+        overlap = len(chosen) <= (threads or cores())
         with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="gsz-tile") as pool, \
                 ThreadPoolExecutor(max_workers=workers if overlap else 1, thread_name_prefix="gsz-decode") as inner:
             futures = {t: pool.submit(native.carry(_decode_tile), container, by_tile[t], h, states[t], overlap,

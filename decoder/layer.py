@@ -31,6 +31,7 @@ from .pages import small_pages
 from .raht import build_raht_tree
 from .rotation import quaternion_f32_from_trig
 from .sh import read_sh_checked
+from .threads import cores
 
 
 def open_gsz(path: str):
@@ -245,14 +246,6 @@ _pool = None
 _pool_lock = threading.Lock()
 
 
-def _cores() -> int:
-    """CPUs this process may run on (the overlap needs two)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        return os.cpu_count() or 1
-
-
 def _worker():
     """The decoder's one worker thread (geometry runs there, the attributes here)."""
     global _pool
@@ -367,7 +360,7 @@ def _decode_layer(chunks: dict, header, state: LayerState, overlap: bool, label:
     gh = read_geometry_header(chunks[CHUNK_GEOM], max_points=room)
     m = gh.num_points
     check_part_density(m, chunks, state, label)
-    if (overlap and m >= OVERLAP_MIN_POINTS and _cores() >= 2
+    if (overlap and m >= OVERLAP_MIN_POINTS and cores() >= 2
             and m <= OVERLAP_MAX_POINTS_PER_BYTE * sum(len(v) for v in chunks.values())):
         overlapped = _decode_layer_overlapped if native.enabled() else _decode_layer_threaded
         cloud = overlapped(chunks, header, state, gh, pool or _worker(), dest)

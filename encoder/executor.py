@@ -9,9 +9,9 @@ however many workers (tests/test_executor.py).  Ray is an optional extra (``gsz[
 """
 from __future__ import annotations
 
-import os
 
 from ..decoder.errors import GszError
+from ..decoder.threads import cores
 
 #: what ``--executor`` accepts besides ``ray://HOST:PORT``
 EXECUTORS = ("local", "inline", "ray")
@@ -19,13 +19,6 @@ EXECUTORS = ("local", "inline", "ray")
 
 class ExecutorError(GszError, ValueError):
     """An executor cannot be used (unknown name, Ray missing or unreachable)."""
-
-
-def _cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        return os.cpu_count() or 1
 
 
 def in_order(ex, fn, jobs):
@@ -62,7 +55,7 @@ class LocalExecutor:
         # one core stays with the calling process (it renders and solves between the maps): on
         # 2 cores the workers' pickling and start-up cost more than they save (a 106k-Gaussian
         # search: 0.9 s per map against 0.15 s inline), so there it runs inline
-        self.workers = max(1, int(workers or _cores() - 1))
+        self.workers = max(1, int(workers or cores() - 1))
         self._pool = None
         self._broken = False
 
@@ -121,7 +114,7 @@ class RayExecutor:
             kw = dict(include_dashboard=False, log_to_driver=False, ignore_reinit_error=True)
             try:
                 if self.address is None:
-                    ray.init(num_cpus=int(self._workers or _cores()), **kw)
+                    ray.init(num_cpus=int(self._workers or cores()), **kw)
                 else:
                     ray.init(address=self.address, **kw)
             except Exception as e:  # noqa: BLE001 - Ray raises many types for an unreachable cluster

@@ -45,6 +45,7 @@ from ..decoder import native
 from ..decoder.errors import GszError
 from ..decoder.quant import MAX_BITS, MIN_BITS
 from ..decoder.rans import MAX_PRECISION
+from ..decoder.threads import thread_map
 from .rans import (COARSE_BINSHIFTS, ModelSet, _coder_tables, _value_index, choose_lanes,
                    fit_model_set, write_model_set)
 
@@ -138,16 +139,19 @@ def group_stats(x, num_blocks: int, bit_range: tuple[int, int] = (MIN_BITS, MAX_
     # log2 of run lengths 0..blen and of the value steps + 1 (lookup instead of a log per run)
     tab_len = max(parts[0][2], 1 << MAX_BITS) + 1          # parts[0] has the longest blocks
     log_tab = np.log2(np.maximum(np.arange(tab_len, dtype=np.float64), 1.0))
-    for b0, nb, blen, off in parts:
-        for ci in range(c_count):
-            blocks = x[ci, off:off + nb * blen].reshape(nb, blen)
-            srt = np.sort(blocks, axis=1)
-            out["n"][ci, b0:b0 + nb, q_first - 1:hi] = blen
-            dst = {key: out[key][ci, b0:b0 + nb] for key in _STAT_KEYS}
-            if use_native:
-                _part_stats_native(srt, q_first, hi, log_tab, dst)
-            else:
-                _part_stats_numpy(srt, q_first, hi, log_tab, dst)
+    jobs = [(part, ci) for part in parts for ci in range(c_count)]
+
+    def one(j: int) -> None:
+        # each (part, channel) writes only its own slices of out: the same on any thread
+        (b0, nb, blen, off), ci = jobs[j]
+        srt = np.sort(x[ci, off:off + nb * blen].reshape(nb, blen), axis=1)
+        out["n"][ci, b0:b0 + nb, q_first - 1:hi] = blen
+        dst = {key: out[key][ci, b0:b0 + nb] for key in _STAT_KEYS}
+        if use_native:
+            _part_stats_native(srt, q_first, hi, log_tab, dst)
+        else:
+            _part_stats_numpy(srt, q_first, hi, log_tab, dst)
+    thread_map(one, len(jobs))
     return out
 
 

@@ -150,7 +150,9 @@ def _check_inputs(cloud: GaussianCloud, camera: Camera, sh_degree: int | None) -
         # row steps: a whole-field mask of the SH rest was 270 MB per render at 6 M Gaussians
         if not all(ok(arr[s:s + CHECK_ROWS]).all() for s in range(0, n, CHECK_ROWS)):
             _raise_invalid(fname, arr, ok)
-    if n and not (np.abs(cloud.rotations).sum(axis=1) > 0).all():
+    # each row's 4 "!= 0" flags read as one uint32: non-zero iff the quaternion is (one pass;
+    # the sum along a 4-wide axis cost 20 ms a render at 1.2 M Gaussians)
+    if n and not (np.ascontiguousarray(cloud.rotations != 0).view(np.uint32) != 0).all():
         raise GszError("render: cloud has an all-zero quaternion (first at Gaussian "
                        f"{int(np.argmin(np.abs(cloud.rotations).sum(axis=1) > 0))})")
     if camera.width <= 0 or camera.height <= 0:

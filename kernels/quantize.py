@@ -20,6 +20,7 @@ import torch
 from ..decoder import native
 from ..decoder.errors import GszError
 from ..decoder.quant import MAX_BITS, MIN_BITS
+from ..decoder.threads import spans, thread_map
 
 from . import quantize_cpu
 
@@ -112,7 +113,13 @@ def _loss_cpu(t: torch.Tensor, nb: int, mins: torch.Tensor, maxs: torch.Tensor, 
         return quantize_cpu.loss_all_bits(t, nb, mins, maxs, lo, hi)
     out = np.full((t.shape[0], nb, MAX_BITS), np.inf)
     out[:, :, lo - 1:hi] = 0.0
-    native.module().loss_all_bits(t.numpy(), nb, mins.numpy(), maxs.numpy(), lo, hi, out)
+    x, mn, mx = t.numpy(), mins.numpy(), maxs.numpy()
+    cut = spans(x.shape[0])
+
+    def run(i: int) -> None:          # channels apart: each writes its own rows of out
+        a, b = cut[i]
+        native.module().loss_all_bits(x[a:b], nb, mn[a:b], mx[a:b], lo, hi, out[a:b])
+    thread_map(run, len(cut))
     return torch.from_numpy(out)
 
 
@@ -134,8 +141,14 @@ def _quantize_with(t, nb, bits, mins, maxs, dev) -> np.ndarray:
         # the same symbols, bit for bit, in one pass (the torch path's 6 passes per chunk were
         # ~5 % of a search on its single torch thread)
         sym = np.empty(tuple(t.shape), np.int32)
-        native.module().quantize_groups(t.cpu().numpy(), nb, mins.cpu().numpy(), maxs.cpu().numpy(),
-                                        np.ascontiguousarray(b.numpy(), np.int64), sym)
+        x, mn, mx = t.cpu().numpy(), mins.cpu().numpy(), maxs.cpu().numpy()
+        bits64 = np.ascontiguousarray(b.numpy(), np.int64)
+        cut = spans(x.shape[0])
+
+        def run(i: int) -> None:      # channels apart: each writes its own rows of sym
+            a, e = cut[i]
+            native.module().quantize_groups(x[a:e], nb, mn[a:e], mx[a:e], bits64[a:e], sym[a:e])
+        thread_map(run, len(cut))
         return sym
     return quantize_cpu.quantize(t.cpu(), nb, b, mins.cpu(), maxs.cpu()).numpy()
 

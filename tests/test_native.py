@@ -239,7 +239,7 @@ def test_fuzzed_files_overlapped_decode_same_outcome(monkeypatch):
     native decode's outcome: the identical cloud, or the same error message (errors keep the
     sequential order: geometry, attributes, SH, then the first non-finite field)."""
     D = sys.modules["gsz.decoder.layer"]
-    if D._cores() < 2:
+    if D.cores() < 2:
         pytest.skip("the overlap needs two CPUs")
     outcomes = {"ok": 0, "error": 0}
     monkeypatch.setattr(D, "OVERLAP_MAX_POINTS_PER_BYTE", 1 << 40)   # overlap hostile M values too
@@ -266,7 +266,7 @@ def test_overlapped_decode_reports_the_scales_error_before_the_sh_error(monkeypa
     from gsz.decoder.container import read_container
     from gsz.decoder.layout import KNOWN_CHUNKS
     D = sys.modules["gsz.decoder.layer"]
-    if D._cores() < 2:
+    if D.cores() < 2:
         pytest.skip("the overlap needs two CPUs")
     data = encoded("sh3", 6000).data
     c = read_container(data, known_types=KNOWN_CHUNKS)
@@ -302,7 +302,7 @@ def test_non_finite_fields_reported_in_order(monkeypatch, overlap):
     opacities, sh_dc, sh_rest is named, with the same message on every path."""
     import struct
     D = sys.modules["gsz.decoder.layer"]
-    if overlap and D._cores() < 2:
+    if overlap and D.cores() < 2:
         pytest.skip("the overlap needs two CPUs")
     monkeypatch.setattr(D, "OVERLAP_MIN_POINTS", 1 if overlap else 1 << 40)
     data = encoded("sh3", 300, bits=8, codebook=16).data

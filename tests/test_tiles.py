@@ -60,8 +60,8 @@ def test_parts_decode_in_place_into_the_whole_cloud(tiled, monkeypatch, native, 
     _, res = tiled
     monkeypatch.setenv("GSZ_NATIVE", native)
     if overlap:                       # as on a machine with a core per tile
-        monkeypatch.setattr(D, "_cores", lambda: 8)
-        monkeypatch.setattr(L, "_cores", lambda: 8)
+        monkeypatch.setattr(D, "cores", lambda: 8)
+        monkeypatch.setattr(L, "cores", lambda: 8)
     monkeypatch.setattr(L, "OVERLAP_MIN_POINTS", 1 if overlap else 1 << 40)
     monkeypatch.setattr(D, "concat_clouds", lambda *a, **k: pytest.fail("parts concatenated"))
     copied, holds = [], cloud_module.OutputRows.holds

@@ -2,8 +2,11 @@
 protocol (8-bit renders, per-view PSNR, plain mean); test views are never used for choices."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
+from ...decoder.cloud import MadeRows
 from ...decoder.pages import trim_heap
 from ...evaluation.cameras import load_cameras
 from .options import SearchOptions
@@ -83,6 +86,22 @@ def screen_psnr(refs, cloud, cameras, best_views) -> tuple[float, int]:
     return float(np.mean(vals)), 0
 
 
+#: A candidate's SH rest made a row range at a time (decoder.cloud.MadeRows) is made once for all
+#: its train views when it takes at most this many bytes, instead of again for every view (the
+#: 1.2 M bench: 13 of 207 s); larger ones stay in ranges, so this is what a render may add to
+#: the memory a search holds, whatever the scene's size.
+WHOLE_SH_MAX_BYTES = 256 << 20
+
+
+def rows_once(cloud):
+    """``cloud`` with a row-made SH rest made whole where it takes at most WHOLE_SH_MAX_BYTES
+    (the renders are the same either way)."""
+    rest = cloud.sh_rest
+    if isinstance(rest, MadeRows) and rest.size * 4 <= WHOLE_SH_MAX_BYTES:
+        return dataclasses.replace(cloud, sh_rest=np.asarray(rest))
+    return cloud
+
+
 class Judge:
     """The train views, their reference renders and the channel weights of one search."""
 
@@ -104,8 +123,8 @@ class Judge:
 
     def score(self, cloud, best_views=None) -> tuple[float, list, int]:
         """:func:`train_psnr` on this search's views."""
-        return train_psnr(self.refs, cloud, self.cameras, best_views)
+        return train_psnr(self.refs, rows_once(cloud), self.cameras, best_views)
 
     def screen(self, cloud, best_views) -> tuple[float, int]:
         """:func:`screen_psnr` on this search's views."""
-        return screen_psnr(self.refs, cloud, self.cameras, best_views)
+        return screen_psnr(self.refs, rows_once(cloud), self.cameras, best_views)

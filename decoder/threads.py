@@ -1,0 +1,56 @@
+"""The CPUs this process may use, and a map over them for work that releases the GIL (the C
+accelerator's loops, NumPy's sorts): one place for both, so encoder and decoder agree."""
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+_pool = None
+_pool_lock = threading.Lock()
+_inside = threading.local()
+
+
+def cores() -> int:
+    """CPUs this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def _run(fn, i):
+    _inside.active = True
+    try:
+        return fn(i)
+    finally:
+        _inside.active = False
+
+
+def thread_map(fn, n: int) -> list:
+    """[fn(0), ..., fn(n - 1)], on up to :func:`cores` threads; results in order, so callers
+    whose items write disjoint outputs get the same result whatever the thread count.  Runs in
+    the caller's thread where there is one core or one item, and inside another thread_map's
+    item (a fixed pool waiting on itself would deadlock)."""
+    global _pool
+    if n <= 1 or cores() < 2 or getattr(_inside, "active", False):
+        return [fn(i) for i in range(n)]
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(max_workers=cores(), thread_name_prefix="gsz-map")
+    return list(_pool.map(_run, [fn] * n, range(n)))
+
+
+def spans(n: int, parts: int | None = None) -> list:
+    """[(start, stop)]: [0, n) cut into at most ``parts`` (default: :func:`cores`) contiguous
+    non-empty spans of nearly equal length."""
+    parts = max(1, min(int(parts or cores()), n))
+    if n <= 0:
+        return []
+    step, extra = divmod(n, parts)
+    out, a = [], 0
+    for i in range(parts):
+        b = a + step + (1 if i < extra else 0)
+        out.append((a, b))
+        a = b
+    return out
