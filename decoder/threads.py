@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 
 _pool = None
 _pool_lock = threading.Lock()
@@ -19,26 +19,50 @@ def cores() -> int:
         return os.cpu_count() or 1
 
 
-def _run(fn, i):
+def _helping(work):
     _inside.active = True
     try:
-        return fn(i)
+        work()
     finally:
         _inside.active = False
 
 
 def thread_map(fn, n: int) -> list:
-    """[fn(0), ..., fn(n - 1)], on up to :func:`cores` threads; results in order, so callers
-    whose items write disjoint outputs get the same result whatever the thread count.  Runs in
-    the caller's thread where there is one core or one item, and inside another thread_map's
-    item (a fixed pool waiting on itself would deadlock)."""
+    """[fn(0), ..., fn(n - 1)], the items taken in turn by the caller and up to ``cores() - 1``
+    pool threads; results in order, so callers whose items write disjoint outputs get the same
+    result whatever the thread count.  Runs in the caller's thread alone where there is one core
+    or one item, and inside a pool thread's item (a fixed pool waiting on itself would
+    deadlock; the caller's own items may map again)."""
     global _pool
     if n <= 1 or cores() < 2 or getattr(_inside, "active", False):
         return [fn(i) for i in range(n)]
     with _pool_lock:
         if _pool is None:
             _pool = ThreadPoolExecutor(max_workers=cores(), thread_name_prefix="gsz-map")
-    return list(_pool.map(_run, [fn] * n, range(n)))
+    results = [None] * n
+    state = {"next": 0, "failed": False}
+    lock = threading.Lock()
+
+    def work():
+        while True:
+            with lock:
+                i = state["next"]
+                if i >= n or state["failed"]:
+                    return
+                state["next"] = i + 1
+            try:
+                results[i] = fn(i)
+            except BaseException:
+                state["failed"] = True
+                raise
+    helpers = [_pool.submit(_helping, work) for _ in range(min(cores(), n) - 1)]
+    try:
+        work()
+    finally:
+        wait(helpers)                   # none still writes once this returns or raises
+    for h in helpers:
+        h.result()                      # a helper's exception, raised here
+    return results
 
 
 def spans(n: int, parts: int | None = None) -> list:

@@ -33,6 +33,7 @@ from ..decoder.morton import morton_encode
 from ..decoder.raht import build_raht_tree
 from ..decoder.rotation import quaternion_to_euler
 from ..decoder.sh import MAX_CODEBOOK, MAX_SH_CLASSES, SH_CLASSES_FROM_RWGT, class_order
+from ..decoder.threads import thread_map
 from ..evaluation.cameras import DEFAULT_VIEW_WIDTH
 
 from .encode_report import MODE_FIXED, EncodeReport, FixedDetails
@@ -741,8 +742,10 @@ def attribute_chunk(layer: Layer, raht_bits, scale_bits, blocks: int):
 
     w = Writer()
     w.u8(ROTATION_EULER_ZYX).u8(len(RAHT_CHANNELS)).array(layer.raht_dc, np.float64)
-    ac_bytes, ac_rec = write_channel_set(layer.raht_ac, raht_bits, blocks)
-    sc_bytes, sc_rec = write_channel_set(layer.scales, scale_bits, blocks)
+    # the two channel sets are independent: coded side by side where there are cores
+    (ac_bytes, ac_rec), (sc_bytes, sc_rec) = thread_map(
+        lambda i: (write_channel_set(layer.raht_ac, raht_bits, blocks) if i == 0
+                   else write_channel_set(layer.scales, scale_bits, blocks)), 2)
     w.bytes(ac_bytes).bytes(sc_bytes)
     if layer.scale_order is not None:          # stored in class order: back to point order
         rec = np.empty_like(sc_rec)

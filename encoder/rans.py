@@ -13,6 +13,7 @@ import zstandard
 
 from ..decoder import native
 from ..decoder.errors import GszFormatError
+from ..decoder.threads import thread_map
 from ..decoder.rans import (COARSE, EMPTY, LAPLACE, LAPLACE_SCALE_BITS, MAX_LEVEL_EXP,
                               MAX_PRECISION, MAX_ROWS, MAX_SPAN, RATIO_ONE, SINGLE, STATE_LOW, VALUE_LIMIT,
                               WORD_BITS, ModelSet,
@@ -1045,11 +1046,22 @@ def _lanes_for(n: int, h: _Hist, e_freq: np.ndarray, e_shift: np.ndarray) -> int
 
 def _encode_hist(h: _Hist, n: int) -> bytes:
     """encode_stream from the histograms (with symbol entries) of its n symbols."""
+    return _coded(h, n, _hist_models(h, n))
+
+
+def _hist_models(h: _Hist, n: int) -> tuple:
+    """(models, their serialised set, coder tables or None) fitted to the histograms of ``h``
+    (its entries only: no per-symbol work, so it may run beside another layout's coding)."""
     models = _fit_vectorised(h, validate=False)      # write_model_set validates
     if models.lut_entries() > lut_budget(n):
         raise ValueError("model set too large for this stream (decoder LUT budget, ENTROPY.md)")
+    return models, write_model_set(models), (_coder_tables(models) if n else None)
+
+
+def _coded(h: _Hist, n: int, fitted: tuple) -> bytes:
+    """The stream of ``h``'s n symbols (``h.sym_entry``) under ``fitted`` (:func:`_hist_models`)."""
+    models, header, tabs = fitted
     if n:
-        tabs = _coder_tables(models)
         g = _value_index(models, tabs, h.em, h.eo + h.lo[h.em] - models.lo[h.em])
         e_freq, e_cum, e_shift = tabs["freq"][g], tabs["cum"][g], models.prec[h.em]
         lanes = _lanes_for(n, h, e_freq, e_shift)
@@ -1057,7 +1069,7 @@ def _encode_hist(h: _Hist, n: int) -> bytes:
     else:
         payload = _payload(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
                            None)
-    return write_model_set(models) + payload
+    return header + payload
 
 
 def encode_stream(symbols: np.ndarray, model_ids: np.ndarray,
@@ -1070,10 +1082,12 @@ def encode_stream(symbols: np.ndarray, model_ids: np.ndarray,
     return _encode_hist(_histograms(sym, mid, num_models, symbol_entries=True), sym.size)
 
 
-def _merge_histograms(h: _Hist, merge: np.ndarray, num_models: int, *, reuse: bool = False) -> _Hist:
+def _merge_histograms(h: _Hist, merge: np.ndarray, num_models: int, *, reuse: bool | str = False):
     """The histograms of the same symbols with model ids merge[model id] (as _histograms).
     ``reuse``: ``h.sym_entry`` is rewritten into the result's (h's own entries are then gone):
-    a second per-symbol int64 array would be 276 MB at 1.2 M kept SH vectors."""
+    a second per-symbol int64 array would be 276 MB at 1.2 M kept SH vectors.  ``reuse`` "later"
+    (h with symbol entries): (result without them, the entry map) -- :func:`_remap_entries`
+    makes them once h's are no longer read."""
     m_count = int(num_models)
     merge = np.asarray(merge, dtype=np.int64)
     used = np.flatnonzero(h.k > 0)
@@ -1121,16 +1135,24 @@ def _merge_histograms(h: _Hist, merge: np.ndarray, num_models: int, *, reuse: bo
     out.k = np.bincount(em, minlength=m_count).astype(np.int64) if em.size \
         else np.zeros(m_count, np.int64)
     out.start = np.cumsum(out.k) - out.k
-    if h.sym_entry is None:
-        out.sym_entry = None
-    elif reuse:
+    out.sym_entry = None
+    if h.sym_entry is not None:
+        if reuse == "later":
+            return out, emap
+        _remap_entries(h, out, emap, reuse)
+    return out
+
+
+def _remap_entries(h: _Hist, out: _Hist, emap: np.ndarray, reuse) -> None:
+    """``out.sym_entry``: every symbol's entry of ``h`` mapped by ``emap`` (its merged entry);
+    ``reuse``: in h's own array, which h then loses."""
+    if reuse:
         out.sym_entry, h.sym_entry = h.sym_entry, None
         for a in range(0, out.sym_entry.size, _REMAP_CHUNK):
             part = out.sym_entry[a:a + _REMAP_CHUNK]
             part[...] = emap[part]
     else:
         out.sym_entry = emap[h.sym_entry]
-    return out
 
 
 #: symbols remapped per step by _merge_histograms(reuse=True) (bounds its temporaries)
@@ -1159,6 +1181,11 @@ def encode_group_streams(symbols, lens: np.ndarray, merge: np.ndarray,
 
 def _encode_pair(h: _Hist, merge: np.ndarray, merged_models: int) -> tuple[bytes, bytes]:
     n = int(h.total.sum())
-    first = _encode_hist(h, n)
-    merged = _merge_histograms(h, merge, merged_models, reuse=True)
-    return first, _encode_hist(merged, n)
+    if h.sym_entry is None:
+        return _encode_hist(h, n), _encode_hist(_merge_histograms(h, merge, merged_models), n)
+    # the merged layout's models are fitted while the first layout is coded (both read only
+    # histogram entries); its symbols' entries then overwrite the first layout's
+    merged, emap = _merge_histograms(h, merge, merged_models, reuse="later")
+    first, fitted = thread_map(lambda i: _encode_hist(h, n) if i == 0 else _hist_models(merged, n), 2)
+    _remap_entries(h, merged, emap, reuse=True)
+    return first, _coded(merged, n, fitted)

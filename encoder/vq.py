@@ -29,12 +29,14 @@ from __future__ import annotations
 
 import contextlib
 import math
+import threading
 from typing import Callable, Iterator
 
 import numpy as np
 import torch
 
 from ..decoder.errors import GszError
+from ..decoder.threads import thread_map
 
 #: Defaults chosen by measurement: docs/design/vq.md.
 DEFAULT_ITERS = 50
@@ -122,8 +124,16 @@ class _Prepared:
         self.c_sq = torch.full((kp,), math.inf, dtype=torch.float32)
         self.c_sq[:k] = (c * c).sum(dim=1)
         self.rows = max(64, min(4096, _CHUNK_ELEMS // kp))
-        self.buf = torch.empty((self.rows, kp), dtype=torch.float32)
+        self._local = threading.local()
         self.ar = torch.arange(self.rows)
+
+    @property
+    def buf(self) -> torch.Tensor:
+        """[rows, K'] f32 scores buffer, one per thread (chunks may run on several)."""
+        b = getattr(self._local, "buf", None)
+        if b is None:
+            b = self._local.buf = torch.empty((self.rows, self.c.shape[0]), dtype=torch.float32)
+        return b
 
 
 def _nearest(x: torch.Tensor, x_sq: torch.Tensor, p: _Prepared) -> tuple[torch.Tensor, torch.Tensor]:
@@ -176,8 +186,16 @@ def _nearest_blocks(a, p: _Prepared, rows: np.ndarray | None = None):
         xb_sq = (xb * xb).sum(dim=1)           # each row's own sum: the same in any block
         idx = torch.empty(xb.shape[0], dtype=torch.int64)
         d2 = torch.empty(xb.shape[0], dtype=torch.float32)
-        for t in range(0, xb.shape[0], p.rows):
+        starts = range(0, xb.shape[0], p.rows)
+
+        def chunk(j: int) -> None:       # the same chunks whatever thread runs each
+            t = starts[j]
             idx[t:t + p.rows], d2[t:t + p.rows] = _nearest(xb[t:t + p.rows], xb_sq[t:t + p.rows], p)
+        if torch.get_num_threads() == 1:
+            thread_map(chunk, len(starts))   # torch on one thread (the search): chunks on every core
+        else:
+            for j in range(len(starts)):
+                chunk(j)
         yield s, blk, idx, d2
 
 
