@@ -141,6 +141,20 @@ def prune(importance: np.ndarray, reserve: float) -> np.ndarray:
     k = keep_count(imp.shape[0], reserve)
     if k == imp.shape[0]:
         return np.arange(k, dtype=np.int64)
-    # Stable descending sort: negate (float64 negation is exact) and argsort stably.
-    order = np.argsort(-imp.astype(np.float64), kind="stable")
-    return np.sort(order[:k]).astype(np.int64)
+    return np.flatnonzero(top_k_mask(imp, k)).astype(np.int64)
+
+
+def top_k_mask(importance: np.ndarray, k: int) -> np.ndarray:
+    """[N] bool: the ``k`` most important entries, ties at the threshold to the lower index (the
+    set a stable sort by decreasing importance takes first).  Linear: the k-th largest value
+    by partition, everything above it, then its ties in index order."""
+    n = importance.shape[0]
+    mask = np.zeros(n, bool)
+    if k >= n:
+        mask[:] = True
+    elif k > 0:
+        kth = np.partition(importance, n - k)[n - k]
+        above = importance > kth
+        mask[above] = True
+        mask[np.flatnonzero(importance == kth)[:k - int(np.count_nonzero(above))]] = True
+    return mask

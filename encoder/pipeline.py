@@ -40,6 +40,7 @@ from .encode_report import MODE_FIXED, EncodeReport, FixedDetails
 from .executor import in_order
 from .geometry import write_geometry
 from .groups import QUANT_CHANNELS, write_channel_set
+from .importance import prune, top_k_mask
 from .progress import Progress
 from .voxelize import SourcedRows  # noqa: F401  (a Stage's SH rows; re-exported)
 
@@ -279,15 +280,6 @@ class EncodeResult:
         return f"EncodeResult({len(self.data):,} bytes)"
 
 
-def _top_k_mask(importance: np.ndarray, k: int) -> np.ndarray:
-    """Mask of the k most important entries; ties broken by lower index (deterministic)."""
-    mask = np.zeros(importance.shape[0], bool)
-    if k > 0:
-        order = np.lexsort((np.arange(importance.shape[0]), -importance))
-        mask[order[:k]] = True
-    return mask
-
-
 @dataclass
 class Layer:
     """One importance layer: a subset of the stage's voxels coded as a scene of its own (octree,
@@ -519,7 +511,6 @@ def voxelize_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float,
     of the input's).  ``vox.full_cloud()`` (voxel centres, merged attributes) is what a decoder
     would reconstruct with every attribute exact, so its fidelity bounds what any bit
     allocation at this reserve and depth reaches."""
-    from .importance import prune
     from .voxelize import DEFAULT_REL_ERROR, choose_depth, voxelize
 
     progress = progress or Progress(quiet=True)
@@ -888,7 +879,7 @@ class ShPayloads:
         m, d = stage.sh.shape
         self.stage, self.sh_bits, self.m, self.d = stage, int(sh_bits), m, d
         self.keep = keep = min(int(keep), m)
-        kept = _top_k_mask(stage.importance, keep)
+        kept = top_k_mask(stage.importance, keep)
         rest = ~kept
         near = None
         if stage.num_tiles > 1:

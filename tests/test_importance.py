@@ -6,7 +6,8 @@ import pytest
 
 from gsz.decoder.cloud import GaussianCloud
 from gsz.decoder.errors import GszError
-from gsz.encoder.importance import ImportanceError, compute_importance, keep_count, prune, volume_term
+from gsz.encoder.importance import (ImportanceError, compute_importance, keep_count, prune, top_k_mask,
+                                   volume_term)
 
 
 def _cloud(positions, log_scales, opacity_logits, rotations=None):
@@ -90,6 +91,17 @@ def test_prune_ties_lower_index_wins():
     # Every kept importance >= every dropped one.
     dropped = np.setdiff1d(np.arange(1000), a)
     assert r[a].min() >= r[dropped].max()
+
+
+def test_top_k_mask_is_the_stable_sorts_first_k():
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        n = int(rng.integers(1, 50))
+        imp = rng.integers(0, 4, n) * rng.choice([1.0, 0.25])
+        for k in (0, 1, int(rng.integers(0, n + 1)), n, n + 2):
+            want = np.zeros(n, bool)
+            want[np.argsort(-imp, kind="stable")[:k]] = True
+            assert np.array_equal(top_k_mask(imp, k), want)
 
 
 @pytest.mark.parametrize("reserve", [0.0, -0.2, 1.0001, float("nan"), "0.5", None, True])

@@ -199,6 +199,27 @@ def test_screening_and_overlap_never_change_the_file(imp_cache):
             assert s["bound_psnr"] <= s["best_psnr"] <= a.report.search.train_psnr
 
 
+def test_candidate_files_kept_on_disk_give_the_same_file(imp_cache, monkeypatch):
+    """Large candidate files wait in temporary files (memory at 6 M Gaussians): with every
+    candidate's file spilled the search returns the same bytes, and a dropped one is gone."""
+    from gsz.encoder.search import candidate
+    from gsz.encoder.pipeline import EncodeOptions, compute_train_importance
+    c = sample("sh3", 4000)
+    key = ("sh3", 4000)
+    if key not in imp_cache:
+        imp_cache[key] = compute_train_importance(c, EncodeOptions(train_views=4, importance_width=96))
+    held = encode_to_budget(c, 60_000, options=FAST, importance=imp_cache[key]).data
+    monkeypatch.setattr(candidate, "SPILL_BYTES", 1)
+    spilled = encode_to_budget(c, 60_000, options=FAST, importance=imp_cache[key]).data
+    assert spilled == held
+    enc = candidate.Encoded(data=held, scene=None, pick=np.zeros(1), layer_bits=[], kept_bits=[],
+                            sh_bytes=0, attr_stats={}, attr_bytes=0, meta_bytes=0,
+                            predicted_bytes=0.0, loss=0.0)
+    assert enc.size == len(held) and enc.data == held and enc.data == held
+    enc.drop_data()
+    assert enc.data is None and enc.size == len(held)
+
+
 def test_dc_colour_channels_render_independently():
     """channel_weights measures the three DC colour channels with one render: image channel k
     must depend on DC channel k only (bit-exactly)."""

@@ -2,6 +2,7 @@
 compared candidate (:class:`Candidate`, the encode plus its train-view score)."""
 from __future__ import annotations
 
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -11,12 +12,18 @@ from ...decoder.cloud import GaussianCloud
 
 from .tables import concat_bits
 
+#: An encode's file of at least this many bytes waits in an anonymous temporary file until it is
+#: asked for (the chosen one, once): a search holds the best candidate's file and the one being
+#: judged, 2 x 124 MB at 6 M Gaussians, beside the judged render that is its memory peak.
+SPILL_BYTES = 32 << 20
+
 
 @dataclass(eq=False)
 class Encoded:
     """One real encode of a stage under one bit allocation."""
 
-    data: bytes | None            # the file; None once it can no longer be chosen (drop_data())
+    data: bytes | None = field(repr=False)   # the file; None once it can no longer be chosen
+    #                                          (drop_data()); at SPILL_BYTES+ kept on disk
     scene: Callable | None        # makes the decoded scene (.cloud); None once released (release())
     pick: np.ndarray              # the solver's choice per group (bit-width - 1)
     layer_bits: list              # per layer (raht_bits [7, B_l], scale_bits [3, B_l])
@@ -42,7 +49,7 @@ class Encoded:
 
     def __post_init__(self):
         if self.size < 0:
-            self.size = len(self.data)
+            self.size = self._len
         self._cloud = None
 
     @property
@@ -63,6 +70,28 @@ class Encoded:
         self.release()
         self.data = None
 
+    def _get_data(self) -> bytes | None:
+        if self._spill is not None:
+            self._spill.seek(0)
+            return self._spill.read()
+        return self._bytes
+
+    def _set_data(self, value: bytes | None) -> None:
+        spill = getattr(self, "_spill", None)
+        if spill is not None:
+            spill.close()                       # the temporary file goes with it
+        self._spill, self._bytes = None, None
+        self._len = 0 if value is None else len(value)
+        if value is not None and len(value) >= SPILL_BYTES:
+            try:
+                f = tempfile.TemporaryFile(prefix="gsz-candidate-")
+                f.write(value)
+                self._spill = f
+                return
+            except OSError:                     # no room for it on disk: held in memory
+                self._spill = None
+        self._bytes = value
+
     @property
     def raht_bits(self) -> np.ndarray:
         """[7, sum B_l]: every layer's RAHT groups side by side."""
@@ -75,6 +104,10 @@ class Encoded:
 
     def mean_attribute_bits(self) -> float:
         return float(np.mean(np.concatenate([self.raht_bits.ravel(), self.scale_bits.ravel()])))
+
+
+# the file's bytes live behind a property (set by the dataclass __init__ like any field)
+Encoded.data = property(Encoded._get_data, Encoded._set_data)
 
 
 @dataclass(eq=False)

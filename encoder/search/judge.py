@@ -6,8 +6,9 @@ import dataclasses
 
 import numpy as np
 
-from ...decoder.cloud import MadeRows
+from ...decoder.cloud import MADE_ROWS_STEP, MadeRows
 from ...decoder.pages import trim_heap
+from ...decoder.threads import thread_map
 from ...evaluation.cameras import load_cameras
 from .options import SearchOptions
 from .sensitivity import channel_weights
@@ -97,9 +98,16 @@ def rows_once(cloud):
     """``cloud`` with a row-made SH rest made whole where it takes at most WHOLE_SH_MAX_BYTES
     (the renders are the same either way)."""
     rest = cloud.sh_rest
-    if isinstance(rest, MadeRows) and rest.size * 4 <= WHOLE_SH_MAX_BYTES:
-        return dataclasses.replace(cloud, sh_rest=np.asarray(rest))
-    return cloud
+    if not isinstance(rest, MadeRows) or rest.size * 4 > WHOLE_SH_MAX_BYTES:
+        return cloud
+    whole = np.empty(rest.shape, np.float32)
+    starts = range(0, len(rest), MADE_ROWS_STEP)
+
+    def make(i: int) -> None:          # each range its own rows: the same on any thread
+        s = starts[i]
+        whole[s:s + MADE_ROWS_STEP] = rest.rows(s, s + MADE_ROWS_STEP)
+    thread_map(make, len(starts))
+    return dataclasses.replace(cloud, sh_rest=whole)
 
 
 class Judge:
