@@ -11,7 +11,7 @@ from __future__ import annotations
 
 
 from ..decoder.errors import GszError
-from ..decoder.threads import cores
+from ..decoder.threads import cores, thread_map
 
 #: what ``--executor`` accepts besides ``ray://HOST:PORT``
 EXECUTORS = ("local", "inline", "ray")
@@ -21,12 +21,23 @@ class ExecutorError(GszError, ValueError):
     """An executor cannot be used (unknown name, Ray missing or unreachable)."""
 
 
-def in_order(ex, fn, jobs):
+#: Parts of a stage of at most this many Gaussians in all are coded side by side on threads
+#: where the work runs in this process: what they hold at once is then bounded like one full
+#: tile's (two tiles' worth), while larger stages code one part at a time.
+SIDE_BY_SIDE_MAX_GAUSSIANS = 1 << 21
+
+
+def in_order(ex, fn, jobs, gaussians: int | None = None):
     """Iterator over fn(job) for the iterable ``jobs``, in order.  Where the work runs in this
     process (no executor, or one that would run it inline) each job is made only when its turn
     comes and its result can go before the next is made (a part's inputs and outputs are
-    hundreds of MB at 1.2 M Gaussians); else ``ex.map`` of all of them."""
+    hundreds of MB at 1.2 M Gaussians) -- unless the jobs' ``gaussians`` in all are at most
+    SIDE_BY_SIDE_MAX_GAUSSIANS: then they run side by side on threads (``thread_map``: the same
+    results); else ``ex.map`` of all of them."""
     if ex is None or ex.runs_inline:
+        if gaussians is not None and gaussians <= SIDE_BY_SIDE_MAX_GAUSSIANS:
+            jobs = list(jobs)
+            return iter(thread_map(lambda i: fn(jobs[i]), len(jobs)))
         return map(fn, jobs)
     return iter(ex.map(fn, list(jobs)))
 

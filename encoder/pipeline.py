@@ -697,7 +697,8 @@ def _prepare_parts(vox, part_of: list, grids: list, layers: int, progress: Progr
         # coded here, each part's job is made in its turn (all at once: 56 bytes a voxel)
         weights = [raht_weights(vox.importance[idx], raht_classes) for _, _, idx in part_of]
         done = in_order(executor, code_part, (_part_job(vox, idx, grids[t], w)
-                                              for (_, t, idx), w in zip(part_of, weights)))
+                                              for (_, t, idx), w in zip(part_of, weights)),
+                        gaussians=len(vox.ijk))
         return [Layer(index=idx, geometry_job=geom, raht_dc=dc, raht_ac=ac,
                       scales=_stored_scales(vox, idx, w), codes=codes,
                       layer=li, tile=t, grid=grids[t], raht_weights=w)
@@ -766,7 +767,7 @@ def attribute_chunks(stage: Stage, bits, blocks: int):
             for li, (layer, b) in enumerate(zip(stage.layers, stage.layer_blocks(blocks))))
     ex = stage.executor if stage.num_tiles > 1 else None
     fields_, out, end = ("opacities", "rotations", "sh_dc", "scales"), None, 0
-    for data, dec, st in in_order(ex, code_attributes, jobs):
+    for data, dec, st in in_order(ex, code_attributes, jobs, gaussians=stage.num_points):
         payloads.append(data)
         if out is None:         # filled part by part: no list of parts beside their concatenation
             out = {f: np.empty((stage.num_points,) + getattr(dec, f).shape[1:], getattr(dec, f).dtype)
@@ -1004,7 +1005,7 @@ class ShPayloads:
                  np.float32 if decoded else None)
                 for li, (sel, kb) in enumerate(self.kept_sets) if sel.size)
         ex = self.stage.executor if self.stage.num_tiles > 1 else None
-        coded = in_order(ex, _code_channel_set, jobs)
+        coded = in_order(ex, _code_channel_set, jobs, gaussians=self.m)
         payloads = []
         for li, (sel, kb) in enumerate(self.kept_sets):
             body = b""

@@ -72,3 +72,13 @@ def test_loss_tables_and_symbols_do_not_depend_on_the_thread_count(monkeypatch):
     (s1, a1, b1, t1), (s3, a3, b3, t3) = got
     assert np.array_equal(s1, s3) and np.array_equal(a1, a3) and np.array_equal(b1, b3)
     assert all(np.array_equal(t1[k], t3[k]) for k in t1)
+
+
+def test_parts_side_by_side_give_the_same_file(monkeypatch):
+    """A small tiled stage codes its parts on threads; one part at a time gives the same bytes."""
+    from gsz.encoder import executor
+    opts = EncodeOptions(**FAST, layers=2, tile_gaussians=4096, executor="inline")
+    _with_cores(monkeypatch, 2)
+    side = encode(sample("sh3"), opts).data
+    monkeypatch.setattr(executor, "SIDE_BY_SIDE_MAX_GAUSSIANS", 0)
+    assert encode(sample("sh3"), opts).data == side
