@@ -93,7 +93,7 @@ def quantize_all_bits(x, num_blocks: int, bit_range: tuple[int, int] = (MIN_BITS
         mins, maxs, loss = quantize_cuda.minmax_and_loss(t, nb, lo, hi)
     else:
         t = t.cpu()
-        mins, maxs = quantize_cpu.group_minmax(t, nb)
+        mins, maxs = _group_minmax(t, nb)
         loss = _loss_cpu(t, nb, mins, maxs, lo, hi)
     mins_np = mins.cpu().numpy()
     maxs_np = maxs.cpu().numpy()
@@ -102,6 +102,16 @@ def quantize_all_bits(x, num_blocks: int, bit_range: tuple[int, int] = (MIN_BITS
         return _quantize_with(t, nb, bits, mins, maxs, dev)
 
     return symbols_fn, mins_np, maxs_np, loss.cpu().numpy()
+
+
+def _group_minmax(t: torch.Tensor, nb: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """quantize_cpu.group_minmax, channel spans on every core where torch runs one thread (the
+    size search): each span's groups are its own, so the values are the same."""
+    cut = spans(t.shape[0])
+    if len(cut) < 2 or torch.get_num_threads() > 1:
+        return quantize_cpu.group_minmax(t, nb)
+    parts = thread_map(lambda i: quantize_cpu.group_minmax(t[cut[i][0]:cut[i][1]], nb), len(cut))
+    return torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts])
 
 
 def _loss_cpu(t: torch.Tensor, nb: int, mins: torch.Tensor, maxs: torch.Tensor, lo: int,
@@ -167,6 +177,6 @@ def quantize_groups(x, num_blocks: int, bits, *, device=None) -> tuple[np.ndarra
         mins, maxs = quantize_cuda.minmax(t, nb)
     else:
         t = t.cpu()
-        mins, maxs = quantize_cpu.group_minmax(t, nb)
+        mins, maxs = _group_minmax(t, nb)
     sym = _quantize_with(t, nb, bits, mins, maxs, dev)
     return sym, mins.cpu().numpy(), maxs.cpu().numpy()
