@@ -9,7 +9,6 @@ however many workers (tests/test_executor.py).  Ray is an optional extra (``gsz[
 """
 from __future__ import annotations
 
-
 from ..decoder.errors import GszError
 from ..decoder.threads import cores, thread_map
 

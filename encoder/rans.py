@@ -13,12 +13,12 @@ import zstandard
 
 from ..decoder import native
 from ..decoder.errors import GszFormatError
-from ..decoder.threads import thread_map
 from ..decoder.rans import (COARSE, EMPTY, LAPLACE, LAPLACE_SCALE_BITS, MAX_LEVEL_EXP,
                               MAX_PRECISION, MAX_ROWS, MAX_SPAN, RATIO_ONE, SINGLE, STATE_LOW, VALUE_LIMIT,
                               WORD_BITS, ModelSet,
                               laplace_weights, level_weights, lut_budget, max_level_code,
                               ratio_from_code)
+from ..decoder.threads import thread_map
 
 #: zstd level of model-set tables: on a search's 77 distinct tables (jug 12x) level 16 made
 #: them 1.8 % smaller than 19 in half the time (19's long-match search does not pay on them)
