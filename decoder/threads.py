@@ -59,9 +59,14 @@ def thread_map(fn, n: int) -> list:
     try:
         work()
     finally:
+        for h in helpers:
+            # one not started yet (the pool busy with another map's items) has nothing left to
+            # do: waiting for it would wait for those items
+            h.cancel()
         wait(helpers)                   # none still writes once this returns or raises
     for h in helpers:
-        h.result()                      # a helper's exception, raised here
+        if not h.cancelled():
+            h.result()                  # a helper's exception, raised here
     return results
 
 

@@ -34,6 +34,34 @@ def test_thread_map_keeps_order_nests_and_raises(monkeypatch):
         threads.thread_map(fails_at_3, 8)
 
 
+def test_a_map_does_not_wait_for_another_maps_items(monkeypatch):
+    """With the pool's threads busy with other maps' items, a map whose caller has done all its
+    items returns at once (its queued helper is not needed): it never waits on work it does not
+    own (here that work waits for this map, so waiting would never end)."""
+    import threading
+    _with_cores(monkeypatch, 2)
+    threads.thread_map(lambda i: i, 2)           # the pool exists (2 threads)
+    release, busy = threading.Event(), threading.Barrier(3)
+
+    def blocked(i):
+        if threading.current_thread().name.startswith("gsz-map"):
+            busy.wait(10)                         # the item a pool thread took
+        release.wait(10)
+        return i
+    others = [threading.Thread(target=threads.thread_map, args=(blocked, 2)) for _ in range(2)]
+    for t in others:
+        t.start()
+    busy.wait(10)                                 # both pool threads now hold a blocked item
+    out = {}
+    mine = threading.Thread(target=lambda: out.update(r=threads.thread_map(lambda i: i * 2, 3)))
+    mine.start()
+    mine.join(10)
+    release.set()
+    for t in others:
+        t.join(10)
+    assert not mine.is_alive() and out["r"] == [0, 2, 4]
+
+
 def test_spans_cover_the_range_once():
     for n, parts in ((10, 3), (2, 4), (7, 1), (5, 5)):
         cut = threads.spans(n, parts)
