@@ -59,14 +59,12 @@ def thread_map(fn, n: int) -> list:
     try:
         work()
     finally:
-        for h in helpers:
-            # one not started yet (the pool busy with another map's items) has nothing left to
-            # do: waiting for it would wait for those items
-            h.cancel()
-        wait(helpers)                   # none still writes once this returns or raises
-    for h in helpers:
-        if not h.cancelled():
-            h.result()                  # a helper's exception, raised here
+        # a helper not started yet (the pool busy with another map's items) has nothing left to
+        # do: it is cancelled, not waited for (wait() would wait until a pool thread dequeues it)
+        started = [h for h in helpers if not h.cancel()]
+        wait(started)                   # none still writes once this returns or raises
+    for h in started:
+        h.result()                      # a helper's exception, raised here
     return results
 
 
