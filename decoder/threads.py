@@ -68,6 +68,13 @@ def thread_map(fn, n: int) -> list:
     return results
 
 
+def for_ranges(n: int, step: int, fn) -> None:
+    """fn(start, stop) for every ``step``-row range of [0, n), mapped over the cores
+    (:func:`thread_map`): for callers whose ranges each write their own rows."""
+    starts = range(0, n, step)
+    thread_map(lambda i: fn(starts[i], min(starts[i] + step, n)), len(starts))
+
+
 def spans(n: int, parts: int | None = None) -> list:
     """[(start, stop)]: [0, n) cut into at most ``parts`` (default: :func:`cores`) contiguous
     non-empty spans of nearly equal length."""

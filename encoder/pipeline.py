@@ -33,7 +33,7 @@ from ..decoder.morton import morton_encode
 from ..decoder.raht import build_raht_tree
 from ..decoder.rotation import quaternion_to_euler
 from ..decoder.sh import MAX_CODEBOOK, MAX_SH_CLASSES, SH_CLASSES_FROM_RWGT, class_order
-from ..decoder.threads import thread_map
+from ..decoder.threads import for_ranges, thread_map
 from ..evaluation.cameras import DEFAULT_VIEW_WIDTH
 
 from .encode_report import MODE_FIXED, EncodeReport, FixedDetails
@@ -983,12 +983,10 @@ class ShPayloads:
         # gathered ROW_CHUNK rows at a time: a whole [P_l, D] gather besides its transpose was
         # 180 MB more for a part of 2^20 kept vectors; the chunks on every core, each its own
         # columns
-        starts = range(0, sel.size, ROW_CHUNK)
 
-        def gather(i: int) -> None:
-            s = starts[i]
-            out[:, s:s + ROW_CHUNK] = self.stage.sh[sel[s:s + ROW_CHUNK]].T
-        thread_map(gather, len(starts))
+        def gather(s: int, e: int) -> None:
+            out[:, s:e] = self.stage.sh[sel[s:e]].T
+        for_ranges(sel.size, ROW_CHUNK, gather)
         return out
 
     def payloads(self, kept_bits=None, decoded: bool = True):

@@ -36,7 +36,7 @@ import numpy as np
 import torch
 
 from ..decoder.errors import GszError
-from ..decoder.threads import thread_map
+from ..decoder.threads import for_ranges
 
 #: Defaults chosen by measurement: docs/design/vq.md.
 DEFAULT_ITERS = 50
@@ -186,16 +186,14 @@ def _nearest_blocks(a, p: _Prepared, rows: np.ndarray | None = None):
         xb_sq = (xb * xb).sum(dim=1)           # each row's own sum: the same in any block
         idx = torch.empty(xb.shape[0], dtype=torch.int64)
         d2 = torch.empty(xb.shape[0], dtype=torch.float32)
-        starts = range(0, xb.shape[0], p.rows)
 
-        def chunk(j: int) -> None:       # the same chunks whatever thread runs each
-            t = starts[j]
-            idx[t:t + p.rows], d2[t:t + p.rows] = _nearest(xb[t:t + p.rows], xb_sq[t:t + p.rows], p)
-        if torch.get_num_threads() == 1:
-            thread_map(chunk, len(starts))   # torch on one thread (the search): chunks on every core
+        def chunk(t: int, e: int) -> None:   # the same chunks whatever thread runs each
+            idx[t:e], d2[t:e] = _nearest(xb[t:e], xb_sq[t:e], p)
+        if torch.get_num_threads() == 1:     # torch on one thread (the search): chunks on every core
+            for_ranges(xb.shape[0], p.rows, chunk)
         else:
-            for j in range(len(starts)):
-                chunk(j)
+            for t in range(0, xb.shape[0], p.rows):
+                chunk(t, min(t + p.rows, xb.shape[0]))
         yield s, blk, idx, d2
 
 

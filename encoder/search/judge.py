@@ -8,7 +8,7 @@ import numpy as np
 
 from ...decoder.cloud import MADE_ROWS_STEP, MadeRows
 from ...decoder.pages import trim_heap
-from ...decoder.threads import thread_map
+from ...decoder.threads import for_ranges
 from ...evaluation.cameras import load_cameras
 from .options import SearchOptions
 from .sensitivity import channel_weights
@@ -101,12 +101,10 @@ def rows_once(cloud):
     if not isinstance(rest, MadeRows) or rest.size * 4 > WHOLE_SH_MAX_BYTES:
         return cloud
     whole = np.empty(rest.shape, np.float32)
-    starts = range(0, len(rest), MADE_ROWS_STEP)
 
-    def make(i: int) -> None:          # each range its own rows: the same on any thread
-        s = starts[i]
-        whole[s:s + MADE_ROWS_STEP] = rest.rows(s, s + MADE_ROWS_STEP)
-    thread_map(make, len(starts))
+    def make(s: int, e: int) -> None:
+        whole[s:e] = rest.rows(s, e)
+    for_ranges(len(rest), MADE_ROWS_STEP, make)
     return dataclasses.replace(cloud, sh_rest=whole)
 
 
