@@ -60,6 +60,12 @@ def main(argv=None) -> int:
     from gsz.evaluation.evaluate import evaluate, render_views
 
     original, decoded = read_ply(a.original), decode(a.compressed)
+    # the file holds each Gaussian's nearest-identity form (its axes relabelled, the scales
+    # permuted with them): the original in that form is the same scene, and only then do its
+    # rotations and scales replace one at a time
+    from gsz.encoder.orientation import canonical_orientations
+    rot, scales = canonical_orientations(original.rotations, original.scales)
+    original = dataclasses.replace(original, rotations=rot, scales=scales)
     if decoded.sh_degree < original.sh_degree:
         decoded = decoded.with_sh_degree(original.sh_degree)
     oi, di = match(original, decoded)

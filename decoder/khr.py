@@ -21,6 +21,7 @@ import numpy as np
 from .cloud import GaussianCloud
 from .container import FRAME_RDF, FRAME_RUB, FRAME_UNSPECIFIED
 from .errors import GltfFormatError
+from .rotation import quat_mul
 
 #: degree-0 SH basis constant: colour = 0.5 + SH_C0 * f_dc
 SH_C0 = 0.28209479177387814
@@ -113,16 +114,6 @@ def sh_rotation(degree: int, rot: np.ndarray) -> np.ndarray:
     unit = np.abs(np.abs(x) - 1.0) < 1e-12
     x[unit] = np.sign(x[unit])
     return x
-
-
-def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of (w, x, y, z) quaternions (broadcasting over leading axes)."""
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
-                     aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
 
 
 def matrix_quaternion(rot: np.ndarray) -> np.ndarray:

@@ -48,6 +48,16 @@ def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
     return r
 
 
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of (w, x, y, z) quaternions (broadcasting over leading axes)."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
 def _normalise(q: np.ndarray) -> np.ndarray:
     """float64 unit quaternions [..., 4]; zero / non-finite rows become (1, 0, 0, 0)."""
     q = np.asarray(q, dtype=np.float64)

@@ -59,6 +59,7 @@ from ..decoder.errors import GszError
 from ..decoder.geometry import voxel_centres  # noqa: F401  (origin + (ijk + 0.5) * pitch)
 from ..decoder.morton import MAX_DEPTH, morton_encode
 from ..decoder.rotation import quaternion_to_matrix
+from .orientation import canonical_orientations
 
 #: Default relative position-error budget of :func:`choose_depth` (see module docstring).
 DEFAULT_REL_ERROR = 5e-4
@@ -466,6 +467,8 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
             qm /= np.linalg.norm(qm, axis=1, keepdims=True)
         out["rotations"][gvox] = qm.astype(np.float32)
 
+    # the Euler angles coded later are those of the nearest-identity form: a narrower range
+    canonical_orientations(out["rotations"], out["scales"], out=(out["rotations"], out["scales"]))
     sh = None
     if sourced:
         # a voxel of one Gaussian refers to its row of the input (Stage.source), -1 when merged

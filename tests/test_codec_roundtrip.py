@@ -38,7 +38,9 @@ def test_12_bit_attribute_errors_are_small(name):
     dist, nn = cKDTree(src.positions).query(out.positions)
     assert np.median(dist) < 1e-2 * np.ptp(src.positions, axis=0).max()
     matched = dist < np.percentile(dist, 90)
-    assert np.abs(out.scales - src.scales[nn])[matched].mean() < 0.01
+    # the file holds each Gaussian's nearest-identity form (its axes relabelled): the scales
+    # compare as a set, the rotation through the covariance below
+    assert np.abs(np.sort(out.scales, 1) - np.sort(src.scales[nn], 1))[matched].mean() < 0.01
     assert np.abs(out.opacities - src.opacities[nn])[matched].mean() < 0.05
     assert np.abs(out.sh_dc - src.sh_dc[nn])[matched].mean() < 0.02
     c_in, c_out = _cov(src.subset(nn[matched])), _cov(out.subset(np.flatnonzero(matched)))
@@ -54,9 +56,12 @@ def test_more_bits_means_bigger_file_and_smaller_error():
     assert np.array_equal(lo.cloud.positions, hi.cloud.positions)
     from scipy.spatial import cKDTree
     _, nn = cKDTree(src.positions).query(hi.cloud.positions)
+    def values(cloud, f):           # scales as a set (the file relabels a Gaussian's axes)
+        v = getattr(cloud, f)
+        return np.sort(v, 1) if f == "scales" else v
     for f in ("opacities", "sh_dc", "scales"):
-        e_lo = np.abs(getattr(lo.cloud, f) - getattr(src, f)[nn]).mean()
-        e_hi = np.abs(getattr(hi.cloud, f) - getattr(src, f)[nn]).mean()
+        e_lo = np.abs(values(lo.cloud, f) - values(src, f)[nn]).mean()
+        e_hi = np.abs(values(hi.cloud, f) - values(src, f)[nn]).mean()
         assert e_hi < e_lo, f
 
 

@@ -46,6 +46,7 @@ def channel_weights(cloud, cameras, *, seed: int = 0, base_images=None) -> dict:
     from ...decoder.rotation import euler_to_quaternion, quaternion_to_euler
 
     from ...evaluation.render import render
+    from ..orientation import canonical_orientations
     rng = np.random.default_rng(seed)
     base = [render(cloud, c).image.astype(np.float64) for c in cameras] if base_images is None \
         else [np.asarray(b, np.float64) for b in base_images]
@@ -84,11 +85,14 @@ def channel_weights(cloud, cameras, *, seed: int = 0, base_images=None) -> dict:
     sg = _SENS_SIGMA["opacity"]
     raht.append(sensitivity(variant(opacities=cloud.opacities + rng.normal(0, sg, n)), sg, n))
     sg = _SENS_SIGMA["euler"]
+    # the angles the file codes: those of the nearest-identity form (voxelize makes it)
+    rot_c, scales_c = canonical_orientations(cloud.rotations, cloud.scales)
     for k in range(3):
-        rot = noisy(cloud.rotations, k, sg, lambda q: quaternion_to_euler(q.astype(np.float64)),
+        rot = noisy(rot_c, k, sg, lambda q: quaternion_to_euler(q.astype(np.float64)),
                     euler_to_quaternion)
-        raht.append(sensitivity(variant(rotations=rot), sg, n))
+        raht.append(sensitivity(variant(rotations=rot, scales=scales_c), sg, n))
         del rot                 # full-scene temporaries go once used (6 M Gaussians: 0.1 GB each)
+    del rot_c, scales_c
     # Image channel k depends on DC colour channel k only (geometry, alpha and T do not involve
     # colour; the 0-clamp is per channel), so one render with all three perturbed gives each
     # channel's error image exactly as three renders would (the other channels' errors are
