@@ -425,8 +425,25 @@ def test_tau_refinement_tries_the_smaller_tau_a_level_deeper():
     assert (s.best().reserve, s.best().depth) == (0.4, 13)
     assert (0.4, 13) in s.evaluated and (0.3, 14) in s.evaluated
     # at the end of the walk's range (start 12, 3 levels) no deeper level is tried
-    edge = _TauWalkScene({(1.0, 12): 23.0, (0.6, 15): 48.0, (0.7, 15): 47.0, (0.5, 15): 47.5}, 12)
+    edge = _TauWalkScene({(1.0, 12): 23.0, (0.6, 15): 48.0, (0.7, 15): 47.0, (0.5, 15): 47.5,
+                          (0.7, 14): 47.2}, 12)
     edge.taus, edge.sopts.refine_steps = s.taus, 4
     edge.try_tau(0.6, 15)
     BudgetSearch.refine_tau(edge)
-    assert edge.best().reserve == 0.6 and {d for _, d in edge.evaluated} == {12, 15}
+    assert edge.best().reserve == 0.6 and {d for _, d in edge.evaluated} == {12, 14, 15}
+
+
+def test_tau_refinement_tries_the_larger_tau_a_level_shallower():
+    """Where neither tau neighbour wins at the best depth, the larger tau is also tried a level
+    shallower (more Gaussians, each with fewer bytes, which a coarser octree pays for): the
+    houseplant at 27x, train PSNR of the search's candidates."""
+    from gsz.encoder.search.driver import BudgetSearch
+    table = {(1.0, 10): 11.0, (0.5, 10): 32.17, (0.6, 10): 31.92, (0.4, 10): 29.75,
+             (0.4, 11): 29.80, (0.6, 9): 33.43, (0.7, 9): 33.19, (0.5, 9): 32.15, (0.7, 8): 31.0}
+    s = _TauWalkScene(table, 10)
+    s.taus = [1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2]
+    s.sopts.refine_steps = 4
+    s.try_tau(0.5, 10)
+    BudgetSearch.refine_tau(s)
+    assert (s.best().reserve, s.best().depth) == (0.6, 9)
+    assert (0.7, 8) in s.evaluated           # from the new best, the same step again
