@@ -58,8 +58,10 @@ def nearest_form(q: np.ndarray) -> np.ndarray:
     the identity and the half turns about an axis give |q_i|, the 8 third turns at best
     (|q_w|+|q_x|+|q_y|+|q_z|)/2, a quarter turn about axis a (|q_w|+|q_a|)/sqrt 2, a half turn
     about a face diagonal (|q_a|+|q_b|)/sqrt 2; the signs that reach these follow from q's.
-    Ties go to the earlier family in that order, then the earlier index.  A row with a
-    non-finite or all-zero component set keeps the identity."""
+    A tie between families goes to the earlier one in that order, between the identity and the
+    half turns to the lower index; a zero component counts as positive when the signs are
+    read (either sign reaches the same |w| there).  A row that is all zero or has a non-finite
+    component keeps the identity."""
     q = np.asarray(q, dtype=np.float64)
     a = np.abs(q)
     r = 1.0 / np.sqrt(2.0)

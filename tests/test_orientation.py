@@ -97,3 +97,20 @@ def test_real_sample_angles_cost_fewer_bits():
     eb = quaternion_to_euler(c.rotations.astype(np.float64))
     ea = quaternion_to_euler(rq.astype(np.float64))
     assert sum(bits(ea[:, k]) for k in range(3)) < sum(bits(eb[:, k]) for k in range(3)) - 2.0
+
+
+def test_exact_ties_on_a_grid_still_reach_the_nearest_form():
+    """Delivery formats put quaternions on a grid, where forms tie exactly: the chosen one is
+    still as near the identity as any, the covariance the same, the choice repeatable."""
+    import itertools
+    q = np.array([v for v in itertools.product((-2, -1, 0, 1, 2), repeat=4) if any(v)], np.float32)
+    s = np.tile(np.array([[-3.0, -4.0, -5.0]], np.float32), (len(q), 1))
+    rq, rs = canonical_orientations(q, s)
+    unit = rq.astype(np.float64) / np.linalg.norm(rq.astype(np.float64), axis=1, keepdims=True)
+    qn = q.astype(np.float64) / np.linalg.norm(q.astype(np.float64), axis=1, keepdims=True)
+    best = np.abs(quat_mul(qn[:, None, :], CUBE_ROTATIONS[None, :, :])[..., 0]).max(axis=1)
+    assert np.allclose(np.abs(unit[:, 0]), best, atol=1e-6)
+    c0, c1 = _cov(q, s), _cov(rq, rs)
+    assert np.abs(c1 - c0).max() / np.abs(c0).max() < 1e-5
+    again = canonical_orientations(q, s)
+    assert np.array_equal(again[0], rq) and np.array_equal(again[1], rs)
