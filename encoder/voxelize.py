@@ -365,7 +365,9 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
     sourced_sh  keep the voxels' SH rest as rows of ``cloud``'s (``Voxelized.sh``: a voxel
                 holding one Gaussian refers to its row, only merged voxels own theirs) instead
                 of gathering them into ``Voxelized.cloud`` (180 bytes a voxel at SH degree 3)
-    returns     :class:`Voxelized`; deterministic (no RNG, order-stable reductions)
+    returns     :class:`Voxelized`; deterministic (no RNG, order-stable reductions); every
+                voxel's rotation and log-scales in their nearest-identity form
+                (:mod:`gsz.encoder.orientation`: the same covariance, narrower Euler angles)
     """
     d = _check_depth(depth)
     x = _check_positions(cloud.positions if rows is None else cloud.positions[rows])
@@ -400,7 +402,8 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
     counts = np.bincount(inv, minlength=m)
 
     # Singletons (the vast majority at a sensible depth) are copied bit-exactly (an index array
-    # gathers into a fresh array: no second copy).
+    # gathers into a fresh array: no second copy); their rotation and scales then change form
+    # only where another form is nearer the identity.
     sourced = bool(sourced_sh) and cloud.sh_rest.shape[1] > 0
     out = {name: take(getattr(cloud, name), first)
            for name in ("scales", "rotations", "opacities", "sh_dc") + (() if sourced else ("sh_rest",))}
