@@ -203,6 +203,15 @@ def _greedy_hull(loss, rate, start, budget):
     return pick
 
 
+def _moves(loss, rate, pick):
+    """(dr, dl, fin): every option's rate and loss change against ``pick`` [G, Q], and where
+    both are finite (a usable move)."""
+    rows = np.arange(loss.shape[0])
+    dr = rate - rate[rows, pick][:, None]
+    dl = loss - loss[rows, pick][:, None]
+    return dr, dl, np.isfinite(dr) & np.isfinite(dl)
+
+
 def _local_search(loss, rate, pick, budget, max_rounds: int):
     """Improve a feasible allocation exactly: repeatedly apply the best single-group move that
     fits the leftover budget, else the best pair (upgrade one group, downgrade another) that
@@ -210,12 +219,8 @@ def _local_search(loss, rate, pick, budget, max_rounds: int):
     g, q = loss.shape
     rows = np.arange(g)
     for _ in range(max_rounds):
-        r_cur = rate[rows, pick]
-        l_cur = loss[rows, pick]
-        left = budget - float(r_cur.sum())
-        dr = rate - r_cur[:, None]
-        dl = loss - l_cur[:, None]
-        fin = np.isfinite(dr) & np.isfinite(dl)
+        left = budget - float(rate[rows, pick].sum())
+        dr, dl, fin = _moves(loss, rate, pick)
         # single moves
         single = np.where(fin & (dr <= left), dl, np.inf)
         k = int(np.argmin(single))
@@ -284,12 +289,10 @@ def _drop_and_refill(loss, rate, pick, budget):
     upgrades of other groups, one at a time (the largest gain, or the most gain per bit).
     Reaches what single and pair moves cannot (two upgrades paid by one downgrade).  Returns an
     improved feasible pick, or None."""
-    g, q = loss.shape
-    rows = np.arange(g)
-    r_cur, l_cur = rate[rows, pick], loss[rows, pick]
-    left = budget - float(r_cur.sum())
-    dr, dl = rate - r_cur[:, None], loss - l_cur[:, None]
-    fin = np.isfinite(dr) & np.isfinite(dl)
+    q = loss.shape[1]
+    rows = np.arange(loss.shape[0])
+    left = budget - float(rate[rows, pick].sum())
+    dr, dl, fin = _moves(loss, rate, pick)
     dn = fin & (dr < 0) & (dl >= 0)
     if not dn.any():
         return None
@@ -303,9 +306,8 @@ def _drop_and_refill(loss, rate, pick, budget):
             new[d] = dq
             gain, room = float(dl[d, dq]), left - float(dr[d, dq])
             for _ in range(REFILL_STEPS):
-                r_new, l_new = rate[rows, new], loss[rows, new]
-                up_dr, up_dl = rate - r_new[:, None], loss - l_new[:, None]
-                ok = np.isfinite(up_dr) & np.isfinite(up_dl) & (up_dr <= room) & (up_dl < 0)
+                up_dr, up_dl, ok = _moves(loss, rate, new)
+                ok &= (up_dr <= room) & (up_dl < 0)
                 ok[d] = False
                 if not ok.any():
                     break

@@ -409,27 +409,31 @@ def test_depth_is_walked_again_where_tau_moved():
     assert (0.7, 13) not in up.evaluated
 
 
+def _refined(table, start_depth, first):
+    """A _TauWalkScene of ``table`` (walk started at ``start_depth``) after its ``first``
+    (tau, depth) candidate and the tau refinement (4 steps over the usual tau grid)."""
+    from gsz.encoder.search.driver import BudgetSearch
+    s = _TauWalkScene(table, start_depth)
+    s.taus = [1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2]
+    s.sopts.refine_steps = 4
+    s.try_tau(*first)
+    BudgetSearch.refine_tau(s)
+    return s
+
+
 def test_tau_refinement_tries_the_smaller_tau_a_level_deeper():
     """Where the next smaller tau loses at the best depth, it is tried a level deeper (it leaves
     more bytes for each Gaussian, which a deeper octree can use: showroom noised 18x, tau 0.4
     dropped at depth 12 and 1 dB better at depth 13-15); within the walk's range only."""
-    from gsz.encoder.search.driver import BudgetSearch
     table = {(1.0, 12): 23.0, (0.6, 12): 48.74, (0.7, 12): 47.0, (0.5, 12): 49.45,
              (0.4, 12): 47.5, (0.4, 13): 50.23, (0.5, 13): 49.38, (0.3, 13): 49.0,
              (0.3, 14): 49.9}
-    s = _TauWalkScene(table, 12)
-    s.taus = [1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2]
-    s.sopts.refine_steps = 4
-    s.try_tau(0.6, 12)
-    BudgetSearch.refine_tau(s)
+    s = _refined(table, 12, (0.6, 12))
     assert (s.best().reserve, s.best().depth) == (0.4, 13)
     assert (0.4, 13) in s.evaluated and (0.3, 14) in s.evaluated
     # at the end of the walk's range (start 12, 3 levels) no deeper level is tried
-    edge = _TauWalkScene({(1.0, 12): 23.0, (0.6, 15): 48.0, (0.7, 15): 47.0, (0.5, 15): 47.5,
-                          (0.7, 14): 47.2}, 12)
-    edge.taus, edge.sopts.refine_steps = s.taus, 4
-    edge.try_tau(0.6, 15)
-    BudgetSearch.refine_tau(edge)
+    edge = _refined({(1.0, 12): 23.0, (0.6, 15): 48.0, (0.7, 15): 47.0, (0.5, 15): 47.5,
+                     (0.7, 14): 47.2}, 12, (0.6, 15))
     assert edge.best().reserve == 0.6 and {d for _, d in edge.evaluated} == {12, 14, 15}
 
 
@@ -437,13 +441,8 @@ def test_tau_refinement_tries_the_larger_tau_a_level_shallower():
     """Where neither tau neighbour wins at the best depth, the larger tau is also tried a level
     shallower (more Gaussians, each with fewer bytes, which a coarser octree pays for): the
     houseplant at 27x, train PSNR of the search's candidates."""
-    from gsz.encoder.search.driver import BudgetSearch
     table = {(1.0, 10): 11.0, (0.5, 10): 32.17, (0.6, 10): 31.92, (0.4, 10): 29.75,
              (0.4, 11): 29.80, (0.6, 9): 33.43, (0.7, 9): 33.19, (0.5, 9): 32.15, (0.7, 8): 31.0}
-    s = _TauWalkScene(table, 10)
-    s.taus = [1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2]
-    s.sopts.refine_steps = 4
-    s.try_tau(0.5, 10)
-    BudgetSearch.refine_tau(s)
+    s = _refined(table, 10, (0.5, 10))
     assert (s.best().reserve, s.best().depth) == (0.6, 9)
     assert (0.7, 8) in s.evaluated           # from the new best, the same step again

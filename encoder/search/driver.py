@@ -418,20 +418,18 @@ class BudgetSearch:
                 break
             for tau in nbrs:
                 self.try_tau(tau, d)
-            # the smaller tau once more a level deeper: it leaves more bytes for each Gaussian,
-            # and a deeper octree is what they can buy (showroom noised 18x: tau 0.4 lost at
-            # depth 12 after its hardest views, and renders 1 dB better than tau 0.5 at 15)
-            if (self.best() is best and i + 1 < len(taus) and d + 1 <= depth_range(self)[1]
-                    and (taus[i + 1], d + 1) not in self.evaluated):
-                self.progress.log(f"tau {taus[i + 1]} a level deeper, at depth {d + 1}")
-                self.try_tau(taus[i + 1], d + 1)
-            # and the larger tau a level shallower: more Gaussians, each with fewer bytes, which a
-            # coarser octree pays for (houseplant 27x: tau 0.5 best at depth 10, tau 0.6 at
-            # depth 10 0.25 dB below it, tau 0.6 at depth 9 above it)
-            if (self.best() is best and i > 0 and d - 1 >= depth_range(self)[0]
-                    and (taus[i - 1], d - 1) not in self.evaluated):
-                self.progress.log(f"tau {taus[i - 1]} a level shallower, at depth {d - 1}")
-                self.try_tau(taus[i - 1], d - 1)
+            # where neither neighbour won, each once more a level away from the best depth:
+            # the smaller tau a level deeper (more bytes for each Gaussian, which a deeper octree
+            # can buy: showroom noised 18x, tau 0.4 lost at depth 12 after its hardest views and
+            # renders 1 dB better than tau 0.5 at 15), the larger tau a level shallower (more
+            # Gaussians, each with fewer bytes, which a coarser octree pays for: houseplant 27x,
+            # tau 0.5 best at depth 10, tau 0.6 0.25 dB below it at depth 10, above it at 9)
+            lo_d, hi_d = depth_range(self)
+            for j, dj, way in ((i + 1, d + 1, "deeper"), (i - 1, d - 1, "shallower")):
+                if (self.best() is best and 0 <= j < len(taus) and lo_d <= dj <= hi_d
+                        and (taus[j], dj) not in self.evaluated):
+                    self.progress.log(f"tau {taus[j]} a level {way}, at depth {dj}")
+                    self.try_tau(taus[j], dj)
         if not self.candidates:
             return
         best = self.best()
