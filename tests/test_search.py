@@ -145,9 +145,10 @@ def test_budget_above_full_quality_buys_a_deeper_octree(imp_cache):
     r = res.report
     assert len(res.data) <= 2_000_000
     depths = {cand["depth"] for cand in r.search.candidates}
-    assert d0 in depths and max(depths) > d0
-    at_d0 = max(cand["train_psnr"] for cand in r.search.candidates if cand["depth"] == d0)
-    assert r.depth > d0 and r.search.train_psnr > at_d0
+    first = min(depths)                 # at this rate the first stage already lies below d0
+    assert d0 <= first < max(depths)
+    at_first = max(cand["train_psnr"] for cand in r.search.candidates if cand["depth"] == first)
+    assert r.depth > first and r.search.train_psnr > at_first
     assert decode(res.data).equals(res.cloud)
 
 
@@ -309,6 +310,7 @@ class _WalkScene:
     def __init__(self, psnr: dict, start: int):
         from types import SimpleNamespace
         self.psnr, self.depth, self.evaluated, self.candidates = psnr, start, set(), []
+        self.anchor = start
         self.near_ties = set()
         self.sopts = SimpleNamespace(depth_steps=3, max_extra_depth=3)
         self.progress = SimpleNamespace(log=lambda msg: None)
@@ -446,3 +448,20 @@ def test_tau_refinement_tries_the_larger_tau_a_level_shallower():
     s = _refined(table, 10, (0.5, 10))
     assert (s.best().reserve, s.best().depth) == (0.6, 9)
     assert (0.7, 8) in s.evaluated           # from the new best, the same step again
+
+
+def test_high_rate_budgets_start_the_depth_walk_deeper_within_its_range():
+    """At high rates the walk ends several levels below the position-error start (1.5-3 levels
+    per doubling of the bits per Gaussian on the shared scenes): the first stage starts part of
+    the way there, never past the walk's range; low rates start at the anchor."""
+    from types import SimpleNamespace
+
+    from gsz.encoder.search.depth_walk import first_depth
+    sopts = SimpleNamespace(depth_steps=3, max_extra_depth=3)
+    n = 100_000
+    depths = [first_depth(11, int(bpg * n / 8), n, sopts) for bpg in (13.6, 45, 73, 110, 165, 250, 400, 4000)]
+    assert depths[:3] == [11, 11, 11]                         # 40x-18x of a plain PLY: no change
+    assert depths == sorted(depths) and depths[3] > 11        # deeper as the rate grows
+    assert max(depths) == 14                                  # the range's end (depth_steps)
+    assert first_depth(11, 10**9, n, SimpleNamespace(depth_steps=1, max_extra_depth=3)) == 12
+    assert first_depth(20, 10**9, n, sopts) == 21             # never past the octree's deepest level

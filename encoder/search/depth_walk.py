@@ -10,6 +10,8 @@ whenever the walk moved, and the grid neighbour's verdict at the old depth is no
 """
 from __future__ import annotations
 
+import math
+
 from .candidate import Candidate
 
 #: The depth walk tries a deeper octree first when the best allocation's mean bit-width is at
@@ -40,6 +42,12 @@ DEPTH_STEP_MIN_GAIN_DB = 0.05
 MAX_DEPTH = 21
 #: About what one octree level costs, in bits per voxel (docs/design/depth-walk.md).
 LEVEL_BITS_PER_VOXEL = 3.0
+#: The first stage's depth below the walk's anchor: RATE_START_LEVELS_PER_DOUBLING levels per
+#: doubling of the budget's bits per Gaussian over RATE_START_BITS (docs/design/depth-walk.md:
+#: on the shared scenes' 84 RD points the walk ended 1.5-3 levels deeper per doubling; this is
+#: the lower edge, so the walk still has a level to go and both directions stay open).
+RATE_START_BITS = 48.0
+RATE_START_LEVELS_PER_DOUBLING = 1.5
 
 
 def start_depth(positions, target_bytes: int) -> int:
@@ -61,10 +69,22 @@ def start_depth(positions, target_bytes: int) -> int:
     return d
 
 
+def first_depth(anchor: int, target_bytes: int, gaussians: int, sopts) -> int:
+    """The depth of the search's first stage: ``anchor`` (:func:`start_depth`), deeper at high
+    rates, where the walk would otherwise spend its first stages (each a full encode per SH path)
+    on levels whose position error every candidate there shares (the 1.2 M bench at 12x walked
+    12, 13, 15, 17, 18).  Within the walk's range (:func:`depth_range`)."""
+    bits = 8.0 * max(1, target_bytes) / max(1, gaussians)
+    extra = math.floor(RATE_START_LEVELS_PER_DOUBLING * math.log2(max(1.0, bits / RATE_START_BITS)))
+    return min(MAX_DEPTH, anchor + max(0, min(extra, sopts.depth_steps, sopts.max_extra_depth)))
+
+
 def depth_range(search) -> tuple[int, int]:
     """(lo, hi): the depths the walk visits without a reason to go further (``depth_steps``
-    either way of the start depth, at most ``max_extra_depth`` deeper)."""
-    sopts, depth = search.sopts, search.depth
+    either way of its anchor, the position-error start depth, at most ``max_extra_depth``
+    deeper).  Anchored there, not at the (rate-dependent) first stage: the range says how far
+    from the position-error default a level needs a reason."""
+    sopts, depth = search.sopts, search.anchor
     return (max(1, depth - sopts.depth_steps),
             min(MAX_DEPTH, depth + min(sopts.depth_steps, sopts.max_extra_depth)))
 
@@ -121,7 +141,7 @@ def _room(search, step: int, d_next: int, lo_d: int, hi_d: int, gain: float | No
     cb = search.best()
     strong = gain is not None and gain >= STRONG_GAIN_EXTRA_DEPTH_DB
     if step > 0 and (strong or cb.encoded.attributes_saturated or _shares_voxels(search, cb.reserve, cb.depth)):
-        cap = min(MAX_DEPTH, search.depth + SATURATED_EXTRA_DEPTH)
+        cap = min(MAX_DEPTH, search.anchor + SATURATED_EXTRA_DEPTH)
     return lo_d <= d_next <= cap
 
 

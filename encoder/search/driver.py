@@ -21,7 +21,7 @@ from ..pipeline import (EncodeOptionsError, EncodeResult, Stage, attribute_chunk
 from ..progress import Progress
 from .candidate import Candidate, best_of
 from .codebooks import Codebooks
-from .depth_walk import depth_range, rewalk_depth, start_depth, walk_depth
+from .depth_walk import depth_range, first_depth, rewalk_depth, start_depth, walk_depth
 from .judge import EVAL_DROP_MARGIN_DB, Judge
 from .layers import finalists, resplit_layer0
 from .options import SH_BITS, BudgetError, SearchOptions
@@ -152,7 +152,7 @@ class BudgetSearch:
             raise BudgetError(self.target, 1)
         cloud.validate()
         self.taus = sorted(set(float(t) for t in sopts.reserves), reverse=True)
-        self.importance = self.depth = self.judge = None
+        self.importance = self.depth = self.anchor = self.judge = None
         self.codebooks: list = []
         self.assigner = Assigner(cloud) if cloud.sh_degree > 0 else None
         # Stages and voxel grids are recomputed when needed again (deterministic, so the file does
@@ -218,7 +218,9 @@ class BudgetSearch:
             importance = compute_train_importance(self.cloud, self.sopts, cameras=cameras,
                                                   progress=self.progress)
         self.importance = importance
-        self.depth = start_depth(self.cloud.positions, self.target)
+        # the walk's range is anchored at the position-error start, its first stage may lie deeper
+        self.anchor = start_depth(self.cloud.positions, self.target)
+        self.depth = first_depth(self.anchor, self.target, len(self.cloud), self.sopts)
         lo1, hi1 = self._set_up(cameras)
         for tau in self._feasible(lo1, hi1):
             self.try_tau(tau)
@@ -325,11 +327,16 @@ class BudgetSearch:
         if regular and self.cannot_win(tau, d):
             return
         stage = self.stage_for(tau, d, fl)
+        # what a stage teaches the search (the rate estimate's errors, which SH path renders
+        # better) is kept only where it beats every candidate so far: screening skips only
+        # stages that cannot, so skipping them never changes the file
+        errors = dict(self.estimate_errors)
+        before = self.best() if self.candidates else None
         encs = encode_tau(stage, self.target,
                           dataclasses.replace(sopts, sh_scalar=sopts.sh_scalar and "scalar" not in self.lost_paths,
                                               sh_classes=sopts.sh_classes and "classes" not in self.lost_paths),
                           self.sh_models(stage), progress, self.log, self.judge.weights, min_keep=min_keep,
-                          codebook="vq" not in self.lost_paths, errors=self.estimate_errors)
+                          codebook="vq" not in self.lost_paths, errors=errors)
         # re-split / kept-layer-0 variants may be chosen despite a lower PSNR: render them fully
         rival = self.best().view_psnr if self.candidates and regular else None
         scored, paths = [], []
@@ -358,10 +365,12 @@ class BudgetSearch:
         if not paths:
             progress.log(f"tau {tau}: budget not reachable")
             return
-        self._note_lost_paths(paths, scored)
         if scored:
             # one candidate per (tau, depth, split): the better SH path as rendered
             self.add_candidate(best_of(scored))
+        if self.candidates and self.best() is not before:
+            self.estimate_errors = errors
+            self._note_lost_paths(paths, scored)
 
     def add_candidate(self, cand: Candidate) -> None:
         """Add ``cand``; of a single-layer search only the best candidate's file can be chosen
@@ -456,6 +465,7 @@ class BudgetSearch:
         flat = BudgetSearch(self.cloud.with_sh_degree(0), self.target, self.sopts, self.progress,
                             self.geometry_pool, self.executor)
         flat.importance, flat.depth, flat.judge = self.importance, best.depth, self.judge
+        flat.anchor = self.anchor
         i = self.taus.index(best.reserve)
         # both taus: without the SH rest's bytes a larger tau may win where the same one does
         # not (the jug sample at 40 kB: tau 0.4 no better than with SH, 0.5 +2.9 dB on the train
