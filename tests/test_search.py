@@ -465,3 +465,14 @@ def test_high_rate_budgets_start_the_depth_walk_deeper_within_its_range():
     assert max(depths) == 14                                  # the range's end (depth_steps)
     assert first_depth(11, 10**9, n, SimpleNamespace(depth_steps=1, max_extra_depth=3)) == 12
     assert first_depth(20, 10**9, n, sopts) == 21             # never past the octree's deepest level
+
+
+def test_a_first_stage_below_the_position_error_start_still_walks_deeper():
+    """A high-rate first stage three levels below the position-error start (the end of the walk's
+    range measured from there) still steps deeper with no gain shown yet, and goes on while the
+    levels gain (the jug noised at SOG's bytes: 65.0 dB train at depth 14, 72.7 at 19)."""
+    from gsz.encoder.search.depth_walk import walk_depth
+    s = _WalkScene({13: 62.0, 14: 65.0, 15: 67.1, 16: 69.0, 17: 71.7, 18: 72.6, 19: 72.7, 20: 72.5}, 14)
+    s.anchor = 11
+    walk_depth(s)
+    assert s.best().depth == 19

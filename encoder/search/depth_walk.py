@@ -80,13 +80,14 @@ def first_depth(anchor: int, target_bytes: int, gaussians: int, sopts) -> int:
 
 
 def depth_range(search) -> tuple[int, int]:
-    """(lo, hi): the depths the walk visits without a reason to go further (``depth_steps``
-    either way of its anchor, the position-error start depth, at most ``max_extra_depth``
-    deeper).  Anchored there, not at the (rate-dependent) first stage: the range says how far
-    from the position-error default a level needs a reason."""
-    sopts, depth = search.sopts, search.anchor
-    return (max(1, depth - sopts.depth_steps),
-            min(MAX_DEPTH, depth + min(sopts.depth_steps, sopts.max_extra_depth)))
+    """(lo, hi): the depths the walk visits without a reason to go further: ``depth_steps``
+    shallower than its anchor (the position-error start depth), at most ``max_extra_depth``
+    deeper than its first stage (:func:`first_depth`; measured from the anchor, a first stage
+    at the range's end could not take its first step deeper without a gain to show: the jug
+    noised at SOG's bytes stopped at depth 14, 7 dB below depth 19)."""
+    sopts = search.sopts
+    return (max(1, search.anchor - sopts.depth_steps),
+            min(MAX_DEPTH, search.depth + min(sopts.depth_steps, sopts.max_extra_depth)))
 
 
 def walk_depth(search) -> None:
