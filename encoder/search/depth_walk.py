@@ -43,7 +43,7 @@ MAX_DEPTH = 21
 #: About what one octree level costs, in bits per voxel (docs/design/depth-walk.md).
 LEVEL_BITS_PER_VOXEL = 3.0
 #: The first stage's depth below the walk's anchor: RATE_START_LEVELS_PER_DOUBLING levels per
-#: doubling of the budget's bits per Gaussian over RATE_START_BITS (docs/design/depth-walk.md:
+#: doubling of the budget's bits per Gaussian over RATE_START_BITS (docs/design/rate-start.md:
 #: on the shared scenes' 84 RD points the walk ended 1.5-3 levels deeper per doubling; this is
 #: the lower edge, so the walk still has a level to go and both directions stay open).
 RATE_START_BITS = 48.0
