@@ -58,6 +58,55 @@ def test_no_merge_when_points_are_in_distinct_voxels(sample_sh3):
     assert np.array_equal(v.importance, np.ones(len(c)))
 
 
+def test_exact_duplicates_keep_every_gaussian_at_a_fine_depth(sample_sh3):
+    # The SPZ-sourced sample has exactly duplicated centres: merged at every depth, they capped
+    # the fidelity of any budget.  Where a voxel is far below the Gaussians' size, the less
+    # important twin moves to a free neighbouring voxel with its attributes bit for bit.
+    c = sample_sh3
+    dup = len(c) - np.unique(c.positions, axis=0).shape[0]
+    assert dup > 0
+    imp = 1 / (1 + np.exp(-c.opacities.astype(np.float64)))
+    d = 16
+    v = voxelize(c, imp, d)
+    assert len(v.ijk) == len(c) and v.merged_fraction == 0.0
+    p = np.argsort(v.index_of_point)
+    rot, scales = canonical_orientations(c.rotations, c.scales)
+    for f, want in (("scales", scales), ("rotations", rot), ("opacities", c.opacities),
+                    ("sh_dc", c.sh_dc), ("sh_rest", c.sh_rest)):
+        assert np.array_equal(getattr(v.cloud, f), want[p]), f
+    # a moved Gaussian lands in a neighbouring voxel: at most 1.5 voxels from its centre an axis
+    pitch = v.side / (1 << d)
+    err = np.abs(v.cloud.positions.astype(np.float64) - c.positions.astype(np.float64)[p])
+    assert err.max() <= 1.5 * pitch + 4 * np.finfo(np.float32).eps * np.abs(c.positions).max()
+    # of each duplicated pair the more important Gaussian keeps its own voxel
+    home = voxel_coords(c.positions, d, v.origin, v.side)
+    stayed = np.all(v.ijk[v.index_of_point] == home, axis=1)
+    assert (~stayed).sum() == dup
+    _, inv = np.unique(c.positions, axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    for g in np.unique(inv[~stayed]):
+        members = np.flatnonzero(inv == g)
+        assert stayed[members[np.argmax(imp[members])]]
+    # without relocation they merge, as at a depth where a voxel is not small against them
+    assert len(voxelize(c, imp, d, relocate=False).ijk) == len(c) - dup
+    assert voxelize(c, imp, d).cloud.equals(v.cloud)                 # deterministic
+
+
+def test_duplicates_merge_where_a_voxel_is_not_small_against_them():
+    # scales e^-3 = 0.05 against a voxel of 0.25: moving one would displace it by several sizes
+    pos = np.array([[0.1, 0.1, 0.1], [0.1, 0.1, 0.1], [0.9, 0.9, 0.9]])
+    c = _cloud(pos, ls=np.full((3, 3), -3.0))
+    assert len(voxelize(c, np.ones(3), 2).ijk) == 2
+    # at depth 12 the voxel (2.4e-4) is far below them: the twin moves, towards its own centre
+    pos = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+    pos[:2] = np.array([100.9, 100.5, 100.5]) / (1 << 12)     # near its voxel's +x face
+    c = _cloud(pos, ls=np.full((4, 3), -3.0))
+    v = voxelize(c, np.array([2.0, 1.0, 1.0, 1.0]), 12)
+    assert len(v.ijk) == 4
+    moved = v.ijk[v.index_of_point[1]] - v.ijk[v.index_of_point[0]]
+    assert moved.tolist() == [1, 0, 0]
+
+
 def test_every_point_inside_the_cube_including_extremes():
     # The reference's edge bug: a point exactly at the axis max landed in voxel 2^d.
     pos = np.array([[0, 0, 0], [1, 1, 1], [1, 0, 0.5], [0.999999, 1, 0], [0.25, 0.5, 1]])
