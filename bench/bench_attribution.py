@@ -24,12 +24,45 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def _attribute_rows(cloud, idx: np.ndarray) -> np.ndarray:
+    """[len(idx), 7] opacity, DC colour and log-scales: what tells exact twins apart."""
+    return np.concatenate([cloud.opacities[idx].reshape(len(idx), -1), cloud.sh_dc[idx].reshape(len(idx), -1),
+                           np.sort(cloud.scales[idx], axis=1)], axis=1).astype(np.float64)
+
+
 def match(original, decoded) -> tuple[np.ndarray, np.ndarray]:
-    """(original index, decoded index) pairs, one per matched original Gaussian."""
+    """(original index, decoded index) pairs, one per matched original Gaussian.  Original
+    Gaussians at one position (exact twins, which the encoder may keep in neighbouring voxels)
+    are matched to the decoded Gaussians that chose that position by their attributes, nearest
+    pairs first; everywhere else the first decoded Gaussian to pick an original wins."""
     from scipy.spatial import cKDTree
     _, nearest = cKDTree(original.positions.astype(np.float64)).query(decoded.positions.astype(np.float64))
-    orig_idx, first = np.unique(nearest, return_index=True)
-    return orig_idx, first
+    _, spot, twins = np.unique(original.positions, axis=0, return_inverse=True, return_counts=True)
+    spot = spot.reshape(-1)
+    shared = twins[spot[nearest]] > 1
+    orig_idx, first = np.unique(nearest[~shared], return_index=True)
+    first = np.flatnonzero(~shared)[first]
+    pairs_o, pairs_d = [orig_idx], [first]
+    dec = np.flatnonzero(shared)
+    if dec.size:
+        groups = spot[nearest[dec]]
+        order = np.argsort(groups, kind="stable")
+        members = np.argsort(spot, kind="stable")
+        starts = np.searchsorted(spot[members], np.arange(twins.size + 1))
+        for g in np.unique(groups):
+            d = dec[order][groups[order] == g]
+            o = members[starts[g]:starts[g + 1]]
+            cost = np.linalg.norm(_attribute_rows(decoded, d)[:, None] - _attribute_rows(original, o)[None], axis=2)
+            for flat in np.argsort(cost, axis=None, kind="stable"):
+                i, j = divmod(int(flat), o.size)
+                if np.isfinite(cost[i, j]):
+                    pairs_o.append(o[j:j + 1])
+                    pairs_d.append(d[i:i + 1])
+                    cost[i, :] = np.inf
+                    cost[:, j] = np.inf
+    oi, di = np.concatenate(pairs_o), np.concatenate(pairs_d)
+    keep = np.argsort(oi, kind="stable")
+    return oi[keep], di[keep]
 
 
 def replaced(original, decoded, oi, di, group: str):

@@ -22,8 +22,15 @@ Depth
     (docs/design/depth-choice.md).  ``max_merge`` optionally also demands a merged fraction
     (above the exact-duplicate floor).
 
+Relocation
+    Where a voxel is far below a Gaussian's size (its diagonal at most RELOCATE_MAX_DIAGONAL of
+    the Gaussian's thinnest axis), a Gaussian that shares its voxel with a more important one
+    moves to the nearest free neighbouring voxel, attributes untouched, instead of merging
+    (:func:`relocate_extras`): exact duplicates share a voxel at every depth.  At coarse depths
+    nothing moves and the merge below is the MesonGS++ one.
+
 Merge
-    Gaussians whose centres share a voxel become one Gaussian at the voxel centre:
+    Gaussians whose centres (still) share a voxel become one Gaussian at the voxel centre:
 
     * opacity logit, SH DC and SH rest: importance-weighted mean in the raw (pre-activation)
       parameter space, as the reference does (its mean is unweighted);
@@ -326,6 +333,14 @@ _NEIGHBOURS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k 
                         if (i, j, k) != (0, 0, 0)], np.int64)
 
 
+def _holds(sorted_codes: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """[len(c)] bool: which of ``c`` occur in the ascending ``sorted_codes``."""
+    if sorted_codes.size == 0:
+        return np.zeros(c.shape, bool)
+    at = np.minimum(np.searchsorted(sorted_codes, c), sorted_codes.size - 1)
+    return sorted_codes[at] == c
+
+
 def relocate_extras(x: np.ndarray, ijk: np.ndarray, occupied: np.ndarray, inv: np.ndarray,
                     imp: np.ndarray, scales_of, depth: int, origin, side: float) -> int:
     """Move, in place in ``ijk`` [N, 3], every Gaussian that shares its voxel with a more
@@ -351,18 +366,19 @@ def relocate_extras(x: np.ndarray, ijk: np.ndarray, occupied: np.ndarray, inv: n
     dist = (((_NEIGHBOURS[None, :, :] + 0.5 - frac[:, None, :]) ** 2).sum(axis=2))
     prefs = np.argsort(dist, axis=1, kind="stable")
     left = np.arange(extra.size)
+    claimed = np.zeros(0, np.uint64)         # voxels taken by moves (the occupied stay as given)
     top = (1 << depth) - 1
     for rank in range(_NEIGHBOURS.shape[0]):
         cand = ijk[extra[left]] + _NEIGHBOURS[prefs[left, rank]]
         inside = np.flatnonzero(((cand >= 0) & (cand <= top)).all(axis=1))
         c = morton_encode(cand[inside])
-        at = np.minimum(np.searchsorted(occupied, c), occupied.size - 1)
-        free = inside[occupied[at] != c]
-        c = c[occupied[at] != c]
+        open_ = ~_holds(occupied, c) & ~_holds(claimed, c)
+        free, c = inside[open_], c[open_]
         _, win = np.unique(c, return_index=True)            # the first claim of a voxel wins
-        won = free[np.sort(win)]
+        win = np.sort(win)
+        won = free[win]
         ijk[extra[left[won]]] = cand[won]
-        occupied = np.union1d(occupied, c[np.sort(win)])
+        claimed = np.union1d(claimed, c[win])
         left = np.delete(left, won)
         if left.size == 0:
             break
