@@ -3,6 +3,10 @@ decoded file's values, rendered against the original (gsz-eval's protocol).
 
     .venv/bin/python bench/bench_attribution.py ORIGINAL.ply COMPRESSED.gsz [--views 8] [--width 800]
         [--out bench/out/attribution_<scene>.json]
+    .venv/bin/python bench/bench_attribution.py ORIGINAL.ply OUT.gsz --size BYTES [--noise]
+        (encodes OUT.gsz first, as ``gsz-encode --size BYTES`` would; ``--noise``: of the
+        original with bench_codec.add_noise, the RD bench's noised variant, which is then also
+        the reference)
 
 Decoded Gaussians are matched to original ones by position (the nearest original Gaussian of
 each decoded one; where several decoded Gaussians pick the same original, the first in decoded
@@ -17,11 +21,14 @@ import argparse
 import dataclasses
 import json
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from rd import gsz_source, machine  # noqa: E402
 
 
 def _attribute_rows(cloud, idx: np.ndarray) -> np.ndarray:
@@ -80,6 +87,23 @@ def replaced(original, decoded, oi, di, group: str):
     return dataclasses.replace(original, **{group: values})
 
 
+def encode_first(original: str, out: str, size: int, noise: bool) -> str:
+    """Encode ``out`` from ``original`` (noised first with ``noise``) as ``gsz-encode --size``
+    does; the PLY the file was encoded from (the reference the groups are measured against)."""
+    from gsz.decoder import read_ply, write_ply
+    from gsz.encoder.cli import main as encode_main
+    src = original
+    if noise:
+        from bench_codec import add_noise
+        src = str(Path(out).with_suffix("")) + "_noised.ply"
+        write_ply(add_noise(read_ply(original)), src)
+    print(f"encoding {src} to {size:,} B -> {out}", file=sys.stderr, flush=True)
+    rc = encode_main([src, "-o", out, "--size", str(size), "-q"])
+    if rc:
+        raise SystemExit(f"gsz-encode failed ({rc}) on {src}")
+    return src
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("original")
@@ -87,12 +111,20 @@ def main(argv=None) -> int:
     p.add_argument("--views", type=int, default=8)
     p.add_argument("--width", type=int, default=None)
     p.add_argument("--out", type=Path, default=None)
+    p.add_argument("--size", type=int, default=None, help="encode COMPRESSED first, to this many bytes")
+    p.add_argument("--noise", action="store_true", help="with --size: of the noised original (bench_codec)")
     a = p.parse_args(argv)
+    import gsz
     from gsz.decoder import decode, read_ply
+    if a.noise and a.size is None:
+        p.error("--noise goes with --size (the file is encoded from the noised original)")
+    original_path = a.original
+    if a.size is not None:
+        original_path = encode_first(a.original, a.compressed, a.size, a.noise)
     from gsz.evaluation.cameras import load_cameras
     from gsz.evaluation.evaluate import evaluate, render_views
 
-    original, decoded = read_ply(a.original), decode(a.compressed)
+    original, decoded = read_ply(original_path), decode(a.compressed)
     # the file holds each Gaussian's nearest-identity form (its axes relabelled, the scales
     # permuted with them): the original in that form is the same scene, and only then do its
     # rotations and scales replace one at a time
@@ -117,8 +149,12 @@ def main(argv=None) -> int:
            "original_gaussians": len(original), "decoded_gaussians": len(decoded),
            "whole_file_psnr": round(full["psnr"], 2), "rows": rows,
            "weakest": min((r for r in rows if r["group"] != "pruning"), key=lambda r: r["psnr"])["group"],
-           "command": "bench/bench_attribution.py " + " ".join(argv if argv is not None else sys.argv[1:])}
-    path = a.out or ROOT / "bench" / "out" / f"attribution_{Path(a.original).stem}.json"
+           "command": "bench/bench_attribution.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+           "commit": (gsz_source(gsz).get("commit") or "")[:7] or None, "machine": machine(),
+           "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "noised": a.noise, "size": a.size,
+           "bytes": Path(a.compressed).stat().st_size}
+    stem = Path(a.original).stem + ("_noised" if a.noise else "")
+    path = a.out or ROOT / "bench" / "out" / f"attribution_{stem}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=1) + "\n")
     print("| group | PSNR (dB) | SSIM |\n|---|---|---|")

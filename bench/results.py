@@ -622,7 +622,8 @@ def page_attribution(entries: list) -> str:
                    "The original with exactly one attribute group replaced by a decoded file's values "
                    "(Gaussians matched by position), rendered against the original with gsz-eval's protocol: "
                    "the lowest row is the group to work on next (`bench/bench_attribution.py`).",
-                   [dict(json=x, command=d.get("command"), commit=d.get("commit")) for x, d in entries])
+                   [dict(json=x, command=d.get("command"), commit=d.get("commit"),
+                         machine=machine_of(d.get("machine")), when=d.get("when")) for x, d in entries])
     for x, d in entries:
         lines += [f"## {x[len('attribution_'):-len('.json')]}: whole file {f2(d.get('whole_file_psnr'))} dB, "
                   f"{n(d.get('matched'))} of {n(d.get('original_gaussians'))} Gaussians matched", ""]

@@ -524,7 +524,8 @@ def voxelize_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float,
         vox = voxelize(cloud, imp, d, rows=kept, sourced_sh=True)
         pruned = len(kept)
         progress.log(f"depth {d}: {pruned} Gaussians -> {len(vox.ijk)} voxels "
-                     f"({100 * vox.merged_fraction:.2f} % merged)")
+                     f"({100 * vox.merged_fraction:.2f} % merged"
+                     + (f", {vox.relocated} moved to a neighbouring voxel)" if vox.relocated else ")"))
     return kept, vox
 
 

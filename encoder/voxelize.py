@@ -153,6 +153,7 @@ class Voxelized:
                     is ``cloud``'s (see ``voxelize(sourced_sh=)``; then ``cloud`` is SH degree 0
                     and :meth:`full_cloud` has the SH)
     sh_degree       the voxels' SH degree
+    relocated       how many Gaussians moved to a neighbouring voxel instead of merging
     """
 
     ijk: np.ndarray
@@ -165,6 +166,7 @@ class Voxelized:
     index_of_point: np.ndarray
     sh: SourcedRows | None = None
     sh_degree: int = 0
+    relocated: int = 0
 
     @property
     def pitch(self) -> float:
@@ -471,8 +473,10 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
     # np.unique sorts: voxel rows come out in ascending Morton order.
     uniq, first, inv = np.unique(codes, return_index=True, return_inverse=True)
     inv = inv.reshape(-1).astype(np.int64)
-    if (relocate and first.size < n
-            and relocate_extras(x, ijk_pt, uniq, inv, imp, lambda i: take(cloud.scales, i), d, origin, side)):
+    moved = 0
+    if relocate and first.size < n:
+        moved = relocate_extras(x, ijk_pt, uniq, inv, imp, lambda i: take(cloud.scales, i), d, origin, side)
+    if moved:
         _, first, inv = np.unique(morton_encode(ijk_pt), return_index=True, return_inverse=True)
         inv = inv.reshape(-1).astype(np.int64)
     m = first.shape[0]
@@ -563,4 +567,4 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
                            sh_degree=0 if sourced else cloud.sh_degree, **out)
     return Voxelized(ijk=ijk, cloud=merged, importance=vox_imp, origin=np.asarray(origin, np.float64),
                      side=float(side), depth=d, merged_fraction=1.0 - m / n, index_of_point=inv,
-                     sh=sh, sh_degree=cloud.sh_degree)
+                     sh=sh, sh_degree=cloud.sh_degree, relocated=moved)

@@ -68,7 +68,7 @@ def test_exact_duplicates_keep_every_gaussian_at_a_fine_depth(sample_sh3):
     imp = 1 / (1 + np.exp(-c.opacities.astype(np.float64)))
     d = 16
     v = voxelize(c, imp, d)
-    assert len(v.ijk) == len(c) and v.merged_fraction == 0.0
+    assert len(v.ijk) == len(c) and v.merged_fraction == 0.0 and v.relocated == dup
     p = np.argsort(v.index_of_point)
     rot, scales = canonical_orientations(c.rotations, c.scales)
     for f, want in (("scales", scales), ("rotations", rot), ("opacities", c.opacities),
