@@ -99,6 +99,38 @@ def test_a_stage_without_the_codebook_path_still_yields_a_file():
         assert paths(dataclasses.replace(sopts, sh_scalar=False, sh_classes=False), False) == ["vq"]
 
 
+def test_once_the_scalar_path_leads_every_stage_encodes_it():
+    """Where the codebook's keep-count estimate is below SCALAR_MIN_KEEP the scalar path is not
+    weighed -- unless the search's best candidate so far is a scalar-path file: the renders have
+    decided, and the codebook model's estimate is what they overruled (jug at 27x: tau 0.8 got
+    only the codebook path's file, dropped after its hardest views, and the search ended on
+    tau 0.7, 0.5 dB below the scalar file at tau 0.8)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from gsz.encoder.pipeline import compute_train_importance
+    from gsz.encoder.progress import Progress
+    from gsz.encoder.search import SearchOptions
+    from gsz.encoder.search.driver import BudgetSearch
+    from gsz.encoder.search.tau import encode_tau
+
+    cloud, target = sample("sh3"), 120_000
+    sopts = SearchOptions(**FAST_SEARCH)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        search = BudgetSearch(cloud, target, sopts, None, pool)
+        search.importance = compute_train_importance(cloud, sopts)
+        search._set_up(None)
+        stage = search.stage_for(1.0)
+
+        def paths(leads):
+            encs = list(encode_tau(stage, target, sopts, search.sh_models(stage), Progress(quiet=True),
+                                   [], search.judge.weights, scalar_leads=leads))
+            assert all(len(e.data) <= target and decode(e.data).equals(e.cloud) for e in encs)
+            return [e.sh_path for e in encs]
+
+        assert "scalar" not in paths(False)
+        assert "scalar" in paths(True)
+
+
 @pytest.mark.usefixtures("each_decoder_path")
 @pytest.mark.parametrize("keep, classes, widths", [(0, 1, None), (700, 1, 12), (3000, 8, "mixed"), (3000, 1, None)])
 def test_decoded_rows_are_the_coded_sh_bit_for_bit(keep, classes, widths):
