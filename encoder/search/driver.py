@@ -337,7 +337,7 @@ class BudgetSearch:
                                               sh_classes=sopts.sh_classes and "classes" not in self.lost_paths),
                           self.sh_models(stage), progress, self.log, self.judge.weights, min_keep=min_keep,
                           codebook="vq" not in self.lost_paths, errors=errors,
-                          scalar_leads=before is not None and before.encoded.sh_path == "scalar")
+                          widths_lead=before is not None and before.encoded.sh_path in ("scalar", "classes"))
         # re-split / kept-layer-0 variants may be chosen despite a lower PSNR: render them fully
         rival = self.best().view_psnr if self.candidates and regular else None
         scored, paths = [], []

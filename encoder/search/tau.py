@@ -18,7 +18,7 @@ from .tables import attribute_tables, container_overhead, group_meta_bytes, num_
 def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list, progress,
                log: list, weights: dict | None = None, min_keep: int = 0,
                codebook: bool = True, errors: dict | None = None,
-               scalar_leads: bool = False) -> Iterator[Encoded]:
+               widths_lead: bool = False) -> Iterator[Encoded]:
     """Allocate + calibrate one tau.  Yields its encodes at or below target, none when the
     budget is unreachable at this tau (one at a time: the caller scores and releases each scene
     before the next is made): the codebook path's, and the scalar SH path's too when
@@ -28,10 +28,11 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
     lost to another SH path as rendered earlier in the search, so where most vectors are kept
     exact it is encoded only when no other path fits (and the scalar path is weighed without
     its estimate).  ``errors``: the search's rate-estimate errors per SH path
-    (:func:`calibration.calibrate`), read and updated.  ``scalar_leads``: the search's best
-    candidate so far is a scalar-path file, so the scalar path is encoded here too, whatever
-    the codebook's keep-count and estimate say (they are the codebook model's view; the renders
-    already decided)."""
+    (:func:`calibration.calibrate`), read and updated.  ``widths_lead``: the search's best
+    candidate so far allocates its kept vectors' widths (a classes- or scalar-path file), so the
+    scalar path is encoded here too, whatever the codebook's keep-count and estimate say (they
+    are the codebook model's view, which the renders overruled; the scalar path is where
+    allocated widths end, every vector kept)."""
     with progress.stage("tables", f"tau {stage.reserve}: loss + rate matrices"):
         loss, rate, shapes = attribute_tables(stage, sopts.blocks, weights)
     meta_guess = 400
@@ -62,10 +63,10 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
                 plans[k] = (plan, kept_tables(plan, w_sh, min_bits=1))
         return plans[k]
     scalar = None
-    if sopts.sh_scalar and (SCALAR_MIN_KEEP * m <= keep or scalar_leads) and (keep < m or not codebook):
+    if sopts.sh_scalar and (SCALAR_MIN_KEEP * m <= keep or widths_lead) and (keep < m or not codebook):
         scalar = scalar_sh(classes_plan(m), loss, rate, target - base_fixed,
-                           vq_total if codebook and not scalar_leads else None)
-        if scalar is not None and codebook and not scalar_leads:
+                           vq_total if codebook and not widths_lead else None)
+        if scalar is not None and codebook and not widths_lead:
             progress.log(f"tau {stage.reserve}: the scalar SH path (every vector quantised "
                          f"group-wise, 1-16 bits in the allocation) is estimated better than the "
                          f"codebook: both are encoded and rendered")
