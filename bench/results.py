@@ -619,17 +619,29 @@ def page_sh_paths(entries: list) -> str:
 
 def page_attribution(entries: list) -> str:
     lines = header("Which attribute group costs the fidelity",
-                   "The original with exactly one attribute group replaced by a decoded file's values "
-                   "(Gaussians matched by position), rendered against the original with gsz-eval's protocol: "
-                   "the lowest row is the group to work on next (`bench/bench_attribution.py`).",
+                   "PSNR (dB) of the original with one attribute group replaced by the file's decoded values "
+                   "(Gaussians matched by position; gsz-eval's protocol): the weakest group is the one to work on "
+                   "next (`bench/bench_attribution.py`).",
                    [dict(json=x, command=d.get("command"), commit=d.get("commit"),
                          machine=machine_of(d.get("machine")), when=d.get("when")) for x, d in entries])
-    for x, d in entries:
-        lines += [f"## {x[len('attribution_'):-len('.json')]}: whole file {f2(d.get('whole_file_psnr'))} dB, "
-                  f"{n(d.get('matched'))} of {n(d.get('original_gaussians'))} Gaussians matched", ""]
-        lines += table(["group replaced", "PSNR dB", "SSIM"],
-                       [[r["group"] + (" (weakest)" if r["group"] == d.get("weakest") else ""), f2(r["psnr"]),
-                         f"{r['ssim']:.4f}"] for r in d.get("rows", [])])
+    def short(x: str) -> str:
+        """'attribution_measuring_jug_sh3_noised_spz_bytes.json' -> 'measuring noised, SPZ B'."""
+        stem = x[len("attribution_"):-len(".json")]
+        at = next((f", {p.upper()} B" for p in ("sog", "spz") if stem.endswith(f"_{p}_bytes")), "")
+        return stem.split("_")[0] + (" noised" if "_noised" in stem else "") + at
+    names = [short(x) for x, _ in entries]
+    groups = list(dict.fromkeys(r["group"] for _, d in entries for r in d.get("rows", [])))
+    rows = []
+    for g in groups:
+        cells = []
+        for _, d in entries:
+            r = next((r for r in d.get("rows", []) if r["group"] == g), None)
+            cells.append("–" if r is None else f2(r["psnr"]) + (" **weakest**" if g == d.get("weakest") else ""))
+        rows.append([g] + cells)
+    rows.append(["whole file"] + [f2(d.get("whole_file_psnr")) for _, d in entries])
+    rows.append(["Gaussians matched"] + [f"{n(d.get('matched'))} / {n(d.get('original_gaussians'))}"
+                                         for _, d in entries])
+    lines += table(["group replaced"] + names, rows)
     return "\n".join(lines)
 
 
