@@ -120,8 +120,8 @@ def header(title: str, what: str, sources: list) -> list:
 def machine_of(m: dict | None) -> str | None:
     if not m:
         return None
-    parts = [f"{m['nproc']} cores" if m.get("nproc") else None, m.get("cpu_model"),
-             f"Python {m['python']}" if m.get("python") else None]
+    # (the Python version stays in the JSON: the pages have a 40 kB budget)
+    parts = [f"{m['nproc']} cores" if m.get("nproc") else None, m.get("cpu_model")]
     return ", ".join(p for p in parts if p) or None
 
 
