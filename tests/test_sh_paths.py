@@ -131,6 +131,60 @@ def test_once_allocated_kept_widths_lead_every_stage_encodes_the_scalar_path():
         assert "scalar" in paths(True)
 
 
+def test_a_codebook_path_far_behind_is_not_encoded_again_where_few_vectors_are_kept():
+    """Where the keep-count estimate keeps fewer than half the vectors, a codebook path that lost
+    is still encoded (which path renders better changes with the depth there) -- until it
+    renders a whole drop margin below another path: then only where no other path fits (the
+    1.2 M noised bench scene re-encoded and dropped it at four depths, ~10 s each)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from gsz.encoder.pipeline import compute_train_importance
+    from gsz.encoder.progress import Progress
+    from gsz.encoder.search import SearchOptions
+    from gsz.encoder.search.driver import BudgetSearch
+    from gsz.encoder.search.tau import encode_tau
+
+    cloud, target = sample("sh3"), 120_000
+    sopts = SearchOptions(**FAST_SEARCH)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        search = BudgetSearch(cloud, target, sopts, None, pool)
+        search.importance = compute_train_importance(cloud, sopts)
+        search._set_up(None)
+        stage = search.stage_for(1.0)
+
+        def paths(far):
+            encs = list(encode_tau(stage, target, sopts, search.sh_models(stage), Progress(quiet=True),
+                                   [], search.judge.weights, codebook=False, widths_lead=True,
+                                   codebook_far_behind=far))
+            assert all(len(e.data) <= target and decode(e.data).equals(e.cloud) for e in encs)
+            return [e.sh_path for e in encs]
+
+        assert "vq" in paths(False)
+        others = paths(True)
+        assert others and "vq" not in others
+
+
+def test_how_far_a_lost_path_rendered_behind_is_remembered():
+    """_note_lost_paths: a path 0.1+ dB behind a stage's best is lost; 1+ dB behind (or dropped
+    after its hardest views) it is also far behind, even when it had lost before."""
+    from types import SimpleNamespace
+
+    from gsz.encoder.progress import Progress
+    from gsz.encoder.search.candidate import Candidate
+    from gsz.encoder.search.driver import BudgetSearch
+
+    def cand(path, psnr):
+        return Candidate(psnr, 1.0, 12, 0.1, [psnr], SimpleNamespace(sh_path=path))
+
+    search = SimpleNamespace(lost_paths=set(), far_behind=set(), narrow_losses={}, progress=Progress(quiet=True))
+    BudgetSearch._note_lost_paths(search, ["vq", "scalar"], [cand("vq", 40.5), cand("scalar", 41.0)])
+    assert search.lost_paths == {"vq"} and not search.far_behind
+    BudgetSearch._note_lost_paths(search, ["vq", "classes", "scalar"], [cand("classes", 41.5), cand("scalar", 42.2)])
+    assert search.lost_paths == {"vq", "classes"} and search.far_behind == {"vq"}      # vq dropped
+    BudgetSearch._note_lost_paths(search, ["scalar", "classes"], [cand("scalar", 43.0), cand("classes", 41.9)])
+    assert search.far_behind == {"vq", "classes"}
+
+
 @pytest.mark.usefixtures("each_decoder_path")
 @pytest.mark.parametrize("keep, classes, widths", [(0, 1, None), (700, 1, 12), (3000, 8, "mixed"), (3000, 1, None)])
 def test_decoded_rows_are_the_coded_sh_bit_for_bit(keep, classes, widths):

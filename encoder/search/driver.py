@@ -167,6 +167,7 @@ class BudgetSearch:
         self.dropped: list = []           # candidates dropped after their hardest views
         self.lost_paths: set = set()      # SH paths not weighed again (_note_lost_paths)
         self.narrow_losses: dict = {}     # SH path -> stages it lost by < PATH_LOST_MARGIN_DB
+        self.far_behind: set = set()      # SH paths that rendered EVAL_DROP_MARGIN_DB+ below a stage's best
         self.near_ties: set = set()       # depths the walk found within DEPTH_STEP_MIN_GAIN_DB of its best
         self.estimate_errors: dict = {}   # SH path -> the rate estimate's last error (calibrate)
         self.t0 = self.c0 = None
@@ -337,6 +338,7 @@ class BudgetSearch:
                                               sh_classes=sopts.sh_classes and "classes" not in self.lost_paths),
                           self.sh_models(stage), progress, self.log, self.judge.weights, min_keep=min_keep,
                           codebook="vq" not in self.lost_paths, errors=errors,
+                          codebook_far_behind="vq" in self.far_behind,
                           widths_lead=before is not None and before.encoded.sh_path in ("scalar", "classes"))
         # re-split / kept-layer-0 variants may be chosen despite a lower PSNR: render them fully
         rival = self.best().view_psnr if self.candidates and regular else None
@@ -388,13 +390,25 @@ class BudgetSearch:
         """An SH path that rendered PATH_LOST_MARGIN_DB or more below the best of a stage (or
         was dropped after its hardest views), or narrowly below it twice, is not weighed again
         in this search: what decides it -- palette-like or continuous SH, the rate -- is the
-        same at every stage.  The codebook path is then encoded only where no other path fits."""
+        same at every stage.  The codebook path is then encoded only where no other path fits
+        or (until it renders EVAL_DROP_MARGIN_DB below a stage's best: ``far_behind``) where
+        fewer than half the vectors are kept exact."""
         if not scored:
             return
         best = best_of(scored)
         psnr = {c.encoded.sh_path: c.train_psnr for c in scored}
         for path in dict.fromkeys(paths):
-            if path not in SH_PATH_NAMES or path == best.encoded.sh_path or path in self.lost_paths:
+            if path not in SH_PATH_NAMES or path == best.encoded.sh_path:
+                continue
+            far = path not in psnr or best.train_psnr >= psnr[path] + EVAL_DROP_MARGIN_DB
+            if far and path not in self.far_behind:
+                # dropped after its hardest views, or as far behind on all of them
+                self.far_behind.add(path)
+                if path == "vq" and path in self.lost_paths:
+                    self.progress.log(f"the codebook SH path renders {EVAL_DROP_MARGIN_DB:g}+ dB below the "
+                                      f"{SH_PATH_NAMES[best.encoded.sh_path]} path: encoded again only "
+                                      f"where no other path fits")
+            if path in self.lost_paths:
                 continue
             narrow = path in psnr and best.train_psnr < psnr[path] + PATH_LOST_MARGIN_DB
             if narrow:
@@ -405,8 +419,10 @@ class BudgetSearch:
                     continue
             self.lost_paths.add(path)
             how = "narrowly, a second time," if narrow else f"{PATH_LOST_MARGIN_DB:g}+ dB"
-            then = ("encoded again only where fewer than half the vectors are kept exact or no "
-                    "other path fits") if path == "vq" else "not weighed again in this search"
+            then = ("not weighed again in this search" if path != "vq" else
+                    "encoded again only where no other path fits" if path in self.far_behind else
+                    "encoded again only where fewer than half the vectors are kept exact or no "
+                    "other path fits")
             self.progress.log(f"the {SH_PATH_NAMES[path]} SH path renders {how} below the "
                               f"{SH_PATH_NAMES[best.encoded.sh_path]} path: {then}")
 

@@ -18,7 +18,7 @@ from .tables import attribute_tables, container_overhead, group_meta_bytes, num_
 def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list, progress,
                log: list, weights: dict | None = None, min_keep: int = 0,
                codebook: bool = True, errors: dict | None = None,
-               widths_lead: bool = False) -> Iterator[Encoded]:
+               widths_lead: bool = False, codebook_far_behind: bool = False) -> Iterator[Encoded]:
     """Allocate + calibrate one tau.  Yields its encodes at or below target, none when the
     budget is unreachable at this tau (one at a time: the caller scores and releases each scene
     before the next is made): the codebook path's, and the scalar SH path's too when
@@ -32,7 +32,9 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
     candidate so far allocates its kept vectors' widths (a classes- or scalar-path file), so the
     scalar path is encoded here too, whatever the codebook's keep-count and estimate say (they
     are the codebook model's view, which the renders overruled; the scalar path is where
-    allocated widths end, every vector kept)."""
+    allocated widths end, every vector kept).  ``codebook_far_behind``: the codebook path
+    rendered EVAL_DROP_MARGIN_DB or more below another path once, so with ``codebook`` False it
+    is encoded only when no other path fits, whatever the keep-count."""
     with progress.stage("tables", f"tau {stage.reserve}: loss + rate matrices"):
         loss, rate, shapes = attribute_tables(stage, sopts.blocks, weights)
     meta_guess = 400
@@ -50,8 +52,10 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
     m, w_sh, keep_estimate = sh_model.m, 1.0 if weights is None else weights["sh"], keep
     # the codebook path is skipped (after it lost) only where the estimate keeps most vectors
     # exact: below that, which path renders better changes with the depth (flowers 12x: the
-    # scalar path 0.3 dB better at depth 11, the codebook 0.6 dB better at 13)
-    codebook = codebook or keep < CODEBOOK_SKIP_MIN_KEEP * m
+    # scalar path 0.3 dB better at depth 11, the codebook 0.6 dB better at 13) -- unless it was
+    # a whole drop margin behind, which no depth step was seen to turn around (the 1.2 M noised
+    # bench scene: 2.2 dB behind at depth 14, dropped at 15, 17 and 18: ~10 s an encode)
+    codebook = codebook or (keep < CODEBOOK_SKIP_MIN_KEEP * m and not codebook_far_behind)
     plans: dict = {}
 
     def classes_plan(k: int) -> tuple:
