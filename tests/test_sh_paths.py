@@ -1,5 +1,7 @@
 """The size search's SH coding paths: the codebook at low rates, the scalar path at high rates,
 kept vectors in importance classes (SHCL) in between."""
+import contextlib
+
 import pytest
 
 from gsz.decoder import decode
@@ -65,10 +67,12 @@ def test_tiny_budget_drops_the_sh_rest_when_the_views_say_so():
     assert _test_psnr(flat.cloud) > _test_psnr(with_sh.cloud) + 1.0
 
 
-def test_a_stage_without_the_codebook_path_still_yields_a_file():
-    """Once another SH path rendered clearly better, the search stops encoding the codebook
-    path; a stage where no other path fits still gets the codebook path's file."""
-    import dataclasses
+@contextlib.contextmanager
+def _first_stage(target, deeper: int = 0):
+    """(encode_tau's SH paths at the search's first stage, tau 1.0), as a function of
+    ``encode_tau`` keyword arguments (``opts``: other SearchOptions) that checks every file
+    is within ``target`` and decodes to its cloud.  ``deeper``: octree levels below the
+    default depth."""
     from concurrent.futures import ThreadPoolExecutor
 
     from gsz.encoder.pipeline import compute_train_importance
@@ -78,25 +82,35 @@ def test_a_stage_without_the_codebook_path_still_yields_a_file():
     from gsz.encoder.search.tau import encode_tau
     from gsz.encoder.voxelize import DEFAULT_REL_ERROR, choose_depth
 
-    cloud, target = sample("sh3"), 240_000
+    cloud = sample("sh3")
     sopts = SearchOptions(**FAST_SEARCH)
     with ThreadPoolExecutor(max_workers=1) as pool:
         search = BudgetSearch(cloud, target, sopts, None, pool)
         search.importance = compute_train_importance(cloud, sopts)
-        search.depth = choose_depth(cloud.positions, rel_error=DEFAULT_REL_ERROR) + 2
+        if deeper:
+            search.depth = choose_depth(cloud.positions, rel_error=DEFAULT_REL_ERROR) + deeper
         search._set_up(None)
         stage = search.stage_for(1.0)
 
-        def paths(opts, codebook):
+        def paths(opts=sopts, **kw):
             encs = list(encode_tau(stage, target, opts, search.sh_models(stage), Progress(quiet=True),
-                                   [], search.judge.weights, codebook=codebook))
+                                   [], search.judge.weights, **kw))
             assert all(len(e.data) <= target and decode(e.data).equals(e.cloud) for e in encs)
             return [e.sh_path for e in encs]
+        yield paths
 
-        assert "vq" in paths(sopts, True)
-        others = paths(sopts, False)
+
+def test_a_stage_without_the_codebook_path_still_yields_a_file():
+    """Once another SH path rendered clearly better, the search stops encoding the codebook
+    path; a stage where no other path fits still gets the codebook path's file."""
+    from gsz.encoder.search import SearchOptions
+
+    with _first_stage(240_000, deeper=2) as paths:
+        assert "vq" in paths(codebook=True)
+        others = paths(codebook=False)
         assert others and "vq" not in others
-        assert paths(dataclasses.replace(sopts, sh_scalar=False, sh_classes=False), False) == ["vq"]
+        flat = SearchOptions(**FAST_SEARCH, sh_scalar=False, sh_classes=False)
+        assert paths(flat, codebook=False) == ["vq"]
 
 
 def test_once_allocated_kept_widths_lead_every_stage_encodes_the_scalar_path():
@@ -105,30 +119,9 @@ def test_once_allocated_kept_widths_lead_every_stage_encodes_the_scalar_path():
     classes- or scalar-path file): the renders have overruled the codebook model's estimate
     (noised jug at 27x: an estimate 0.04 vectors short of the gate hid the scalar path, 1.5 dB
     better than every file the search had)."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    from gsz.encoder.pipeline import compute_train_importance
-    from gsz.encoder.progress import Progress
-    from gsz.encoder.search import SearchOptions
-    from gsz.encoder.search.driver import BudgetSearch
-    from gsz.encoder.search.tau import encode_tau
-
-    cloud, target = sample("sh3"), 120_000
-    sopts = SearchOptions(**FAST_SEARCH)
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        search = BudgetSearch(cloud, target, sopts, None, pool)
-        search.importance = compute_train_importance(cloud, sopts)
-        search._set_up(None)
-        stage = search.stage_for(1.0)
-
-        def paths(leads):
-            encs = list(encode_tau(stage, target, sopts, search.sh_models(stage), Progress(quiet=True),
-                                   [], search.judge.weights, widths_lead=leads))
-            assert all(len(e.data) <= target and decode(e.data).equals(e.cloud) for e in encs)
-            return [e.sh_path for e in encs]
-
-        assert "scalar" not in paths(False)
-        assert "scalar" in paths(True)
+    with _first_stage(120_000) as paths:
+        assert "scalar" not in paths(widths_lead=False)
+        assert "scalar" in paths(widths_lead=True)
 
 
 def test_a_codebook_path_far_behind_is_not_encoded_again_where_few_vectors_are_kept():
@@ -136,31 +129,9 @@ def test_a_codebook_path_far_behind_is_not_encoded_again_where_few_vectors_are_k
     is still encoded (which path renders better changes with the depth there) -- until it
     renders a whole drop margin below another path: then only where no other path fits (the
     1.2 M noised bench scene re-encoded and dropped it at four depths, ~10 s each)."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    from gsz.encoder.pipeline import compute_train_importance
-    from gsz.encoder.progress import Progress
-    from gsz.encoder.search import SearchOptions
-    from gsz.encoder.search.driver import BudgetSearch
-    from gsz.encoder.search.tau import encode_tau
-
-    cloud, target = sample("sh3"), 120_000
-    sopts = SearchOptions(**FAST_SEARCH)
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        search = BudgetSearch(cloud, target, sopts, None, pool)
-        search.importance = compute_train_importance(cloud, sopts)
-        search._set_up(None)
-        stage = search.stage_for(1.0)
-
-        def paths(far):
-            encs = list(encode_tau(stage, target, sopts, search.sh_models(stage), Progress(quiet=True),
-                                   [], search.judge.weights, codebook=False, widths_lead=True,
-                                   codebook_far_behind=far))
-            assert all(len(e.data) <= target and decode(e.data).equals(e.cloud) for e in encs)
-            return [e.sh_path for e in encs]
-
-        assert "vq" in paths(False)
-        others = paths(True)
+    with _first_stage(120_000) as paths:
+        assert "vq" in paths(codebook=False, widths_lead=True, codebook_far_behind=False)
+        others = paths(codebook=False, widths_lead=True, codebook_far_behind=True)
         assert others and "vq" not in others
 
 
