@@ -279,29 +279,54 @@ def test_search_starts_deeper_where_a_large_extent_merges_gaussians():
     assert start_depth(big, 6 * len(big)) == d0              # 6: the level's bits cost more
 
 
-def test_sh_paths_stop_being_weighed_after_a_clear_or_a_second_narrow_loss():
-    """The search stops weighing an SH path that rendered 0.1+ dB below a stage's best, was
-    dropped after its hardest views, or lost narrowly twice; a single tie keeps it."""
+def _path_notes():
+    """A search stand-in with what _note_lost_paths reads and writes."""
     from types import SimpleNamespace
 
     from gsz.encoder.progress import Progress
+    return SimpleNamespace(lost_paths=set(), far_behind=set(), narrow_losses={}, progress=Progress(quiet=True))
+
+
+def _stage_paths(**psnr):
+    """One stage's candidates: train PSNR per SH path."""
+    from types import SimpleNamespace
+
     from gsz.encoder.search.candidate import Candidate
+    return [Candidate(p, 1.0, 12, 0.0, [], SimpleNamespace(sh_path=k)) for k, p in psnr.items()]
+
+
+def test_sh_paths_stop_being_weighed_after_a_clear_or_a_second_narrow_loss():
+    """The search stops weighing an SH path that rendered 0.1+ dB below a stage's best, was
+    dropped after its hardest views, or lost narrowly twice; a single tie keeps it."""
     from gsz.encoder.search.driver import PATH_LOST_MARGIN_DB, BudgetSearch
 
-    def stage(**psnr):
-        return [Candidate(p, 1.0, 12, 0.0, [], SimpleNamespace(sh_path=k)) for k, p in psnr.items()]
-
-    s = SimpleNamespace(lost_paths=set(), narrow_losses={}, progress=Progress(quiet=True))
+    s = _path_notes()
     note = BudgetSearch._note_lost_paths
     narrow = 50.0 - PATH_LOST_MARGIN_DB / 2
-    note(s, ["vq", "classes", "scalar"], stage(vq=narrow, classes=50.0, scalar=narrow))
+    note(s, ["vq", "classes", "scalar"], _stage_paths(vq=narrow, classes=50.0, scalar=narrow))
     assert s.lost_paths == set()                               # one tie says nothing
-    note(s, ["vq", "classes", "scalar"], stage(vq=50.0 - 2 * PATH_LOST_MARGIN_DB, classes=50.0,
-                                               scalar=narrow))
+    note(s, ["vq", "classes", "scalar"], _stage_paths(vq=50.0 - 2 * PATH_LOST_MARGIN_DB, classes=50.0,
+                                                      scalar=narrow))
     assert s.lost_paths == {"vq", "scalar"}                    # a clear loss; a second narrow one
-    s = SimpleNamespace(lost_paths=set(), narrow_losses={}, progress=Progress(quiet=True))
-    note(s, ["vq", "classes"], stage(vq=50.0))                 # classes dropped after its hardest views
+    s = _path_notes()
+    note(s, ["vq", "classes"], _stage_paths(vq=50.0))          # classes dropped after its hardest views
     assert s.lost_paths == {"classes"}
+
+
+def test_how_far_a_lost_path_rendered_behind_is_remembered():
+    """A path a whole drop margin (1 dB) behind a stage's best, or dropped after its hardest
+    views, is also far behind -- noted even when it had lost before (the codebook path is then
+    encoded only where no other path fits, whatever the keep-count)."""
+    from gsz.encoder.search.driver import BudgetSearch
+
+    s = _path_notes()
+    note = BudgetSearch._note_lost_paths
+    note(s, ["vq", "scalar"], _stage_paths(vq=40.5, scalar=41.0))
+    assert s.lost_paths == {"vq"} and not s.far_behind
+    note(s, ["vq", "classes", "scalar"], _stage_paths(classes=41.5, scalar=42.2))     # vq dropped
+    assert s.lost_paths == {"vq", "classes"} and s.far_behind == {"vq"}
+    note(s, ["scalar", "classes"], _stage_paths(scalar=43.0, classes=41.9))
+    assert s.far_behind == {"vq", "classes"}
 
 
 class _WalkScene:

@@ -135,27 +135,6 @@ def test_a_codebook_path_far_behind_is_not_encoded_again_where_few_vectors_are_k
         assert others and "vq" not in others
 
 
-def test_how_far_a_lost_path_rendered_behind_is_remembered():
-    """_note_lost_paths: a path 0.1+ dB behind a stage's best is lost; 1+ dB behind (or dropped
-    after its hardest views) it is also far behind, even when it had lost before."""
-    from types import SimpleNamespace
-
-    from gsz.encoder.progress import Progress
-    from gsz.encoder.search.candidate import Candidate
-    from gsz.encoder.search.driver import BudgetSearch
-
-    def cand(path, psnr):
-        return Candidate(psnr, 1.0, 12, 0.1, [psnr], SimpleNamespace(sh_path=path))
-
-    search = SimpleNamespace(lost_paths=set(), far_behind=set(), narrow_losses={}, progress=Progress(quiet=True))
-    BudgetSearch._note_lost_paths(search, ["vq", "scalar"], [cand("vq", 40.5), cand("scalar", 41.0)])
-    assert search.lost_paths == {"vq"} and not search.far_behind
-    BudgetSearch._note_lost_paths(search, ["vq", "classes", "scalar"], [cand("classes", 41.5), cand("scalar", 42.2)])
-    assert search.lost_paths == {"vq", "classes"} and search.far_behind == {"vq"}      # vq dropped
-    BudgetSearch._note_lost_paths(search, ["scalar", "classes"], [cand("scalar", 43.0), cand("classes", 41.9)])
-    assert search.far_behind == {"vq", "classes"}
-
-
 @pytest.mark.usefixtures("each_decoder_path")
 @pytest.mark.parametrize("keep, classes, widths", [(0, 1, None), (700, 1, 12), (3000, 8, "mixed"), (3000, 1, None)])
 def test_decoded_rows_are_the_coded_sh_bit_for_bit(keep, classes, widths):
