@@ -1,4 +1,4 @@
-"""Probe: would a colour-decorrelating transform of the SH rest pay?  (Not in the format.)
+"""The SH colour transform (SHXF, format 1.6) against RGB at one budget, both through gsz-encode.
 
     .venv/bin/python bench/bench_colour_probe.py SCENE.ply --size BYTES [--noise]
         [--out bench/out/colour_probe.json]
@@ -7,24 +7,22 @@ Each SH rest coefficient's (R, G, B) triplet is highly correlated in real captur
 dependent change is mostly a change of brightness).  The probe encodes, with the size search
 at ``--size`` bytes:
 
-* ``rgb``: the scene as it is (what gsz-encode does today);
-* ``ycc``: the scene with every SH rest triplet rotated by the fixed orthonormal luma/chroma
-  matrix below, then the decoded file's SH rest rotated back (its transpose) -- what a decoder
-  would do if the format carried the transform.  Orthonormal, so the search's squared errors,
-  its VQ distances and the rendered error's size are those of the RGB values; the renders the
-  search compares are of the rotated colours (a close stand-in: SH evaluation is linear per
-  channel, only the clamp at 0 differs).
+* ``rgb``: ``gsz-encode --sh-colour rgb`` (every SH rest coefficient as R, G, B);
+* ``ycc``: ``gsz-encode --sh-colour luma-chroma``: every SH rest triplet rotated by the fixed
+  orthonormal luma/chroma matrix (:mod:`gsz.encoder.sh_colour`), the decoder turning it back.
+  (Before the format carried it, this probe rotated the scene outside the codec; the rows
+  since then come from the codec itself.)
 
 Both are scored with gsz-eval's protocol against the scene (8 default test views at 800 px).
 Also printed: the zeroth-order entropy of the SH rest quantised at a few uniform steps, per
 vector, in both spaces (what the transform can save before any search choice).  ``--noise``:
 the RD bench's noised variant (bench_codec.add_noise), which is then the reference.  Results
-accumulate in the JSON, one row per (scene, noised, size).
+accumulate in the JSON, one row per (scene, noised, size); ``auto`` says which of the two
+``--sh-colour auto`` picks for the scene.
 """
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 import tempfile
@@ -37,16 +35,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from rd import gsz_source, machine  # noqa: E402
 
-#: rows: luma (R+G+B)/sqrt3, (R-G)/sqrt2, (R+G-2B)/sqrt6
-LUMA_CHROMA = np.array([[1, 1, 1], [1, -1, 0], [1, 1, -2]], np.float64)
-LUMA_CHROMA /= np.linalg.norm(LUMA_CHROMA, axis=1, keepdims=True)
 ENTROPY_STEPS = (0.005, 0.01, 0.02, 0.04)
-
-
-def rotated(cloud, matrix: np.ndarray):
-    """The cloud with each SH rest triplet x replaced by matrix @ x (float64, then float32)."""
-    sh = np.asarray(cloud.sh_rest, np.float64) @ matrix.T
-    return dataclasses.replace(cloud, sh_rest=sh.astype(np.float32))
 
 
 def entropy_bits(sh: np.ndarray, step: float) -> float:
@@ -81,23 +70,25 @@ def main(argv=None) -> int:
         p.error(f"{a.scene}: no SH rest to transform (SH degree 0)")
     row = {"scene": Path(a.scene).stem, "noised": a.noise, "size": a.size, "gaussians": len(scene)}
     sh = np.asarray(scene.sh_rest, np.float64)
-    ycc = sh @ LUMA_CHROMA.T
+    from gsz.encoder.sh_colour import rgb_to_luma_chroma
+    ycc = rgb_to_luma_chroma(scene.sh_rest).astype(np.float64)
     row["entropy"] = [{"step": s, "rgb_bits": round(entropy_bits(sh, s), 1),
                        "ycc_bits": round(entropy_bits(ycc, s), 1)} for s in ENTROPY_STEPS]
     for e in row["entropy"]:
         print(f"step {e['step']}: {e['rgb_bits']} -> {e['ycc_bits']} bits a vector", file=sys.stderr)
     cams = load_cameras(None, scene, n_test=8).test
     refs = render_views(scene, cams)
+    from gsz.encoder.sh_colour import SH_COLOUR_RGB, choose_sh_colour
+    row["auto"] = "rgb" if choose_sh_colour(scene) == SH_COLOUR_RGB else "ycc"
     with tempfile.TemporaryDirectory(prefix="gsz-colour-") as tmp:
-        for space, src in (("rgb", scene), ("ycc", rotated(scene, LUMA_CHROMA))):
-            ply, out = Path(tmp) / f"{space}.ply", Path(tmp) / f"{space}.gsz"
-            write_ply(src, ply)
+        ply = Path(tmp) / "scene.ply"
+        write_ply(scene, ply)
+        for space, flag in (("rgb", "rgb"), ("ycc", "luma-chroma")):
+            out = Path(tmp) / f"{space}.gsz"
             print(f"{space}: encoding to {a.size:,} B", file=sys.stderr, flush=True)
-            if encode_main([str(ply), "-o", str(out), "--size", str(a.size), "-q"]):
-                raise SystemExit(f"gsz-encode failed on the {space} scene")
+            if encode_main([str(ply), "-o", str(out), "--size", str(a.size), "--sh-colour", flag, "-q"]):
+                raise SystemExit(f"gsz-encode failed on the {space} run")
             dec = decode(str(out))
-            if space == "ycc":
-                dec = rotated(dec, LUMA_CHROMA.T)
             res = evaluate(refs, dec, cams)
             row[space] = {"bytes": out.stat().st_size, "psnr": round(res["psnr"], 2), "ssim": round(res["ssim"], 5)}
             print(f"{space}: {row[space]['bytes']:,} B, {res['psnr']:.2f} dB", file=sys.stderr, flush=True)

@@ -21,14 +21,15 @@ from .errors import GszFormatError, GszTruncatedError
 MAGIC = b"\x89GSZ\r\n\x1a\n"
 VERSION_MAJOR = 1
 #: the newest minor version this decoder knows (1.2 added spatial tiles, 1.3 SH classes, 1.4
-#: direct-coded octree points, 1.5 RAHT leaf weights); an encoder writes the lowest minor whose
-#: features the file uses
-VERSION_MINOR = 5
+#: direct-coded octree points, 1.5 RAHT leaf weights, 1.6 the SH colour transform); an encoder
+#: writes the lowest minor whose features the file uses
+VERSION_MINOR = 6
 MINOR_LAYERS = 1
 MINOR_TILES = 2
 MINOR_SH_CLASSES = 3
 MINOR_DIRECT = 4
 MINOR_RAHT_WEIGHTS = 5
+MINOR_SH_COLOUR = 6
 HEADER_SIZE = 64
 CHUNK_ENTRY_SIZE = 24
 

@@ -23,8 +23,8 @@ from .layer import (FIELDS, GAUSSIANS_PER_BYTE, LAYER_DATA_CHUNKS, LayerState,  
                     tile_table)
 from .threads import cores
 from .geometry import read_geometry_header
-from .layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_TILE,
-                     KNOWN_CHUNKS)
+from .layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_SHXF,
+                     CHUNK_TILE, KNOWN_CHUNKS)
 from .pages import small_pages
 from .tiles import check_region, select_tiles
 from .stream import StreamDecoder
@@ -33,7 +33,8 @@ from .stream import StreamDecoder
 CHUNK_NAMES = {CHUNK_GEOM: "geometry (octree)", CHUNK_ATTR: "attributes (RAHT + scales)",
                CHUNK_SHVQ: "SH (codebook + kept + indices)", CHUNK_META: "metadata (JSON)",
                CHUNK_TILE: "tile table", CHUNK_SHCL: "SH importance classes",
-               CHUNK_RWGT: "RAHT leaf weights (importance classes)"}
+               CHUNK_RWGT: "RAHT leaf weights (importance classes)",
+               CHUNK_SHXF: "SH colour transform (luma/chroma)"}
 
 
 def read_meta(container: Container) -> dict:

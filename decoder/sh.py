@@ -27,6 +27,16 @@ Gaussians finer SH than unimportant ones::
 
 With SHCL, the kept ChannelSet stores the kept vectors ordered by (class, Morton order):
 :func:`class_order` is that order, the one truth the encoder codes in.
+
+SHXF chunk (format 1.6, optional per part): the colour space the part's SH vectors are coded
+in (GSZ.md §8.2)::
+
+    u8   transform          1 = luma/chroma: every stored (a, b, c) triplet of one coefficient
+                            is turned back into (R, G, B) by :func:`luma_chroma_to_rgb`
+
+A view-dependent change in a real capture is mostly a change of brightness, so its three colour
+channels are strongly correlated; coded as luma and two chroma differences they take fewer bits
+(docs/design/sh-colour.md).
 """
 from __future__ import annotations
 
@@ -52,6 +62,43 @@ def class_order(classes: np.ndarray) -> np.ndarray:
     return np.argsort(c, kind="stable")
 
 
+#: SHXF transform ids (GSZ.md §8.2): 1 = luma/chroma, the only one defined
+SH_COLOUR_RGB = 0
+SH_COLOUR_LUMA_CHROMA = 1
+#: the inverse's float64 constants 1/sqrt(3), 1/sqrt(2), 1/sqrt(6), exactly as the spec gives them
+_S3 = float.fromhex("0x1.279a74590331dp-1")
+_S2 = float.fromhex("0x1.6a09e667f3bccp-1")
+_S6 = float.fromhex("0x1.a20bd700c2c3fp-2")
+
+
+def read_sh_colour(data) -> int:
+    """Decode an SHXF chunk: the transform id (only SH_COLOUR_LUMA_CHROMA is defined)."""
+    r = Reader(data, "SHXF chunk")
+    t = r.u8()
+    r.check(t == SH_COLOUR_LUMA_CHROMA, f"unknown SH colour transform {t} (this decoder knows 1)")
+    r.expect_end()
+    return t
+
+
+def luma_chroma_to_rgb(v: np.ndarray) -> np.ndarray:
+    """float32 [..., 3] stored (a, b, c) triplets -> float32 [..., 3] (R, G, B), bit for bit as
+    GSZ.md §8.2 defines it (and the native sh_assemble computes it): in float64,
+    R = (a*S3 + b*S2) + c*S6, G = (a*S3 - b*S2) + c*S6, B = a*S3 - 2*(c*S6), rounded once."""
+    x = np.asarray(v, np.float32)
+    a = x[..., 0].astype(np.float64)
+    a *= _S3
+    b = x[..., 1].astype(np.float64)
+    b *= _S2
+    c = x[..., 2].astype(np.float64)
+    c *= _S6
+    out = np.empty(x.shape, np.float32)
+    out[..., 0] = (a + b) + c
+    out[..., 1] = (a - b) + c
+    c *= 2.0
+    out[..., 2] = a - c
+    return out
+
+
 #: SHCL's class count byte that means "the classes of the part's RWGT chunk" (GSZ.md §8.1, 1.5)
 SH_CLASSES_FROM_RWGT = 0
 
@@ -75,21 +122,23 @@ def read_sh_classes(data, num_kept: int, voxel_classes=None):
 
 
 def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None,
-            classes_chunk=None, dest: OutputRows = FRESH, voxel_classes=None):
+            classes_chunk=None, dest: OutputRows = FRESH, voxel_classes=None, colour_chunk=None):
     """Decode one layer's SHVQ chunk: (sh_rest, codebook) of :func:`read_sh_checked`."""
     sh_rest, codebook, _ = read_sh_checked(data, num_points, sh_degree, codebook, classes_chunk, dest,
-                                           voxel_classes)
+                                           voxel_classes, colour_chunk)
     return sh_rest, codebook
 
 
 def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None,
-                    classes_chunk=None, dest: OutputRows = FRESH, voxel_classes=None):
+                    classes_chunk=None, dest: OutputRows = FRESH, voxel_classes=None,
+                    colour_chunk=None):
     """Decode one layer's SHVQ chunk.
 
     codebook    the [D, K_cb] float64 codebook an earlier layer carried, or None
     classes_chunk  the part's SHCL chunk, or None (kept vectors stored in Morton order)
     dest        where sh_rest goes (fresh by default)
     voxel_classes  the part's RWGT classes int [M] (point order), or None
+    colour_chunk   the part's SHXF chunk, or None (vectors stored as RGB)
     returns     (sh_rest float32 [M, K, 3], codebook [D, K_cb] float64 or None, finite): the
                 codebook of this layer when it carries one, else the one passed in; finite:
                 whether every sh_rest value is finite when the native path assembled them
@@ -115,8 +164,10 @@ def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray 
                 "codeword indices but no SH codebook in this or an earlier layer")
         kcb = 0 if codebook is None else codebook.shape[1]
     classes = None if classes_chunk is None else read_sh_classes(classes_chunk, p, voxel_classes)
+    colour = SH_COLOUR_RGB if colour_chunk is None else read_sh_colour(colour_chunk)
     if native.enabled():
-        sh_rest, finite = _assemble_native(r, m, k, d, p, kcb, codebook, classes, dest, voxel_classes)
+        sh_rest, finite = _assemble_native(r, m, k, d, p, kcb, codebook, classes, dest, voxel_classes,
+                                           colour)
         return sh_rest, codebook, finite
     kept = None
     if p:
@@ -147,9 +198,13 @@ def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray 
         for j0 in range(0, p, _KEPT_BLOCK):
             j1 = min(p, j0 + _KEPT_BLOCK)
             block = np.ascontiguousarray(kept[:, j0:j1].T, dtype=np.float32)
+            if colour:
+                block = luma_chroma_to_rgb(block.reshape(-1, k, 3)).reshape(-1, d)
             items[dest[j0:j1]] = block.view(item)[:, 0]
     if coded is not None:
         rows = np.ascontiguousarray(codebook.T, dtype=np.float32)
+        if colour:       # a codeword's rows turned to RGB once: the same values as every use of it
+            rows = luma_chroma_to_rgb(rows.reshape(-1, k, 3)).reshape(-1, d)
         items[coded] = rows.view(item)[:, 0].take(idx)
     return out.reshape(m, k, 3), codebook, None
 
@@ -159,7 +214,7 @@ _KEPT_BLOCK = 8192
 
 
 def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebook, classes,
-                     dest: OutputRows = FRESH, voxel_classes=None):
+                     dest: OutputRows = FRESH, voxel_classes=None, colour: int = SH_COLOUR_RGB):
     """read_sh's kept vectors, flags and indices, assembled in one C pass (same checks): the
     kept set stays uint16 symbols until that pass dequantises them into the float32 rows."""
     flags = None
@@ -178,5 +233,6 @@ def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebo
     cb = np.zeros((d, 0), np.float64) if codebook is None else codebook
     out = dest.empty("sh_rest", (m, d))
     finite = native.module().sh_assemble(flags, kept, steps, lo, idx, np.ascontiguousarray(cb, dtype=np.float64),
-                                         out, None if classes is None else np.ascontiguousarray(classes, np.int64))
+                                         out, None if classes is None else np.ascontiguousarray(classes, np.int64),
+                                         colour)
     return out.reshape(m, k, 3), bool(finite)

@@ -15,6 +15,7 @@ def build_parser() -> argparse.ArgumentParser:
     from ..decoder.cli_common import (HelpFormatter, add_overwrite, add_verbosity, add_version_flag)
     from .pipeline import MANY_BLOCKS, ONE_BLOCK_MIN_BITS, STREAMING_LAYERS, EncodeOptions
     from .search import SearchOptions
+    from .sh_colour import SH_COLOUR_CHOICES
     d = EncodeOptions()
     p = argparse.ArgumentParser(
         prog="gsz-encode", description="Compress a trained 3DGS point_cloud.ply into a .gsz file.",
@@ -72,6 +73,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help="importance classes of the RAHT leaves, 2-16 (an RWGT chunk, format 1.5: "
                            "important Gaussians get finer opacity, rotation and colour for the same "
                            f"bytes); 1: plain RAHT (default {d.raht_classes})")
+    both.add_argument("--sh-colour", choices=SH_COLOUR_CHOICES, default=d.sh_colour,
+                      help="colour space of the SH rest: luma-chroma (format 1.6: correlated "
+                           "channels code in fewer bits), rgb, or auto: luma-chroma unless the "
+                           "input's SH sit on a delivery format's coarse grid (default auto)")
     both.add_argument("--seed", type=int, default=d.seed, help="RNG seed (VQ)")
     lay = p.add_argument_group("layers, tiles and workers")
     lay.add_argument("--layers", type=int, nargs="?", default=d.layers, const=STREAMING_LAYERS, metavar="L",
@@ -126,7 +131,7 @@ def _run_fixed(a, prog) -> EncodeReport:
                          train_views=a.train_views, importance_width=a.importance_width,
                          layers=a.layers, first_layer=a.first_layer, seed=a.seed,
                          tile_gaussians=a.tile_gaussians or None, executor=a.executor,
-                         workers=a.workers, raht_classes=a.raht_classes).validate()
+                         workers=a.workers, raht_classes=a.raht_classes, sh_colour=a.sh_colour).validate()
     _check_paths(a)                           # after the options: their errors come first
     cloud, cameras = _read_inputs(a, prog)
     result = encode(cloud, opts, cameras=cameras, progress=prog, source=a.input)
@@ -167,7 +172,7 @@ def _run_search(a, prog) -> EncodeReport:
                           importance_width=a.importance_width, seed=a.seed,
                           layers=a.layers, first_layer=a.first_layer, tile_gaussians=a.tile_gaussians or None,
                           executor=a.executor, workers=a.workers, raht_classes=a.raht_classes,
-                          codebook=a.codebook)
+                          codebook=a.codebook, sh_colour=a.sh_colour)
     result = encode_to_budget(cloud, payload_target, options=sopts, cameras=cameras, progress=prog,
                               source=a.input)
     r = _finish(a, result, target=format_size(target, style))

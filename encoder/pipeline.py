@@ -27,12 +27,13 @@ from ..decoder.cloud import GaussianCloud, MadeRows
 from ..decoder.container import (CHUNK_ENTRY_SIZE, CHUNK_REQUIRED, FRAME_RDF, LAYER_SHIFT, Chunk, FileHeader,
                                  write_container)
 from ..decoder.errors import GszUsageError
-from ..decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, RAHT_CHANNELS,
+from ..decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_SHXF,
+                              RAHT_CHANNELS,
                                 ROTATION_EULER_ZYX)
 from ..decoder.morton import morton_encode
 from ..decoder.raht import build_raht_tree
 from ..decoder.rotation import quaternion_to_euler
-from ..decoder.sh import MAX_CODEBOOK, MAX_SH_CLASSES, SH_CLASSES_FROM_RWGT, class_order
+from ..decoder.sh import MAX_CODEBOOK, MAX_SH_CLASSES, SH_CLASSES_FROM_RWGT, class_order, luma_chroma_to_rgb
 from ..decoder.threads import for_ranges, thread_map
 from ..evaluation.cameras import DEFAULT_VIEW_WIDTH
 
@@ -168,6 +169,10 @@ class SceneOptions:
     executor         where per-tile work runs: "local" worker processes, "inline", "ray" or
                      "ray://HOST:PORT" (:mod:`gsz.encoder.executor`); the bytes do not depend on it
     workers          worker processes / local Ray CPUs (None: the machine's cores less one)
+    sh_colour        colour space of the SH rest: "luma-chroma" (an SHXF chunk per part,
+                     format 1.6: correlated channels code in fewer bits), "rgb", or "auto":
+                     luma/chroma unless the input's SH rest sit on a delivery format's coarse
+                     grid (:mod:`gsz.encoder.sh_colour`, docs/design/sh-colour.md)
     seed             RNG seed (VQ); the same input and options give byte-identical output
     """
 
@@ -181,6 +186,7 @@ class SceneOptions:
     raht_classes: int = DEFAULT_RAHT_CLASSES
     executor: str = "local"
     workers: int | None = None
+    sh_colour: str = "auto"
     seed: int = 0
 
     def check_scene_options(self, bad) -> None:
@@ -195,6 +201,9 @@ class SceneOptions:
         check_tile_option(self.tile_gaussians, bad)
         if not (1 <= int(self.raht_classes) <= MAX_RAHT_CLASSES):
             bad(f"--raht-classes must be 1..{MAX_RAHT_CLASSES}, got {self.raht_classes}")
+        from .sh_colour import SH_COLOUR_CHOICES
+        if self.sh_colour not in SH_COLOUR_CHOICES:
+            bad(f"--sh-colour must be one of {', '.join(SH_COLOUR_CHOICES)}, got {self.sh_colour!r}")
         from .executor import check_executor
         check_executor(self.executor, self.workers, bad)
 
@@ -366,6 +375,8 @@ class Stage:
     kept       Gaussians kept by pruning (before merging into M voxels)
     source     [M] int64 index into the input cloud of the one Gaussian a voxel holds, -1 where
                several were merged (lets the size search reuse per-Gaussian work across taus)
+    sh_colour  the SHXF transform id ``sh`` is coded in (gsz.decoder.sh; 0: RGB, no chunk): the
+               cloud the stage was made from already holds its SH rest in that space
     executor   where the per-tile work of a tiled stage runs (:mod:`gsz.encoder.executor`;
                None: here)
     cache      scratch for work that depends on the stage only (the size search's tables)
@@ -380,6 +391,7 @@ class Stage:
     input_gaussians: int
     kept: int
     source: np.ndarray | None = None
+    sh_colour: int = 0
     executor: object = field(default=None, repr=False, compare=False)
     cache: dict = field(default_factory=dict, repr=False, compare=False)
 
@@ -543,14 +555,15 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
                   rel_error=None, layers: int = DEFAULT_LAYERS, first_layer: float = DEFAULT_FIRST_LAYER,
                   progress: Progress | None = None, voxelized=None, pool=None,
                   tile_gaussians: int | None = None, executor=None,
-                  raht_classes: int = DEFAULT_RAHT_CLASSES) -> Stage:
+                  raht_classes: int = DEFAULT_RAHT_CLASSES, sh_colour: int = 0) -> Stage:
     """Prune to ``reserve``, voxelise, split into spatial tiles of at most ``tile_gaussians``
     voxels (None: one tile) and each tile into importance layers, code each part's geometry
     and transform its attributes (a tiled stage's parts on ``executor`` when given, which also
     codes their attributes later).  ``voxelized``: the (kept, Voxelized) of
     :func:`voxelize_stage` for these arguments when the caller already has it.  ``pool``: an
     executor that codes the geometry while the caller goes on (the octree coder runs without
-    the GIL; nothing before the file size needs its bytes)."""
+    the GIL; nothing before the file size needs its bytes).  ``sh_colour``: the SHXF transform
+    ``cloud``'s SH rest are already in (:func:`gsz.encoder.sh_colour.coded_cloud`)."""
     progress = progress or Progress(quiet=True)
     if voxelized is None:
         voxelized = voxelize_stage(cloud, importance, reserve, depth=depth, rel_error=rel_error,
@@ -572,7 +585,7 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
     sh = SourcedRows.of_grid(cloud.sh_rest.reshape(len(cloud), -1), source, vox)
     return Stage(reserve=float(reserve), depth=d, layers=parts, sh=sh, importance=vox.importance,
                  sh_degree=cloud.sh_degree, input_gaussians=len(cloud), kept=len(kept), source=source,
-                 executor=executor)
+                 sh_colour=int(sh_colour) if cloud.sh_degree else 0, executor=executor)
 
 
 #: importance above this quantile counts as the quantile's value in class and block weights:
@@ -1150,6 +1163,8 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
     sh_rest in output order)."""
     positions = stage.positions()
     data, meta_len = write_file(stage, positions, attr, sh, meta, sh_classes)
+    if sh is not None and stage.sh_colour:
+        sh_rest = luma_chroma_to_rgb(sh_rest)           # what the decoder turns them into
     return data, decoded_cloud(stage, positions, decoded, sh_rest if sh is not None else None), meta_len
 
 
@@ -1163,6 +1178,11 @@ def decoded_cloud(stage: Stage, positions: np.ndarray, decoded, sh_rest) -> Gaus
         sh_degree=stage.sh_degree)
 
 
+def sh_colour_chunk(transform: int) -> bytes:
+    """An SHXF chunk's payload (GSZ.md §8.2): the transform id."""
+    return bytes([int(transform)])
+
+
 def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None, meta: dict,
                sh_classes: list | None = None) -> tuple[bytes, int]:
     """(the .gsz bytes, META chunk bytes) of ``stage`` with its decoded ``positions`` (output
@@ -1171,10 +1191,11 @@ def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None,
     attr / sh   per-part ATTR / SHVQ payloads.  A stage of several tiles gets a TILE chunk first
                 and format version 1.2.
     sh_classes  per part the SHCL payload or None; any SHCL makes the file version 1.3, any
-                direct-coded geometry (OCTREE.md scheme 1) 1.4."""
+                direct-coded geometry (OCTREE.md scheme 1) 1.4.  A stage coded in a colour
+                transform (``stage.sh_colour``) gets an SHXF chunk per part and version 1.6."""
     import zstandard
     from ..decoder.container import (MINOR_DIRECT, MINOR_LAYERS, MINOR_RAHT_WEIGHTS, MINOR_SH_CLASSES,
-                                     MINOR_TILES, TILE_SHIFT, VERSION_MAJOR)
+                                     MINOR_SH_COLOUR, MINOR_TILES, TILE_SHIFT, VERSION_MAJOR)
     from ..decoder.geometry import octree_scheme
     from ..decoder.octree import SCHEME_DIRECT
     from ..decoder.layout import CHUNK_TILE
@@ -1199,6 +1220,8 @@ def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None,
             chunks.append(Chunk(CHUNK_RWGT, part.weights_chunk, flags))
         chunks.append(Chunk(CHUNK_ATTR, attr[pi], flags))
         if sh is not None:
+            if stage.sh_colour:
+                chunks.append(Chunk(CHUNK_SHXF, sh_colour_chunk(stage.sh_colour), flags))
             if sh_classes is not None and sh_classes[pi] is not None:
                 chunks.append(Chunk(CHUNK_SHCL, sh_classes[pi], flags))
             chunks.append(Chunk(CHUNK_SHVQ, sh[pi], flags))
@@ -1209,7 +1232,8 @@ def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None,
                         bbox_min=tuple(positions.min(0)),
                         bbox_max=tuple(positions.max(0)),
                         version=(VERSION_MAJOR,
-                                 MINOR_RAHT_WEIGHTS if any(c.type == CHUNK_RWGT for c in chunks)
+                                 MINOR_SH_COLOUR if any(c.type == CHUNK_SHXF for c in chunks)
+                                 else MINOR_RAHT_WEIGHTS if any(c.type == CHUNK_RWGT for c in chunks)
                                  else MINOR_DIRECT if any(c.type == CHUNK_GEOM and octree_scheme(c.data) == SCHEME_DIRECT
                                                      for c in chunks)
                                  else MINOR_SH_CLASSES if any(c.type == CHUNK_SHCL for c in chunks)
@@ -1259,10 +1283,13 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
         importance = compute_train_importance(cloud, opts, cameras=cameras, progress=progress)
     elif kept is not None:
         importance = importance[kept]
+    from .sh_colour import choose_sh_colour, coded_cloud
+    colour = choose_sh_colour(cloud, opts.sh_colour)
+    cloud = coded_cloud(cloud, colour)
     from .executor import make_executor
     executor = make_executor(opts.executor, opts.workers)
     try:
-        result = _encode_stage(cloud, opts, importance, executor, progress, (t_start, c_start))
+        result = _encode_stage(cloud, opts, importance, executor, progress, (t_start, c_start), colour)
     finally:
         executor.close()
     if fixes:                  # only then: the reports of clean scenes stay as they were
@@ -1270,13 +1297,15 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
     return result
 
 
-def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, starts) -> EncodeResult:
-    """The encode after importance; ``starts``: (perf_counter, process_time) at its beginning."""
+def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, starts,
+                  colour: int = 0) -> EncodeResult:
+    """The encode after importance; ``starts``: (perf_counter, process_time) at its beginning;
+    ``cloud``'s SH rest are in the colour space ``colour`` (an SHXF transform id)."""
     n_in = len(cloud)
     stage = prepare_stage(cloud, importance, opts.reserve, depth=opts.depth,
                           rel_error=opts.rel_error, layers=opts.layers, first_layer=opts.first_layer,
                           progress=progress, tile_gaussians=opts.tile_gaussians, executor=executor,
-                          raht_classes=opts.raht_classes)
+                          raht_classes=opts.raht_classes, sh_colour=colour)
     m = stage.num_points
     blocks = default_blocks(opts.bits) if opts.blocks is None else int(opts.blocks)
     sh_blocks = default_blocks(opts.sh_bits or opts.bits) if opts.blocks is None else int(opts.blocks)

@@ -89,6 +89,25 @@ int all_finite_run(const uint32_t *p, int64_t n)
     return !bad;
 }
 
+/* SHXF transform 1 (GSZ.md §8.2): the stored (a, b, c) triplets of a row of D = 3K floats back
+ * to (R, G, B) in place, bit for bit as gsz.decoder.sh.luma_chroma_to_rgb (float64, no FMA:
+ * setup.py builds with -ffp-contract=off); returns 1 when a result is not finite */
+static const double LC_S3 = 0x1.279a74590331dp-1, LC_S2 = 0x1.6a09e667f3bccp-1, LC_S6 = 0x1.a20bd700c2c3fp-2;
+
+static inline uint32_t luma_chroma_row(float *v, int64_t D)
+{
+    uint32_t bad = 0;
+    for (int64_t j = 0; j + 2 < D; j += 3) {
+        const double a = (double)v[j] * LC_S3, b = (double)v[j + 1] * LC_S2, c = (double)v[j + 2] * LC_S6;
+        const float r = (float)((a + b) + c), g = (float)((a - b) + c), bl = (float)(a - 2.0 * c);
+        v[j] = r;
+        v[j + 1] = g;
+        v[j + 2] = bl;
+        bad |= !f32_finite(r) | !f32_finite(g) | !f32_finite(bl);
+    }
+    return bad;
+}
+
 /* Kept vectors per cache-friendly step of the transposed copy: the [D, P] channel set is read
  * column by column, so one step reads D runs of SH_TILE values and writes SH_TILE rows. */
 #define SH_TILE 256
@@ -98,7 +117,7 @@ int all_finite_run(const uint32_t *p, int64_t n)
 int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *steps,
                     const double *lo, int64_t B, const int64_t *classes, int64_t P,
                     const int64_t *idx, int64_t nidx, const double *cb, int64_t K, int64_t M,
-                    int64_t D, float *out, int *finite, Err *e)
+                    int64_t D, int colour, float *out, int *finite, Err *e)
 {
     /* the codebook as rows (a codeword is one contiguous copy) and the output row of every kept
      * vector; the [D, P] kept symbols are then dequantised tile by tile (reading them row by row,
@@ -116,6 +135,7 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
             rows[j * D + d] = f;
             bad |= !f32_finite(f);
         }
+        if (colour) bad |= luma_chroma_row(rows + j * D, D);   /* once per codeword */
         rbad[j] = (uint8_t)bad;
     }
     uint32_t bad = 0;
@@ -178,6 +198,8 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
                         out[at[t] * D + d] = f;
                     }
                 }
+                if (colour)        /* the tile's rows are still in cache */
+                    for (int64_t t = t0; t < t1; t++) bad |= luma_chroma_row(out + at[t] * D, D);
             }
             s0 = s1;
         }

@@ -884,20 +884,27 @@ static PyObject *py_voxel_positions(PyObject *self, PyObject *args)
 }
 
 PyDoc_STRVAR(sh_assemble_doc,
-"sh_assemble(flags, kept, steps, lo, idx, codebook, out, classes=None)\n\n"
+"sh_assemble(flags, kept, steps, lo, idx, codebook, out, classes=None, colour=0)\n\n"
 "SH rest vectors (GSZ.md §8) as float32 out [M, D]: Gaussian i takes the next kept vector\n"
 "when flags[i] == 1 (flags: int64 [M], or None when P = 0), else codeword idx[next] of\n"
 "codebook (float64 [D, K]).  kept: the kept set's symbols, uint16 [D, P] channel-major, in B\n"
 "blocks per channel (split_lengths) dequantised as lo + step * k with steps, lo float64 [D, B].\n"
 "classes (int64 [P], SHCL): each kept vector's class in point order; the set then stores them\n"
-"class by class.  A flag other than 0/1, a kept count other than P or an index >= K raises\n"
+"class by class.  colour 1 (SHXF, §8.2): every row's triplets turned from luma/chroma to RGB.\n"
+"A flag other than 0/1, a kept count other than P or an index >= K raises\n"
 "GszFormatError.  Returns whether every value written to out is finite.");
 
 static PyObject *py_sh_assemble(PyObject *self, PyObject *args)
 {
     PyObject *o[8] = {NULL, NULL, NULL, NULL, NULL, NULL, NULL, Py_None};
-    if (!PyArg_ParseTuple(args, "OOOOOOO|O", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7]))
+    int colour = 0;
+    if (!PyArg_ParseTuple(args, "OOOOOOO|Oi", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7],
+                          &colour))
         return NULL;
+    if (colour != 0 && colour != 1) {
+        PyErr_SetString(PyExc_ValueError, "sh_assemble: colour must be 0 or 1");
+        return NULL;
+    }
     const int has_flags = o[0] != Py_None, has_classes = o[7] != Py_None;
     /* flags, kept, steps, lo, idx, codebook, out, classes */
     const Py_ssize_t isz[8] = {8, 2, 8, 8, 8, 8, 4, 8};
@@ -929,7 +936,7 @@ static PyObject *py_sh_assemble(PyObject *self, PyObject *args)
         Py_BEGIN_ALLOW_THREADS
         sh_assemble_run(has_flags ? v[0].buf : NULL, v[1].buf, v[2].buf, v[3].buf, B,
                         has_classes ? v[7].buf : NULL, P, v[4].buf, nidx, v[5].buf, K, M, D,
-                        v[6].buf, &finite, &e);
+                        colour, v[6].buf, &finite, &e);
         Py_END_ALLOW_THREADS
     }
     for (int i = 0; i < 8; i++) if (v[i].obj) PyBuffer_Release(&v[i]);

@@ -56,16 +56,26 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
         importance = importance[kept]
     from .bound import check_reachable
     check_reachable(cloud, target_bytes, options)      # before the importance pass: fails fast
+    from ..sh_colour import choose_sh_colour, coded_cloud
+    sopts = options or SearchOptions()
+
+    def bad(msg):
+        raise EncodeOptionsError(msg)
+    sopts.check_scene_options(bad)
+    colour = choose_sh_colour(cloud, sopts.sh_colour)
+    # the search works in the coded colour space throughout: its renders compare those colours
+    # (the squared errors are RGB's: an orthonormal rotation; only the clamp at 0 differs) and
+    # the result's cloud is the decoder's, back in RGB
+    cloud = coded_cloud(cloud, colour)
 
     # every candidate's octree is coded on this thread while the caller computes the candidate's
     # SH statistics and rate tables (flowers: ~1.4 s of each ~10 s candidate)
     from ..executor import make_executor
-    sopts = options or SearchOptions()
     executor = make_executor(sopts.executor, sopts.workers)
     try:
         with _search_threads(), small_pages(), \
                 ThreadPoolExecutor(max_workers=1, thread_name_prefix="gsz-geom") as pool:
-            search = BudgetSearch(cloud, target_bytes, sopts, progress, pool, executor)
+            search = BudgetSearch(cloud, target_bytes, sopts, progress, pool, executor, sh_colour=colour)
             result = search.run(importance, cameras)
     finally:
         executor.close()
@@ -140,12 +150,13 @@ class BudgetSearch:
     judge and candidates, and the records the report shows."""
 
     def __init__(self, cloud, target_bytes: int, sopts: SearchOptions, progress: Progress | None,
-                 geometry_pool, executor=None):
+                 geometry_pool, executor=None, sh_colour: int = 0):
         def bad(msg):
             raise EncodeOptionsError(msg)
         sopts.check_scene_options(bad)
         self.sopts, self.cloud, self.geometry_pool = sopts, cloud, geometry_pool
         self.executor = executor
+        self.sh_colour = sh_colour        # the SHXF transform cloud's SH rest are in
         self.progress = progress or Progress(quiet=True)
         self.target = int(target_bytes)
         if self.target <= 0:
@@ -202,7 +213,8 @@ class BudgetSearch:
                                   pool=self.geometry_pool, tile_gaussians=self.sopts.tile_gaussians,
                                   executor=self.executor,
                                   raht_classes=raht_classes_for(self.sopts.raht_classes, self.target,
-                                                                len(vox[1].ijk)))
+                                                                len(vox[1].ijk)),
+                                  sh_colour=self.sh_colour)
             self._voxelized.pop((tau, d))     # the stage keeps what it needs of the grid
             return stage
         return self._stages.get_or_make((tau, d, fl), make)

@@ -136,8 +136,10 @@ def container_overhead(num_chunks: int) -> int:
 
 
 def num_chunks(stage: Stage) -> int:
-    """Chunks of the stage's file: per layer GEOM, ATTR (and SHVQ with SH), plus META."""
-    return len(stage.layers) * (3 if stage.sh.shape[1] else 2) + 1
+    """Chunks of the stage's file: per layer GEOM, ATTR (and SHVQ with SH, and SHXF with a
+    colour transform), plus META."""
+    per_part = (4 if stage.sh_colour else 3) if stage.sh.shape[1] else 2
+    return len(stage.layers) * per_part + 1
 
 
 def search_meta(stage: Stage, target: int, extra: dict) -> dict:

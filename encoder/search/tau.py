@@ -39,7 +39,8 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
         loss, rate, shapes = attribute_tables(stage, sopts.blocks, weights)
     meta_guess = 400
     base_fixed = (container_overhead(num_chunks(stage)) + stage.geometry_bytes + meta_guess
-                  + (2 + 8 * 7) * len(stage.layers) + group_meta_bytes(shapes))
+                  + (2 + 8 * 7 + (1 if stage.sh_colour else 0)) * len(stage.layers)
+                  + group_meta_bytes(shapes))
     args = (stage, target, sopts, progress, loss, rate, shapes, base_fixed)
     if not sh_models:
         res = calibrate(*args, None, errors=errors, path=None)

@@ -1,0 +1,77 @@
+"""The colour space the encoder codes the SH rest in (SHXF chunk, GSZ.md §8.2).
+
+A view-dependent change in a real capture is mostly a change of brightness, so the three colour
+channels of one SH rest coefficient are strongly correlated.  Rotated to luma and two chroma
+differences by an orthonormal matrix (squared errors, VQ distances and the size of a rendered
+error stay those of RGB), the chroma channels are small and code in fewer bits: +0.6 to +1.8 dB
+at the peers' bytes on trained and noised scenes (docs/design/sh-colour.md).  Inputs whose SH
+rest sit on a coarse grid (converted from SPZ, SOG, compressed.ply) are coded exactly by the
+RGB groups and a rotation smears the grid, so "auto" keeps RGB for them.
+
+The forward transform is the encoder's own; the inverse is the decoder's
+(:func:`gsz.decoder.sh.luma_chroma_to_rgb`), the truth both sides reconstruct with.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..decoder.cloud import GaussianCloud
+from ..decoder.sh import SH_COLOUR_LUMA_CHROMA, SH_COLOUR_RGB
+
+#: --sh-colour values: "auto" picks per input, the others force a space
+SH_COLOUR_CHOICES = ("auto", "rgb", "luma-chroma")
+#: "auto" keeps RGB when the median SH rest component has at most this many distinct values
+#: among the sampled Gaussians: a delivery format's grid (SPZ's few-bit SH: 3-14; the shared
+#: flowers' finer grid 507-942 and trained or noised scenes nearly every value gain from luma/chroma)
+GRID_DISTINCT_MAX = 64
+#: Gaussians sampled (evenly spaced) for the distinct-value count: the count is a few sorts
+DISTINCT_SAMPLE = 1 << 16
+#: rows of the forward matrix: luma (R+G+B)/sqrt3, (R-G)/sqrt2, (R+G-2B)/sqrt6
+_FORWARD = np.array([[1, 1, 1], [1, -1, 0], [1, 1, -2]], np.float64)
+_FORWARD /= np.linalg.norm(_FORWARD, axis=1, keepdims=True)
+#: rows converted per step (a [65536, 15, 3] float64 block: 24 MB)
+_ROWS = 1 << 16
+
+
+def on_coarse_grid(sh_rest: np.ndarray) -> bool:
+    """Whether the SH rest [N, K, 3] sits on a delivery format's coarse grid: the median of the
+    3K components' distinct-value counts, over at most DISTINCT_SAMPLE evenly spaced Gaussians,
+    is at most GRID_DISTINCT_MAX."""
+    n = sh_rest.shape[0]
+    step = max(1, -(-n // DISTINCT_SAMPLE))
+    sample = np.asarray(sh_rest[::step], np.float32).reshape(-1, sh_rest.shape[1] * 3)
+    if sample.shape[0] == 0 or sample.shape[1] == 0:
+        return False
+    s = np.sort(sample, axis=0)
+    distinct = 1 + np.count_nonzero(s[1:] != s[:-1], axis=0)
+    return float(np.median(distinct)) <= GRID_DISTINCT_MAX
+
+
+def choose_sh_colour(cloud: GaussianCloud, mode: str = "auto") -> int:
+    """The SHXF transform id to code ``cloud``'s SH rest in: SH_COLOUR_RGB (no chunk) or
+    SH_COLOUR_LUMA_CHROMA; ``mode`` one of SH_COLOUR_CHOICES."""
+    if mode not in SH_COLOUR_CHOICES:
+        raise ValueError(f"sh_colour must be one of {', '.join(SH_COLOUR_CHOICES)}, got {mode!r}")
+    if cloud.sh_degree == 0 or mode == "rgb":
+        return SH_COLOUR_RGB
+    if mode == "luma-chroma":
+        return SH_COLOUR_LUMA_CHROMA
+    return SH_COLOUR_RGB if on_coarse_grid(cloud.sh_rest) else SH_COLOUR_LUMA_CHROMA
+
+
+def rgb_to_luma_chroma(sh_rest: np.ndarray) -> np.ndarray:
+    """float32 [N, K, 3] RGB triplets -> float32 [N, K, 3] (luma, chroma, chroma): the matrix
+    product in float64, rounded once; made _ROWS Gaussians at a time."""
+    out = np.empty(sh_rest.shape, np.float32)
+    for s in range(0, sh_rest.shape[0], _ROWS):
+        out[s:s + _ROWS] = np.asarray(sh_rest[s:s + _ROWS], np.float64) @ _FORWARD.T
+    return out
+
+
+def coded_cloud(cloud: GaussianCloud, colour: int) -> GaussianCloud:
+    """``cloud`` with its SH rest in the colour space ``colour`` codes them in (itself for RGB)."""
+    if colour == SH_COLOUR_RGB:
+        return cloud
+    return dataclasses.replace(cloud, sh_rest=rgb_to_luma_chroma(cloud.sh_rest))
