@@ -112,3 +112,16 @@ def test_rwgt_vector_needs_the_leaf_weights(monkeypatch):
     for wrong in _decoded_on_each_path(data):
         assert not np.array_equal(wrong.scales, right.scales)
         np.testing.assert_array_equal(wrong.opacities, right.opacities)
+
+
+def test_shxf_vector_needs_the_colour_transform(monkeypatch):
+    # the SHXF vector is only worth its bytes if a decoder that ignores the transform fails it
+    import gsz.decoder.sh as sh
+    data = (VEC / "sh2_jug_2k_shxf.gsz").read_bytes()
+    right = decode(data)
+    for other in _decoded_on_each_path(data):
+        assert other.equals(right)                  # both paths turn it back bit for bit
+    monkeypatch.setattr(sh, "read_sh_colour", lambda chunk: 0)
+    for wrong in _decoded_on_each_path(data):
+        assert not np.array_equal(wrong.sh_rest, right.sh_rest)
+        np.testing.assert_array_equal(wrong.sh_dc, right.sh_dc)

@@ -71,6 +71,10 @@ VECTORS = [
     # SHCL chunk takes RWGT's classes (its Q byte 0, GSZ.md §8.1)
     ("sh1_jug_2k_rwgt", "measuring_jug_sh3_12k.ply", 2000, 1,
      dict(reserve=1.0, bits=8, codebook=32, keep=2000, sh_classes=4, raht_classes=4)),
+    # the SH colour transform (GSZ.md §8.2, format 1.6): 2000 Gaussians at SH degree 2 whose
+    # vectors, 600 kept and the rest codewords, are stored as luma/chroma (an SHXF chunk)
+    ("sh2_jug_2k_shxf", "measuring_jug_sh3_12k.ply", 2000, 2,
+     dict(raht_classes=1, reserve=1.0, bits=10, codebook=32, keep=600, sh_colour="luma-chroma")),
 ]
 #: vectors whose scales and opacities get seeded Gaussian noise of this sigma before encoding
 NOISED = {"sh0_plant_3000_laplace": 0.05}
@@ -100,9 +104,10 @@ def intermediates(data: bytes) -> list[dict]:
     from gsz.decoder.geometry import read_geometry
     from gsz.decoder.groups import read_channel_set
     from gsz.decoder.attributes import read_raht_weights
-    from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, KNOWN_CHUNKS
+    from gsz.decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_SHXF,
+                                    KNOWN_CHUNKS)
     from gsz.decoder.octree import read_scheme
-    from gsz.decoder.sh import read_sh_classes
+    from gsz.decoder.sh import read_sh_classes, read_sh_colour
     from gsz.decoder.morton import morton_encode
     from gsz.decoder.raht import build_raht_tree, raht_inverse
     from gsz.decoder.rans import decode_stream
@@ -166,6 +171,8 @@ def intermediates(data: bytes) -> list[dict]:
             sh["indices_sha256"] = sha(idx, "<u4")
             sh["indices_first"] = idx[:8].tolist()
             row["shvq"] = sh
+            if CHUNK_SHXF in got:
+                row["shxf"] = {"transform": read_sh_colour(c.chunks[got[CHUNK_SHXF]].data)}
         rows.append(row)
     return rows
 

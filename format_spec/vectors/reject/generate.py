@@ -373,6 +373,7 @@ def _part_vectors(sh1: bytes, lay2: bytes, add) -> None:
         "GSZ.md §5 symbol within 0..2^bits-1 (kept SH set)", "quantisation symbol")
     _shcl_vectors(sh1, m, add)
     _rwgt_vectors(sh1, m, add)
+    _shxf_vectors(sh1, add)
 
 
 def with_shcl(base: bytes, m: int, payload: bytes, *, kept_all: bool = True, flags: int = 1) -> bytes:
@@ -450,6 +451,35 @@ def _rwgt_vectors(sh1: bytes, m: int, add) -> None:
         "SH classes taken from an RWGT chunk the part does not have")
     add("shcl_from_rwgt_trailing_byte", with_shcl(with_rwgt(sh1, ok), m, b"\x00\x00"),
         "GSZ.md §8.1 nothing after the Q byte 0", "SHCL chunk: 1 unexpected trailing bytes")
+
+
+def with_shxf(base: bytes, payload: bytes, *, flags: int = 1) -> bytes:
+    """``base`` with an SHXF chunk (GSZ.md §8.2) of ``payload`` right before layer 0's SHVQ (where
+    the encoder puts it)."""
+    h, chunks = split(base)
+    i = next(k for k, c in enumerate(chunks) if c[0] == b"SHVQ")
+    return join(h, chunks[:i] + [[b"SHXF", flags, payload]] + chunks[i:])
+
+
+def _shxf_vectors(sh1: bytes, add) -> None:
+    """SHXF (GSZ.md §8.2): the valid chunk is the one byte 1 (luma/chroma; the base's SH vectors
+    are all 0, so any transform decodes them)."""
+    ok = bytes([1])
+    add("shxf_transform_0", with_shxf(sh1, b"\x00"), "GSZ.md §8.2 transform id 1",
+        "unknown SH colour transform 0")
+    add("shxf_transform_2", with_shxf(sh1, b"\x02"), "GSZ.md §8.2 transform id 1",
+        "unknown SH colour transform 2")
+    add("shxf_empty", with_shxf(sh1, b""), "GSZ.md §8.2 one byte (no transform id)", "SHXF chunk: truncated")
+    add("shxf_trailing_byte", with_shxf(sh1, ok + b"\x00"), "GSZ.md §8.2 nothing after",
+        "SHXF chunk: 1 unexpected trailing bytes")
+    h, chunks = split(with_shxf(sh1, ok))
+    i = next(k for k, c in enumerate(chunks) if c[0] == b"SHXF")
+    add("shxf_twice_in_a_layer", join(h, chunks[:i + 1] + chunks[i:]), "GSZ.md §4 one SHXF per part",
+        "layer 0 has two SHXF chunks")
+    # SH degree 0 without the SHVQ chunk, so that the SHXF chunk is the one rule broken
+    h, chunks = split(with_header(with_shxf(sh1, ok), "<B", 24, 0))
+    add("shxf_in_sh0_file", join(h, [c for c in chunks if c[0] != b"SHVQ"]), "GSZ.md §4 SHXF when sh_degree = 0",
+        "SHXF chunk in a file of SH degree 0")
 
 
 def _direct_vectors(add) -> None:
