@@ -115,7 +115,8 @@ def measure(path: Path, repeats: int, encode_too: bool = False, paths=("numpy", 
             totals["attributes"] += dt
             if c.header.sh_degree > 0:
                 dt, (_, cb) = best_of(lambda: read_sh(ch[CHUNK_SHVQ], gh.num_points, c.header.sh_degree,
-                                                      codebook, ch.get(b"SHCL")), repeats)
+                                                      codebook, ch.get(b"SHCL"), colour_chunk=ch.get(b"SHXF")),
+                                              repeats)
                 totals["sh"] += dt
                 codebooks[part.tile] = cb if codebook is None else codebook
 
