@@ -106,6 +106,8 @@ class EncodeReport:
     memory: dict                # peak RSS {peak_rss_mb, stages: {stage: {peak_mb, rise_mb}}}
     cpu_seconds: float          # CPU seconds of the process over the encode (all its threads)
     target_bytes: int | None = None   # the size budget (None: a fixed configuration)
+    sh_colour: str | None = None      # the SH rest's colour space in the file, "rgb" or "luma-chroma"
+    #                                   (an SHXF chunk); None without SH rest
     bits: dict | None = None    # group widths {raht: [7][B], scales: [3][B], raht_channels, scale_channels,
     #                             sh, sh_kept: per part [D][B] or None}; a fixed encode's once charted
     input_fixes: list | None = None   # the input values sanitising bounded or dropped; None: none
@@ -136,6 +138,8 @@ class EncodeReport:
         f = self.fixed
         # the fixed JSON's "sh": the SH coder's counts, {} without SH
         sh = {"kept": self.sh_keep, "codebook_size": self.codebook_size} if self.sh_degree > 0 else {}
+        if sh and self.sh_colour is not None:
+            sh["colour"] = self.sh_colour
         return {"bytes": self.bytes, "input_gaussians": self.input_gaussians,
                 "kept_after_prune": f.kept_after_prune, "voxels": self.voxels,
                 "bytes_per_gaussian": self.bytes_per_gaussian, "depth": self.depth,
@@ -151,6 +155,7 @@ class EncodeReport:
                "input_gaussians": self.input_gaussians, "voxels": self.voxels,
                "bytes_per_gaussian": self.bytes_per_gaussian, "sh_degree": self.sh_degree,
                "codebook_size": self.codebook_size, "sh_keep": self.sh_keep, "sh_path": s.sh_path,
+               "sh_colour": self.sh_colour,
                "layers": self.layers, "layer_blocks": s.layer_blocks, "bits": self.bits,
                "calibration": s.calibration, "calibration_all": s.calibration_all,
                "first_layer": s.first_layer, "candidates": s.candidates, "screened": s.screened,

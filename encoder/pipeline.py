@@ -43,6 +43,7 @@ from .geometry import write_geometry
 from .groups import QUANT_CHANNELS, write_channel_set
 from .importance import prune, top_k_mask
 from .progress import Progress
+from .sh_colour import choose_sh_colour, coded_cloud, sh_colour_name
 from .voxelize import SourcedRows  # noqa: F401  (a Stage's SH rows; re-exported)
 
 
@@ -1283,7 +1284,6 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
         importance = compute_train_importance(cloud, opts, cameras=cameras, progress=progress)
     elif kept is not None:
         importance = importance[kept]
-    from .sh_colour import choose_sh_colour, coded_cloud
     colour = choose_sh_colour(cloud, opts.sh_colour)
     cloud = coded_cloud(cloud, colour)
     from .executor import make_executor
@@ -1346,6 +1346,7 @@ def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, st
         mode=MODE_FIXED, bytes=len(data), input_gaussians=n_in, voxels=m, bytes_per_gaussian=len(data) / m,
         depth=stage.depth, sh_degree=cloud.sh_degree, reserve=opts.reserve,
         codebook_size=sh_stats.get("codebook_size", 0), sh_keep=sh_stats.get("kept", 0), components=sizes,
+        sh_colour=sh_colour_name(stage.sh_colour) if cloud.sh_degree else None,
         layers=layer_report(data), seconds=dict(progress.seconds), total_seconds=time.perf_counter() - starts[0],
         memory=progress.memory_report(), cpu_seconds=time.process_time() - starts[1],
         fixed=FixedDetails(kept_after_prune=stage.kept,

@@ -49,6 +49,11 @@ def on_coarse_grid(sh_rest: np.ndarray) -> bool:
     return float(np.median(distinct)) <= GRID_DISTINCT_MAX
 
 
+def sh_colour_name(colour: int) -> str:
+    """The --sh-colour name of an SHXF transform id (reports)."""
+    return "luma-chroma" if colour == SH_COLOUR_LUMA_CHROMA else "rgb"
+
+
 def choose_sh_colour(cloud: GaussianCloud, mode: str = "auto") -> int:
     """The SHXF transform id to code ``cloud``'s SH rest in: SH_COLOUR_RGB (no chunk) or
     SH_COLOUR_LUMA_CHROMA; ``mode`` one of SH_COLOUR_CHOICES."""

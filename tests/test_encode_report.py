@@ -11,12 +11,14 @@ from codec_util import sample
 from gsz.encoder.encode_report import (MODE_FIXED, MODE_SEARCH, EncodeReport, FixedDetails, SearchDetails,
                                        WrittenFile)
 
-# the keys gsz-encode --json printed before the typed report (captured on tests/data samples)
+# the keys gsz-encode --json printed before the typed report (captured on tests/data samples),
+# and keys added since at the place given: the search's "sh_colour" (format 1.6) after "sh_path"
 FIXED = ["bytes", "input_gaussians", "kept_after_prune", "voxels", "bytes_per_gaussian", "depth",
          "merged_fraction", "sh_degree", "components", "sh", "seconds", "total_seconds", "memory", "options",
          "layers"]
 SEARCH = ["mode", "target_bytes", "bytes", "deviation", "reserve", "depth", "input_gaussians", "voxels",
-          "bytes_per_gaussian", "sh_degree", "codebook_size", "sh_keep", "sh_path", "layers", "layer_blocks",
+          "bytes_per_gaussian", "sh_degree", "codebook_size", "sh_keep", "sh_path", "sh_colour", "layers",
+          "layer_blocks",
           "bits", "calibration", "calibration_all", "first_layer", "candidates", "screened", "dropped",
           "train_psnr", "channel_weights", "beta", "eval_views", "eval_size", "components", "seconds",
           "total_seconds", "memory", "cpu_seconds"]

@@ -69,6 +69,7 @@ def test_round_trip_on_both_decoder_paths(n, layers, tiles):
     parts = sum(ch.type == b"GEOM" for ch in c.chunks)
     assert sum(ch.type == CHUNK_SHXF for ch in c.chunks) == parts > 0     # one per part
     assert lowest_version(res.data) == "1.6" and c.header.version == (1, 6)
+    assert res.report.to_json()["sh"]["colour"] == "luma-chroma"
     with native.numpy_only():
         ref = decode(res.data)
     assert ref.equals(res.cloud)                 # the encoder's reconstruction is the decoder's
@@ -93,6 +94,7 @@ def test_size_search_codes_luma_chroma_within_budget_and_decodes_to_its_cloud():
                                                                     eval_width=240, importance_width=240))
     assert target * 0.995 <= len(res.data) <= target
     assert any(ch.type == CHUNK_SHXF for ch in read_container(res.data).chunks)
+    assert res.report.to_json()["sh_colour"] == "luma-chroma"
     with native.numpy_only():
         assert decode(res.data).equals(res.cloud)
 

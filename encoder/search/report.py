@@ -8,6 +8,7 @@ import numpy as np
 from ...decoder.layout import DIRECT_CHANNELS, RAHT_CHANNELS
 
 from ..encode_report import MODE_SEARCH, EncodeReport, SearchDetails
+from ..sh_colour import sh_colour_name
 from ..pipeline import layer_report
 from .candidate import Candidate
 from .options import SH_BITS
@@ -36,6 +37,7 @@ def search_report(search, chosen: Candidate) -> EncodeReport:
         input_gaussians=len(search.cloud), voxels=enc.num_points,
         bytes_per_gaussian=len(data) / enc.num_points, sh_degree=search.cloud.sh_degree if sh else 0,
         codebook_size=enc.codebook_size, sh_keep=enc.sh_keep if sh else 0,
+        sh_colour=sh_colour_name(search.sh_colour) if sh else None,
         layers=layer_report(data),
         bits={"raht": enc.raht_bits.tolist(), "scales": enc.scale_bits.tolist(),
               "raht_channels": list(RAHT_CHANNELS), "scale_channels": list(DIRECT_CHANNELS),
