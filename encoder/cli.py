@@ -134,7 +134,7 @@ def _run_fixed(a, prog) -> EncodeReport:
                          workers=a.workers, raht_classes=a.raht_classes, sh_colour=a.sh_colour).validate()
     _check_paths(a)                           # after the options: their errors come first
     cloud, cameras = _read_inputs(a, prog)
-    result = encode(cloud, opts, cameras=cameras, progress=prog, source=a.input)
+    result = encode(cloud, opts, cameras=cameras, progress=prog, source=a.input, reuse_input=True)
     r = _finish(a, result)
     _write_report(a, r, result.data)
     return r
@@ -173,8 +173,9 @@ def _run_search(a, prog) -> EncodeReport:
                           layers=a.layers, first_layer=a.first_layer, tile_gaussians=a.tile_gaussians or None,
                           executor=a.executor, workers=a.workers, raht_classes=a.raht_classes,
                           codebook=a.codebook, sh_colour=a.sh_colour)
+    # the cloud is the CLI's own and not read again: the encoder may overwrite it (1 GB less at 6 M)
     result = encode_to_budget(cloud, payload_target, options=sopts, cameras=cameras, progress=prog,
-                              source=a.input)
+                              source=a.input, reuse_input=True)
     r = _finish(a, result, target=format_size(target, style))
     if payload_target != target:              # the budget the user gave is the .glb's
         r.target_bytes, r.written.gsz_target_bytes = target, payload_target

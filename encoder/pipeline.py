@@ -1262,13 +1262,15 @@ def compute_train_importance(cloud: GaussianCloud, opts: SceneOptions, *, camera
 
 def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, cameras=None,
            importance: np.ndarray | None = None, progress: Progress | None = None,
-           source: str | None = None) -> EncodeResult:
+           source: str | None = None, reuse_input: bool = False) -> EncodeResult:
     """Compress ``cloud`` with ``options``; ``cameras`` are the train views for importance
     (default: the deterministic default camera set).  ``importance`` [N] skips the importance
     pass when the caller already has it (e.g. several encodes of one scene).  Absurd values are
     bounded and far-away Gaussians dropped first (:mod:`gsz.encoder.sanitize`: one
     GszInputWarning per fix, naming ``source``).  Returns the .gsz bytes, the cloud the decoder
-    will reconstruct, and a report (sizes per component, seconds per stage, input fixes)."""
+    will reconstruct, and a report (sizes per component, seconds per stage, input fixes).
+    ``reuse_input``: the caller is done with ``cloud``; its arrays may be overwritten instead
+    of copied (the SH rest's colour transform)."""
     from .sanitize import fixes_report, sanitize_cloud
     opts = (options or EncodeOptions()).validate()
     progress = progress or Progress(quiet=True)
@@ -1285,7 +1287,7 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
     elif kept is not None:
         importance = importance[kept]
     colour = choose_sh_colour(cloud, opts.sh_colour)
-    cloud = coded_cloud(cloud, colour)
+    cloud = coded_cloud(cloud, colour, in_place=reuse_input)
     from .executor import make_executor
     executor = make_executor(opts.executor, opts.workers)
     try:

@@ -66,17 +66,25 @@ def choose_sh_colour(cloud: GaussianCloud, mode: str = "auto") -> int:
     return SH_COLOUR_RGB if on_coarse_grid(cloud.sh_rest) else SH_COLOUR_LUMA_CHROMA
 
 
-def rgb_to_luma_chroma(sh_rest: np.ndarray) -> np.ndarray:
+def rgb_to_luma_chroma(sh_rest: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """float32 [N, K, 3] RGB triplets -> float32 [N, K, 3] (luma, chroma, chroma): the matrix
-    product in float64, rounded once; made _ROWS Gaussians at a time."""
-    out = np.empty(sh_rest.shape, np.float32)
+    product in float64, rounded once; made _ROWS Gaussians at a time (``out`` may be
+    ``sh_rest`` itself: each step reads its rows before writing them)."""
+    out = np.empty(sh_rest.shape, np.float32) if out is None else out
     for s in range(0, sh_rest.shape[0], _ROWS):
         out[s:s + _ROWS] = np.asarray(sh_rest[s:s + _ROWS], np.float64) @ _FORWARD.T
     return out
 
 
-def coded_cloud(cloud: GaussianCloud, colour: int) -> GaussianCloud:
-    """``cloud`` with its SH rest in the colour space ``colour`` codes them in (itself for RGB)."""
+def coded_cloud(cloud: GaussianCloud, colour: int, in_place: bool = False) -> GaussianCloud:
+    """``cloud`` with its SH rest in the colour space ``colour`` codes them in (itself for RGB).
+    ``in_place``: the caller no longer needs ``cloud``'s values, so a writable float32 SH rest
+    is overwritten rather than copied (the copy is 1 GB at 6 M SH-3 Gaussians)."""
     if colour == SH_COLOUR_RGB:
         return cloud
-    return dataclasses.replace(cloud, sh_rest=rgb_to_luma_chroma(cloud.sh_rest))
+    rest = cloud.sh_rest
+    if in_place and isinstance(rest, np.ndarray) and rest.dtype == np.float32 and rest.flags.writeable \
+            and rest.flags.c_contiguous:
+        rgb_to_luma_chroma(rest, out=rest)
+        return cloud
+    return dataclasses.replace(cloud, sh_rest=rgb_to_luma_chroma(rest))

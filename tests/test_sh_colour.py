@@ -108,3 +108,12 @@ def test_a_bad_sh_colour_option_is_a_clear_error(tmp_path, capsys):
         main([str(tmp_path / "x.ply"), "-o", str(tmp_path / "x.gsz"), "--sh-colour", "ycc"])
     assert "invalid choice: 'ycc'" in capsys.readouterr().err
     assert not (tmp_path / "x.gsz").exists()
+
+
+def test_the_callers_cloud_is_left_alone_unless_it_is_handed_over():
+    cloud = _noised(2000)
+    before = cloud.sh_rest.copy()
+    a = encode(cloud, EncodeOptions(**FAST, keep=300))
+    np.testing.assert_array_equal(cloud.sh_rest, before)          # an API caller's scene
+    b = encode(cloud, EncodeOptions(**FAST, keep=300), reuse_input=True)   # the CLI's: reused
+    assert a.data == b.data and not np.array_equal(cloud.sh_rest, before)

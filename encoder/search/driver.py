@@ -33,7 +33,8 @@ from .tau import encode_tau
 
 def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None = None,
                      importance: np.ndarray | None = None, cameras=None,
-                     progress: Progress | None = None, source: str | None = None) -> EncodeResult:
+                     progress: Progress | None = None, source: str | None = None,
+                     reuse_input: bool = False) -> EncodeResult:
     """Encode ``cloud`` into at most ``target_bytes`` bytes with the best train-view fidelity.
 
     Returns EncodeResult(data, cloud, report); the EncodeReport has target, actual bytes, the chosen
@@ -41,7 +42,9 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     round, candidates with their train PSNR, and seconds per stage.  Raises BudgetError with the
     smallest reachable size when the budget cannot be met.  Absurd input values are bounded and
     far-away Gaussians dropped first, as :func:`gsz.encoder.pipeline.encode` does (``source``
-    names the scene in the warnings).
+    names the scene in the warnings).  ``reuse_input``: the caller is done with ``cloud`` (the
+    CLI, which read it): its arrays may be overwritten instead of copied (the SH rest's colour
+    transform, :func:`gsz.encoder.sh_colour.coded_cloud`).
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -66,7 +69,7 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     # the search works in the coded colour space throughout: its renders compare those colours
     # (the squared errors are RGB's: an orthonormal rotation; only the clamp at 0 differs) and
     # the result's cloud is the decoder's, back in RGB
-    cloud = coded_cloud(cloud, colour)
+    cloud = coded_cloud(cloud, colour, in_place=reuse_input)
 
     # every candidate's octree is coded on this thread while the caller computes the candidate's
     # SH statistics and rate tables (flowers: ~1.4 s of each ~10 s candidate)
