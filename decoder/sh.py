@@ -80,23 +80,43 @@ def read_sh_colour(data) -> int:
     return t
 
 
-def luma_chroma_to_rgb(v: np.ndarray) -> np.ndarray:
-    """float32 [..., 3] stored (a, b, c) triplets -> float32 [..., 3] (R, G, B), bit for bit as
-    GSZ.md §8.2 defines it (and the native sh_assemble computes it): in float64,
-    R = (a*S3 + b*S2) + c*S6, G = (a*S3 - b*S2) + c*S6, B = a*S3 - 2*(c*S6), rounded once."""
-    x = np.asarray(v, np.float32)
-    a = x[..., 0].astype(np.float64)
+def _luma_chroma_inverse(a, b, c, r, g, bl) -> None:
+    """The GSZ.md §8.2 inverse, bit for bit (as the native sh_assemble computes it), from the
+    float32 stored components a, b, c into the float32 r, g, bl (arrays of one shape; the
+    outputs may be the inputs): in float64, R = (a*S3 + b*S2) + c*S6,
+    G = (a*S3 - b*S2) + c*S6, B = a*S3 - 2*(c*S6), each rounded once."""
+    a = a.astype(np.float64)
     a *= _S3
-    b = x[..., 1].astype(np.float64)
+    b = b.astype(np.float64)
     b *= _S2
-    c = x[..., 2].astype(np.float64)
+    c = c.astype(np.float64)
     c *= _S6
+    t = np.add(a, b)
+    t += c
+    r[...] = t
+    np.subtract(a, b, out=t)
+    t += c
+    g[...] = t
+    c += c
+    np.subtract(a, c, out=t)
+    bl[...] = t
+
+
+def luma_chroma_to_rgb(v: np.ndarray) -> np.ndarray:
+    """float32 [..., 3] stored (a, b, c) triplets -> float32 [..., 3] (R, G, B) (GSZ.md §8.2)."""
+    x = np.asarray(v, np.float32)
     out = np.empty(x.shape, np.float32)
-    out[..., 0] = (a + b) + c
-    out[..., 1] = (a - b) + c
-    c *= 2.0
-    out[..., 2] = a - c
+    _luma_chroma_inverse(x[..., 0], x[..., 1], x[..., 2], out[..., 0], out[..., 1], out[..., 2])
     return out
+
+
+def luma_chroma_planes_to_rgb(v: np.ndarray) -> None:
+    """The same inverse in place on channel-major stored vectors: float32 [D, n] (D = 3K rows,
+    component-major as stored), each row a contiguous run -- the layout a ChannelSet decodes
+    to, where the three planes of a coefficient are read without strides."""
+    p = v.view()
+    p.shape = (v.shape[0] // 3, 3, v.shape[1])       # a view or an error, never a silent copy
+    _luma_chroma_inverse(p[:, 0], p[:, 1], p[:, 2], p[:, 0], p[:, 1], p[:, 2])
 
 
 #: SHCL's class count byte that means "the classes of the part's RWGT chunk" (GSZ.md §8.1, 1.5)
@@ -197,14 +217,17 @@ def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray 
             dest = dest[class_order(classes)]
         for j0 in range(0, p, _KEPT_BLOCK):
             j1 = min(p, j0 + _KEPT_BLOCK)
+            if colour:             # on the stored planes: contiguous runs, the block in cache
+                luma_chroma_planes_to_rgb(kept[:, j0:j1])
             block = np.ascontiguousarray(kept[:, j0:j1].T, dtype=np.float32)
-            if colour:
-                block = luma_chroma_to_rgb(block.reshape(-1, k, 3)).reshape(-1, d)
             items[dest[j0:j1]] = block.view(item)[:, 0]
     if coded is not None:
-        rows = np.ascontiguousarray(codebook.T, dtype=np.float32)
-        if colour:       # a codeword's rows turned to RGB once: the same values as every use of it
-            rows = luma_chroma_to_rgb(rows.reshape(-1, k, 3)).reshape(-1, d)
+        if colour:       # a codeword turned to RGB once: the same values as every use of it
+            cb32 = codebook.astype(np.float32)
+            luma_chroma_planes_to_rgb(cb32)
+            rows = np.ascontiguousarray(cb32.T)
+        else:
+            rows = np.ascontiguousarray(codebook.T, dtype=np.float32)
         items[coded] = rows.view(item)[:, 0].take(idx)
     return out.reshape(m, k, 3), codebook, None
 
