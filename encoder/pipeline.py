@@ -1327,6 +1327,8 @@ def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, st
     options_json = dict(asdict(opts), depth=stage.depth, blocks=blocks)
     if int(opts.sh_classes) == 1:   # the files of the default stay as they were
         del options_json["sh_classes"]
+    if opts.sh_colour == "auto":    # so too here: the file's SHXF chunks say what auto chose
+        del options_json["sh_colour"]
     for k in ("executor", "workers"):      # where the work ran does not shape the file
         del options_json[k]
     if stage.num_tiles == 1:       # the option shaped nothing (one-tile files stay 1.1 files)
