@@ -28,8 +28,7 @@ from ..decoder.container import (CHUNK_ENTRY_SIZE, CHUNK_REQUIRED, FRAME_RDF, LA
                                  write_container)
 from ..decoder.errors import GszUsageError
 from ..decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_SHXF,
-                              RAHT_CHANNELS,
-                                ROTATION_EULER_ZYX)
+                              RAHT_CHANNELS, ROTATION_EULER_ZYX)
 from ..decoder.morton import morton_encode
 from ..decoder.raht import build_raht_tree
 from ..decoder.rotation import quaternion_to_euler
@@ -43,7 +42,7 @@ from .geometry import write_geometry
 from .groups import QUANT_CHANNELS, write_channel_set
 from .importance import prune, top_k_mask
 from .progress import Progress
-from .sh_colour import choose_sh_colour, coded_cloud, sh_colour_name
+from .sh_colour import SH_COLOUR_CHOICES, choose_sh_colour, coded_cloud, sh_colour_name
 from .voxelize import SourcedRows  # noqa: F401  (a Stage's SH rows; re-exported)
 
 
@@ -202,7 +201,6 @@ class SceneOptions:
         check_tile_option(self.tile_gaussians, bad)
         if not (1 <= int(self.raht_classes) <= MAX_RAHT_CLASSES):
             bad(f"--raht-classes must be 1..{MAX_RAHT_CLASSES}, got {self.raht_classes}")
-        from .sh_colour import SH_COLOUR_CHOICES
         if self.sh_colour not in SH_COLOUR_CHOICES:
             bad(f"--sh-colour must be one of {', '.join(SH_COLOUR_CHOICES)}, got {self.sh_colour!r}")
         from .executor import check_executor
