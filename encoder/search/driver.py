@@ -263,7 +263,7 @@ class BudgetSearch:
             top = self.stage_for(self.taus[0])
             with self.progress.stage("tables", f"tau {self.taus[0]}: size bounds"):
                 bounds = size_bounds(top, self.sopts.blocks)
-            self.judge = Judge(self.cloud, self.sopts, self.progress, cameras)
+            self.judge = Judge(self.cloud, self.sopts, self.progress, cameras, sh_colour=self.sh_colour)
             if codebooks is not None:
                 self.codebooks = codebooks.result()
         return bounds

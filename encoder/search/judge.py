@@ -10,6 +10,7 @@ from ...decoder.cloud import MADE_ROWS_STEP, MadeRows
 from ...decoder.pages import trim_heap
 from ...decoder.threads import for_ranges
 from ...evaluation.cameras import load_cameras
+from ..sh_colour import rgb_view
 from .options import SearchOptions
 from .sensitivity import channel_weights
 
@@ -111,9 +112,13 @@ def rows_once(cloud):
 class Judge:
     """The train views, their reference renders and the channel weights of one search."""
 
-    def __init__(self, cloud, sopts: SearchOptions, progress, cameras=None):
+    def __init__(self, cloud, sopts: SearchOptions, progress, cameras=None, sh_colour: int = 0):
+        """``sh_colour``: the SHXF transform the search's clouds hold their SH rest in; every
+        cloud is rendered in RGB (:func:`gsz.encoder.sh_colour.rgb_view`), as a decoder shows it."""
         from ...evaluation.metrics import quantize_8bit
         from ...evaluation.render import render
+        self.sh_colour = sh_colour
+        cloud = rows_once(self.view(cloud))
         self.cameras = eval_cameras(cloud, sopts, cameras)
         with progress.stage("eval-reference", f"{len(self.cameras)} train views"):
             # float renders (the first two also serve as the sensitivity's base), 8-bit as
@@ -127,10 +132,14 @@ class Judge:
                 self.weights = channel_weights(cloud, self.cameras[:2], seed=sopts.seed,
                                                base_images=ref_float[:2])
 
+    def view(self, cloud):
+        """``cloud`` as rendered: its SH rest in RGB."""
+        return rgb_view(cloud, self.sh_colour)
+
     def score(self, cloud, best_views=None) -> tuple[float, list, int]:
         """:func:`train_psnr` on this search's views."""
-        return train_psnr(self.refs, rows_once(cloud), self.cameras, best_views)
+        return train_psnr(self.refs, rows_once(self.view(cloud)), self.cameras, best_views)
 
     def screen(self, cloud, best_views) -> tuple[float, int]:
         """:func:`screen_psnr` on this search's views."""
-        return screen_psnr(self.refs, rows_once(cloud), self.cameras, best_views)
+        return screen_psnr(self.refs, rows_once(self.view(cloud)), self.cameras, best_views)

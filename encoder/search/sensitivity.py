@@ -115,6 +115,7 @@ def channel_weights(cloud, cameras, *, seed: int = 0, base_images=None) -> dict:
     sh = 0.0
     if cloud.sh_degree > 0:
         sg = _SENS_SIGMA["sh"]
-        sh = sensitivity(variant(sh_rest=noised_rows(cloud.sh_rest, rng, sg)), sg, cloud.sh_rest[0].size * n)
+        per_gaussian = int(np.prod(cloud.sh_rest.shape[1:]))     # (a MadeRows is not made whole)
+        sh = sensitivity(variant(sh_rest=noised_rows(cloud.sh_rest, rng, sg)), sg, per_gaussian * n)
     norm = float(np.mean(raht + scales))
     return {"raht": [w / norm for w in raht], "scales": [w / norm for w in scales], "sh": sh / norm}
