@@ -305,7 +305,7 @@ def page_search(rd: dict, scaling, above) -> str:
     lines = header("Size search", "`encode_to_budget` (what `gsz-encode --size/--ratio` runs) at every budget of "
                    "the RD benchmark: how close to the budget, what it chose, how long it took.", src)
     so = meta.get("search_options", {})
-    lines += ["Options: the run's `SearchOptions`, in `bench/out/rd.json` (`meta.search_options`).", ""]
+    lines += ["Options: the run's `SearchOptions` (`meta.search_options` of `bench/out/rd.json`).", ""]
     tol = so.get("tolerance", 0.005)
     over = sum(1 for r in g if r["bytes"] > r["target"])
     within = sum(1 for r in g if r["bytes"] >= r["target"] * (1 - tol))
@@ -318,7 +318,7 @@ def page_search(rd: dict, scaling, above) -> str:
               f"{meta['views']} default test views at {meta['width']} px (never seen by the search).", ""]
     lines += ["Per point: the file's bytes (against the budget), the chosen τ / octree depth, SH codebook size "
               "K / kept exact SH vectors, candidates encoded / screened out, wall seconds of the search (+ the "
-              "importance pass).  Test PSNR per point: [rd.md](rd.md); calibration rounds and CPU seconds: "
+              "importance pass).  Test PSNR: [rd.md](rd.md); calibration rounds, CPU seconds: "
               "`bench/out/rd.json`.", ""]
     variants = sorted({k[1] for k in groups})
     order = {b: i for i, b in enumerate([f"{r:g}x" for r in sorted(meta["ratios"], reverse=True)] + ["sog", "spz"])}
