@@ -118,7 +118,7 @@ class Judge:
         from ...evaluation.metrics import quantize_8bit
         from ...evaluation.render import render
         self.sh_colour = sh_colour
-        cloud = rows_once(self.view(cloud))
+        cloud = self.rendered(cloud)
         self.cameras = eval_cameras(cloud, sopts, cameras)
         with progress.stage("eval-reference", f"{len(self.cameras)} train views"):
             # float renders (the first two also serve as the sensitivity's base), 8-bit as
@@ -132,14 +132,18 @@ class Judge:
                 self.weights = channel_weights(cloud, self.cameras[:2], seed=sopts.seed,
                                                base_images=ref_float[:2])
 
-    def view(self, cloud):
-        """``cloud`` as rendered: its SH rest in RGB."""
-        return rgb_view(cloud, self.sh_colour)
+    def rendered(self, cloud):
+        """``cloud`` as rendered: its SH rest in RGB, made whole once (:func:`rows_once`) only
+        where they were row-made already (a candidate's decoded SH); a whole SH rest turned
+        to RGB stays row-made, a range per render, so no second whole copy is held."""
+        made = isinstance(cloud.sh_rest, MadeRows)
+        view = rgb_view(cloud, self.sh_colour)
+        return rows_once(view) if made else view
 
     def score(self, cloud, best_views=None) -> tuple[float, list, int]:
         """:func:`train_psnr` on this search's views."""
-        return train_psnr(self.refs, rows_once(self.view(cloud)), self.cameras, best_views)
+        return train_psnr(self.refs, self.rendered(cloud), self.cameras, best_views)
 
     def screen(self, cloud, best_views) -> tuple[float, int]:
         """:func:`screen_psnr` on this search's views."""
-        return screen_psnr(self.refs, rows_once(self.view(cloud)), self.cameras, best_views)
+        return screen_psnr(self.refs, self.rendered(cloud), self.cameras, best_views)
