@@ -118,7 +118,9 @@ class Judge:
         from ...evaluation.metrics import quantize_8bit
         from ...evaluation.render import render
         self.sh_colour = sh_colour
-        cloud = self.rendered(cloud)
+        # the references and ~13 sensitivity renders read the RGB rows: made once (at most
+        # WHOLE_SH_MAX_BYTES, dropped after the set-up) rather than per render (+12 s at 1.2 M)
+        cloud = self.rendered(cloud, whole=True)
         self.cameras = eval_cameras(cloud, sopts, cameras)
         with progress.stage("eval-reference", f"{len(self.cameras)} train views"):
             # float renders (the first two also serve as the sensitivity's base), 8-bit as
@@ -132,13 +134,14 @@ class Judge:
                 self.weights = channel_weights(cloud, self.cameras[:2], seed=sopts.seed,
                                                base_images=ref_float[:2])
 
-    def rendered(self, cloud):
-        """``cloud`` as rendered: its SH rest in RGB, made whole once (:func:`rows_once`) only
-        where they were row-made already (a candidate's decoded SH); a whole SH rest turned
-        to RGB stays row-made, a range per render, so no second whole copy is held."""
+    def rendered(self, cloud, whole: bool = False):
+        """``cloud`` as rendered: its SH rest in RGB, made whole once (:func:`rows_once`) where
+        they were row-made already (a candidate's decoded SH) or ``whole``; otherwise a whole
+        SH rest turned to RGB stays row-made, a range per render (a screened grid: no second
+        whole copy beside it for its few renders)."""
         made = isinstance(cloud.sh_rest, MadeRows)
         view = rgb_view(cloud, self.sh_colour)
-        return rows_once(view) if made else view
+        return rows_once(view) if made or whole else view
 
     def score(self, cloud, best_views=None) -> tuple[float, list, int]:
         """:func:`train_psnr` on this search's views."""
