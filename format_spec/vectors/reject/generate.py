@@ -83,6 +83,13 @@ def replace_chunk(data: bytes, ctype: bytes, new: bytes, layer: int = 0) -> byte
     raise KeyError(ctype)
 
 
+def twice(data: bytes, ctype: bytes) -> bytes:
+    """``data`` with its first ``ctype`` chunk written twice in a row (one part, two of a kind)."""
+    h, chunks = split(data)
+    i = next(k for k, c in enumerate(chunks) if c[0] == ctype)
+    return join(h, chunks[:i + 1] + chunks[i:])
+
+
 def chunk(data: bytes, ctype: bytes, layer: int = 0) -> bytes:
     return next(d for t, f, d in split(data)[1] if t == ctype and (f >> 8) & 0xFF == layer)
 
@@ -407,9 +414,7 @@ def _shcl_vectors(sh1: bytes, m: int, add) -> None:
     add("shcl_without_kept_vectors", with_shcl(sh1, m, ok, kept_all=False), "GSZ.md §8.1 P > 0",
         "SH classes for a part without kept SH vectors")
     two = with_shcl(sh1, m, ok)
-    h, chunks = split(two)
-    i = next(k for k, c in enumerate(chunks) if c[0] == b"SHCL")
-    add("shcl_twice_in_a_layer", join(h, chunks[:i + 1] + chunks[i:]), "GSZ.md §4 one SHCL per part",
+    add("shcl_twice_in_a_layer", twice(two, b"SHCL"), "GSZ.md §4 one SHCL per part",
         "layer 0 has two SHCL chunks")
     add("shcl_in_sh0_file", with_header(two, "<B", 24, 0), "GSZ.md §4 SHCL when sh_degree = 0",
         "SHCL chunk in a file of SH degree 0")
@@ -443,9 +448,7 @@ def _rwgt_vectors(sh1: bytes, m: int, add) -> None:
         "2 models, more than the 1 its use can name")
     add("rwgt_trailing_byte", with_rwgt(sh1, ok + b"\x00"), "GSZ.md §7.1 nothing after",
         "RWGT chunk: 1 unexpected trailing bytes")
-    h, chunks = split(with_rwgt(sh1, ok))
-    i = next(k for k, c in enumerate(chunks) if c[0] == b"RWGT")
-    add("rwgt_twice_in_a_layer", join(h, chunks[:i + 1] + chunks[i:]), "GSZ.md §4 one RWGT per part",
+    add("rwgt_twice_in_a_layer", twice(with_rwgt(sh1, ok), b"RWGT"), "GSZ.md §4 one RWGT per part",
         "layer 0 has two RWGT chunks")
     add("shcl_from_rwgt_without_rwgt", with_shcl(sh1, m, b"\x00"), "GSZ.md §8.1 Q = 0 needs the part's RWGT",
         "SH classes taken from an RWGT chunk the part does not have")
@@ -472,9 +475,7 @@ def _shxf_vectors(sh1: bytes, add) -> None:
     add("shxf_empty", with_shxf(sh1, b""), "GSZ.md §8.2 one byte (no transform id)", "SHXF chunk: truncated")
     add("shxf_trailing_byte", with_shxf(sh1, ok + b"\x00"), "GSZ.md §8.2 nothing after",
         "SHXF chunk: 1 unexpected trailing bytes")
-    h, chunks = split(with_shxf(sh1, ok))
-    i = next(k for k, c in enumerate(chunks) if c[0] == b"SHXF")
-    add("shxf_twice_in_a_layer", join(h, chunks[:i + 1] + chunks[i:]), "GSZ.md §4 one SHXF per part",
+    add("shxf_twice_in_a_layer", twice(with_shxf(sh1, ok), b"SHXF"), "GSZ.md §4 one SHXF per part",
         "layer 0 has two SHXF chunks")
     # SH degree 0 without the SHVQ chunk, so that the SHXF chunk is the one rule broken
     h, chunks = split(with_header(with_shxf(sh1, ok), "<B", 24, 0))
