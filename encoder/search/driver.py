@@ -19,6 +19,7 @@ from ...decoder.pages import small_pages
 from ..pipeline import (EncodeOptionsError, EncodeResult, Stage, attribute_chunks, compute_train_importance,
                         prepare_stage, raht_classes_for, sh_chunk, sh_set_blocks, voxelize_stage, write_file)
 from ..progress import Progress
+from ..sh_colour import choose_sh_colour, coded_cloud
 from .candidate import Candidate, best_of
 from .codebooks import Codebooks
 from .depth_walk import depth_range, first_depth, rewalk_depth, start_depth, walk_depth
@@ -59,17 +60,7 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
         importance = importance[kept]
     from .bound import check_reachable
     check_reachable(cloud, target_bytes, options)      # before the importance pass: fails fast
-    from ..sh_colour import choose_sh_colour, coded_cloud
     sopts = options or SearchOptions()
-
-    def bad(msg):
-        raise EncodeOptionsError(msg)
-    sopts.check_scene_options(bad)
-    colour = choose_sh_colour(cloud, sopts.sh_colour)
-    # the search works in the coded colour space throughout: its renders compare those colours
-    # (the squared errors are RGB's: an orthonormal rotation; only the clamp at 0 differs) and
-    # the result's cloud is the decoder's, back in RGB
-    cloud = coded_cloud(cloud, colour, in_place=reuse_input)
 
     # every candidate's octree is coded on this thread while the caller computes the candidate's
     # SH statistics and rate tables (flowers: ~1.4 s of each ~10 s candidate)
@@ -78,7 +69,8 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     try:
         with _search_threads(), small_pages(), \
                 ThreadPoolExecutor(max_workers=1, thread_name_prefix="gsz-geom") as pool:
-            search = BudgetSearch(cloud, target_bytes, sopts, progress, pool, executor, sh_colour=colour)
+            search = BudgetSearch(cloud, target_bytes, sopts, progress, pool, executor,
+                                  reuse_input=reuse_input)
             result = search.run(importance, cameras)
     finally:
         executor.close()
@@ -153,18 +145,22 @@ class BudgetSearch:
     judge and candidates, and the records the report shows."""
 
     def __init__(self, cloud, target_bytes: int, sopts: SearchOptions, progress: Progress | None,
-                 geometry_pool, executor=None, sh_colour: int = 0):
+                 geometry_pool, executor=None, reuse_input: bool = False):
         def bad(msg):
             raise EncodeOptionsError(msg)
         sopts.check_scene_options(bad)
-        self.sopts, self.cloud, self.geometry_pool = sopts, cloud, geometry_pool
-        self.executor = executor
-        self.sh_colour = sh_colour        # the SHXF transform cloud's SH rest are in
-        self.progress = progress or Progress(quiet=True)
         self.target = int(target_bytes)
         if self.target <= 0:
             raise BudgetError(self.target, 1)
         cloud.validate()
+        # the search codes, quantises and allocates in the SH colour space the file will hold
+        # (squared errors are RGB's: the rotation is orthonormal); the judge renders in RGB and
+        # the result's cloud is the decoder's.  ``reuse_input``: ``cloud`` may be overwritten
+        self.sh_colour = choose_sh_colour(cloud, sopts.sh_colour)
+        cloud = coded_cloud(cloud, self.sh_colour, in_place=reuse_input)
+        self.sopts, self.cloud, self.geometry_pool = sopts, cloud, geometry_pool
+        self.executor = executor
+        self.progress = progress or Progress(quiet=True)
         self.taus = sorted(set(float(t) for t in sopts.reserves), reverse=True)
         self.importance = self.depth = self.anchor = self.judge = None
         self.codebooks: list = []
