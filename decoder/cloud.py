@@ -94,6 +94,26 @@ class MadeRows:
         return out if dtype is None else out.astype(dtype, copy=False)
 
 
+class ColourRows(MadeRows):
+    """An SH rest [N, K, 3] held in another colour space: its rows are ``coded``'s rows (an
+    array or a :class:`MadeRows` of the same shape) times ``matrix`` (float32 [3, 3], a row
+    triplet ``c`` becomes ``c @ matrix``).  SH colour is linear in the SH rest, so the renderer
+    turns each Gaussian's view-dependent colour instead and reads ``coded`` as it is: no row
+    range is made, and a whole ``coded`` takes the renderer's whole-array path."""
+
+    def __init__(self, coded, matrix):
+        self.coded = coded
+        self.matrix = np.ascontiguousarray(matrix, np.float32)
+        if self.matrix.shape != (3, 3) or coded.ndim != 3 or coded.shape[2] != 3:
+            raise ValueError(f"ColourRows: a [N, K, 3] field and a [3, 3] matrix expected, got "
+                             f"{coded.shape} and {self.matrix.shape}")
+
+        def rows(s: int, e: int) -> np.ndarray:
+            r = np.asarray(coded[s:e], np.float32)
+            return (r.reshape(-1, 3) @ self.matrix).reshape(r.shape)
+        super().__init__(coded.shape, rows)
+
+
 @dataclass
 class GaussianCloud:
     """A 3D Gaussian Splatting scene as float32 numpy arrays, in pre-activation form.

@@ -17,7 +17,7 @@ import dataclasses
 
 import numpy as np
 
-from ..decoder.cloud import GaussianCloud, MadeRows
+from ..decoder.cloud import ColourRows, GaussianCloud
 from ..decoder.sh import SH_COLOUR_LUMA_CHROMA, SH_COLOUR_RGB
 
 #: --sh-colour values: "auto" picks per input, the others force a space
@@ -92,16 +92,13 @@ def coded_cloud(cloud: GaussianCloud, colour: int, in_place: bool = False) -> Ga
 
 def rgb_view(cloud: GaussianCloud, colour: int) -> GaussianCloud:
     """``cloud`` (SH rest coded in ``colour``) as the renders the search compares should see it:
-    its SH rest back in RGB, made a row range at a time (:class:`MadeRows`: no copy of the
-    whole field), in float32 -- within an ulp of the decoder's exact inverse, which a render's
-    PSNR cannot tell apart.  Rendering the rotated colours instead misjudges saturated pixels
-    (the clamps at 0 and 1 fall elsewhere): tiny at 12x scored 0.2 dB above its true PSNR."""
+    its SH rest back in RGB as :class:`ColourRows` -- the renderer reads the coded field as it
+    is and turns each Gaussian's view-dependent colour (float32: within an ulp or so of the
+    decoder's exact inverse, which a render's PSNR cannot tell apart; no second copy of the
+    field, and a whole one keeps the renderer's whole-array path).  Rendering the rotated
+    colours instead misjudges saturated pixels (the clamps at 0 and 1 fall elsewhere): tiny at
+    12x scored 0.2 dB above its true PSNR."""
     if colour == SH_COLOUR_RGB or cloud.sh_degree == 0:
         return cloud
-    rest = cloud.sh_rest
-    inverse = np.ascontiguousarray(_FORWARD, np.float32)      # orthonormal: x @ F = F^T x
-
-    def rows(s: int, e: int) -> np.ndarray:
-        r = np.asarray(rest[s:e], np.float32)
-        return (r.reshape(-1, 3) @ inverse).reshape(r.shape)
-    return dataclasses.replace(cloud, sh_rest=MadeRows(rest.shape, rows))
+    # orthonormal: the inverse is the transpose, and a row triplet c turns to c @ _FORWARD
+    return dataclasses.replace(cloud, sh_rest=ColourRows(cloud.sh_rest, _FORWARD))

@@ -69,7 +69,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from ..decoder.cloud import GaussianCloud, MadeRows
+from ..decoder.cloud import ColourRows, GaussianCloud, MadeRows
 from ..decoder.errors import GszError
 from .cameras import Camera, look_at, robust_bounds
 
@@ -197,8 +197,15 @@ def _made_rows(arr: MadeRows):
         yield s, s + rows.shape[0], rows
 
 
-def _eval_sh(deg: int, dc: torch.Tensor, rest: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
-    """graphdeco computeColorFromSH without the +0.5/clamp: [M,3] from dc [M,3], rest [M,K,3]."""
+def _eval_sh(deg: int, dc: torch.Tensor, rest: torch.Tensor, dirs: torch.Tensor,
+             colour: torch.Tensor | None = None) -> torch.Tensor:
+    """graphdeco computeColorFromSH without the +0.5/clamp: [M,3] from dc [M,3], rest [M,K,3].
+    ``colour`` [3, 3]: ``rest`` is held in another colour space (:class:`ColourRows`); its
+    view-dependent sum v is turned to ``v @ colour`` before the DC term is added."""
+    if colour is not None:
+        v = _eval_sh(deg, torch.zeros_like(dc), rest, dirs)
+        # term by term, in the C++ kernel's order
+        return SH_C0 * dc + (v[:, 0:1] * colour[0] + v[:, 1:2] * colour[1] + v[:, 2:3] * colour[2])
     result = SH_C0 * dc
     if deg > 0:
         x, y, z = (dirs[:, i:i + 1] for i in range(3))
@@ -223,7 +230,7 @@ def _eval_sh(deg: int, dc: torch.Tensor, rest: torch.Tensor, dirs: torch.Tensor)
 
 
 def _preprocess(cloud: GaussianCloud, camera: Camera, deg: int, scale_modifier: float,
-                want_color: bool = True) -> _Projected:
+                want_color: bool = True, colour: np.ndarray | None = None) -> _Projected:
     W, H = camera.width, camera.height
     fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
     R64 = torch.from_numpy(camera.R)
@@ -293,7 +300,8 @@ def _preprocess(cloud: GaussianCloud, camera: Camera, deg: int, scale_modifier: 
         campos = torch.from_numpy(camera.center).float()
         dirs = pos[idx] - campos
         dirs = dirs / dirs.norm(dim=1, keepdim=True)
-        colors = torch.clamp_min(_eval_sh(deg, dc, rest, dirs) + 0.5, 0.0).contiguous()
+        turn = torch.from_numpy(colour) if colour is not None and k else None
+        colors = torch.clamp_min(_eval_sh(deg, dc, rest, dirs, turn) + 0.5, 0.0).contiguous()
     else:
         colors = torch.zeros((len(idx), 3), dtype=torch.float32)
 
@@ -512,8 +520,10 @@ def _backend() -> str:
 
 
 def _render_arrays(cloud: GaussianCloud, camera: Camera, deg: int, scale_modifier: float,
-                   want_color: bool, want_importance: bool, backend: str):
-    """(image [H,W,3] f32 without background, T [H,W] f32, importance [N] f64 or None)."""
+                   want_color: bool, want_importance: bool, backend: str,
+                   colour: np.ndarray | None = None):
+    """(image [H,W,3] f32 without background, T [H,W] f32, importance [N] f64 or None);
+    ``colour``: the [3, 3] matrix of an SH rest held in another colour space (ColourRows)."""
     W, H = camera.width, camera.height
     kern = _load_kernel() if backend in ("auto", "cpp") else None
     if kern is None and backend == "cpp":
@@ -531,7 +541,7 @@ def _render_arrays(cloud: GaussianCloud, camera: Camera, deg: int, scale_modifie
             cloud = dataclasses.replace(cloud, sh_rest=whole)
         made = False
     if kern is None:
-        p = _preprocess(cloud, camera, deg, scale_modifier, want_color)
+        p = _preprocess(cloud, camera, deg, scale_modifier, want_color, colour)
         img, trans, imp_vis = _rasterize_torch(p, W, H, want_importance)
         imp = None
         if want_importance:
@@ -545,14 +555,15 @@ def _render_arrays(cloud: GaussianCloud, camera: Camera, deg: int, scale_modifie
     f32 = [torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32)) for a in (
         cloud.positions, cloud.scales, cloud.rotations, cloud.opacities, cloud.sh_dc, rest)]
     cam_t = torch.from_numpy(cam)
+    turn = torch.from_numpy(colour if colour is not None and k else np.zeros(0, np.float32))
     # a made SH rest: colours after preprocessing, a row range at a time (its rows never whole)
     means, conic, opac, colors, boxes, order = kern.preprocess(
-        *f32, cam_t, W, H, 0 if made else deg, float(scale_modifier), bool(want_color and not made),
-        nthreads)
+        *f32, turn, cam_t, W, H, 0 if made else deg, float(scale_modifier),
+        bool(want_color and not made), nthreads)
     if made:
         for s, e, rows in _made_rows(cloud.sh_rest):
             kern.sh_colors(f32[0][s:e], f32[4][s:e], torch.from_numpy(np.ascontiguousarray(rows[:, :k])),
-                           cam_t, deg, colors[s:e], nthreads)
+                           turn, cam_t, deg, colors[s:e], nthreads)
     img, trans, imp = kern.rasterize(means, conic, opac, colors, boxes, order, W, H,
                                      bool(want_importance), nthreads)
     return img, trans, (imp.numpy() if want_importance else None)
@@ -566,6 +577,12 @@ def _render(cloud: GaussianCloud, camera: Camera, *, background=(0.0, 0.0, 0.0),
             sh_degree: int | None = None, return_importance: bool = False,
             scale_modifier: float = 1.0, backend: str | None = None,
             want_color: bool = True) -> RenderOutput:
+    colour = None
+    if isinstance(cloud, GaussianCloud) and isinstance(cloud.sh_rest, ColourRows):
+        # the coded field is read as it is and its colours turned (the same colours, rounded
+        # apart): no row range made, and a whole field keeps the whole-array path
+        colour = cloud.sh_rest.matrix
+        cloud = dataclasses.replace(cloud, sh_rest=cloud.sh_rest.coded)
     deg = _check_inputs(cloud, camera, sh_degree)
     bg = np.asarray(background, dtype=np.float32).reshape(-1)
     if bg.shape != (3,) or not np.isfinite(bg).all():
@@ -574,7 +591,7 @@ def _render(cloud: GaussianCloud, camera: Camera, *, background=(0.0, 0.0, 0.0),
         raise GszError(f"render: scale_modifier must be positive, got {scale_modifier}")
     with torch.no_grad():
         img, trans, importance = _render_arrays(cloud, camera, deg, scale_modifier, want_color,
-                                                return_importance, backend or _backend())
+                                                return_importance, backend or _backend(), colour)
     trans_np = trans.numpy()
     image = img.numpy() + trans_np[..., None] * bg[None, None, :]
     return RenderOutput(image=np.ascontiguousarray(image, dtype=np.float32),

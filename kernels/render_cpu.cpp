@@ -233,38 +233,62 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
   return {image, trans, importance};
 }
 
+// graphdeco computeColorFromSH's sum for colour channel ch from `res` on (the DC term, or 0):
+// rest [K, 3] (coefficient-major, RGB last; K >= (deg+1)^2-1), unit view direction x, y, z.
+static inline float sh_sum(const float* rs, int ch, int64_t deg, float x, float y, float z, float res) {
+  auto sh = [&](int k) { return rs[3 * k + ch]; };
+  if (deg > 0) {
+    const float C1 = (float)0.4886025119029199;
+    res = res - C1 * y * sh(0) + C1 * z * sh(1) - C1 * x * sh(2);
+    if (deg > 1) {
+      const float xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
+      res = res + (float)1.0925484305920792 * xy * sh(3) + (float)-1.0925484305920792 * yz * sh(4) +
+            (float)0.31539156525252005 * (2.0f * zz - xx - yy) * sh(5) +
+            (float)-1.0925484305920792 * xz * sh(6) + (float)0.5462742152960396 * (xx - yy) * sh(7);
+      if (deg > 2) {
+        res = res + (float)-0.5900435899266435 * y * (3.0f * xx - yy) * sh(8) +
+              (float)2.890611442640554 * xy * z * sh(9) +
+              (float)-0.4570457994644658 * y * (4.0f * zz - xx - yy) * sh(10) +
+              (float)0.3731763325901154 * z * (2.0f * zz - 3.0f * xx - 3.0f * yy) * sh(11) +
+              (float)-0.4570457994644658 * x * (4.0f * zz - xx - yy) * sh(12) +
+              (float)1.445305721320277 * z * (xx - yy) * sh(13) +
+              (float)-0.5900435899266435 * x * (xx - 3.0f * yy) * sh(14);
+      }
+    }
+  }
+  return res;
+}
+
 // graphdeco computeColorFromSH + 0.5, clamped at 0, of one Gaussian: position p [3], dc [3], rest
-// [K, 3] (coefficient-major, RGB last; K >= (deg+1)^2-1), camera centre campos [3] -> out [3].
-// One definition for preprocess and sh_colors, so both round alike.
+// [K, 3], camera centre campos [3] -> out [3]. `turn` (nullptr, or a row-major [3, 3]): the rest
+// is held in another colour space, so its view-dependent sum v is turned to v @ turn before the
+// DC term is added (render.py's ColourRows; the torch path's order). One definition for
+// preprocess and sh_colors, so both round alike.
 static inline void sh_color(const float* p, const float* dc, const float* rs, int64_t deg,
-                            const float campos[3], float* out) {
+                            const float campos[3], const float* turn, float* out) {
   float dx = p[0] - campos[0], dy = p[1] - campos[1], dz = p[2] - campos[2];
   const float dn = std::sqrt(dx * dx + dy * dy + dz * dz);
   const float x = dx / dn, y = dy / dn, z = dz / dn;
-  for (int ch = 0; ch < 3; ++ch) {
-    auto sh = [&](int k) { return rs[3 * k + ch]; };
-    float res = (float)0.28209479177387814 * dc[ch];
-    if (deg > 0) {
-      const float C1 = (float)0.4886025119029199;
-      res = res - C1 * y * sh(0) + C1 * z * sh(1) - C1 * x * sh(2);
-      if (deg > 1) {
-        const float xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
-        res = res + (float)1.0925484305920792 * xy * sh(3) + (float)-1.0925484305920792 * yz * sh(4) +
-              (float)0.31539156525252005 * (2.0f * zz - xx - yy) * sh(5) +
-              (float)-1.0925484305920792 * xz * sh(6) + (float)0.5462742152960396 * (xx - yy) * sh(7);
-        if (deg > 2) {
-          res = res + (float)-0.5900435899266435 * y * (3.0f * xx - yy) * sh(8) +
-                (float)2.890611442640554 * xy * z * sh(9) +
-                (float)-0.4570457994644658 * y * (4.0f * zz - xx - yy) * sh(10) +
-                (float)0.3731763325901154 * z * (2.0f * zz - 3.0f * xx - 3.0f * yy) * sh(11) +
-                (float)-0.4570457994644658 * x * (4.0f * zz - xx - yy) * sh(12) +
-                (float)1.445305721320277 * z * (xx - yy) * sh(13) +
-                (float)-0.5900435899266435 * x * (xx - 3.0f * yy) * sh(14);
-        }
-      }
-    }
-    out[ch] = std::max(res + 0.5f, 0.0f);
+  const float C0 = (float)0.28209479177387814;
+  if (turn == nullptr || rs == nullptr || deg == 0) {
+    for (int ch = 0; ch < 3; ++ch)
+      out[ch] = std::max(sh_sum(rs, ch, deg, x, y, z, C0 * dc[ch]) + 0.5f, 0.0f);
+    return;
   }
+  float v[3];
+  for (int ch = 0; ch < 3; ++ch) v[ch] = sh_sum(rs, ch, deg, x, y, z, 0.0f);
+  for (int ch = 0; ch < 3; ++ch) {
+    const float view = v[0] * turn[ch] + v[1] * turn[3 + ch] + v[2] * turn[6 + ch];
+    out[ch] = std::max(C0 * dc[ch] + view + 0.5f, 0.0f);
+  }
+}
+
+// The [3, 3] colour turn of an SH rest (render.py's ColourRows), or nullptr for an empty tensor.
+static const float* colour_turn(const torch::Tensor& turn) {
+  if (turn.numel() == 0) return nullptr;
+  TORCH_CHECK(turn.dtype() == torch::kFloat32 && turn.numel() == 9 && turn.is_contiguous(),
+              "colour turn: 9 contiguous float32 expected");
+  return turn.data_ptr<float>();
 }
 
 // Camera centre -R^T t, as float (render.py: torch.from_numpy(camera.center).float()).
@@ -280,11 +304,11 @@ static void camera_centre(const double* cm, float campos[3]) {
 // boxes, int32 order, no visibility mask: a culled row keeps depth 0): at 6 M Gaussians a
 // render's arrays are a search's memory peak.
 //   positions [N,3], log_scales [N,3], rotations [N,4] (w,x,y,z), opacity_logits [N],
-//   sh_dc [N,3], sh_rest [N,K,3] (K >= (deg+1)^2-1), cam = [R (9, row-major), t (3), fx, fy,
-//   cx, cy] float64.
+//   sh_dc [N,3], sh_rest [N,K,3] (K >= (deg+1)^2-1), turn (empty, or [3,3] f32: sh_color's),
+//   cam = [R (9, row-major), t (3), fx, fy, cx, cy] float64.
 std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log_scales,
                                       torch::Tensor rotations, torch::Tensor opacity_logits,
-                                      torch::Tensor sh_dc, torch::Tensor sh_rest,
+                                      torch::Tensor sh_dc, torch::Tensor sh_rest, torch::Tensor turn,
                                       torch::Tensor cam, int64_t width, int64_t height,
                                       int64_t deg, double scale_modifier, bool want_color,
                                       int64_t num_threads) {
@@ -320,6 +344,7 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
   const float* O = opacity_logits.data_ptr<float>();
   const float* DC = sh_dc.data_ptr<float>();
   const float* REST = K ? sh_rest.data_ptr<float>() : nullptr;
+  const float* TURN = colour_turn(turn);
   float* mp = means.data_ptr<float>(); float* cp = conic.data_ptr<float>();
   float* op = opac.data_ptr<float>(); float* colp = colors.data_ptr<float>();
   int16_t* bp = boxes.data_ptr<int16_t>();
@@ -422,7 +447,8 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
         if (bx[2] <= bx[0] || bx[3] <= bx[1]) bx[0] = bx[1] = bx[2] = bx[3] = 0;
         for (int k = 0; k < 4; ++k) bp[4 * i + k] = static_cast<int16_t>(bx[k]);  // <= W, H
       }
-      if (want_color) sh_color(P + 3 * i, DC + 3 * i, REST ? REST + 3 * K * i : nullptr, deg, campos, colp + 3 * i);
+      if (want_color)
+        sh_color(P + 3 * i, DC + 3 * i, REST ? REST + 3 * K * i : nullptr, deg, campos, TURN, colp + 3 * i);
     }
   });
   // Front-to-back order of the visible Gaussians; stable so equal depths keep index order.
@@ -469,11 +495,11 @@ std::vector<torch::Tensor> preprocess(torch::Tensor positions, torch::Tensor log
 }
 
 // The colours preprocess computes (want_color), of every row of a row range: positions [n,3],
-// sh_dc [n,3], sh_rest [n,K,3], cam as preprocess's -> out [n,3] f32 (contiguous, written in
+// sh_dc [n,3], sh_rest [n,K,3], turn and cam as preprocess's -> out [n,3] f32 (contiguous, written in
 // place). A caller whose SH rest is made a row range at a time (render.py) fills preprocess's
 // colours with it; rows preprocess culls are never read by rasterize.
-void sh_colors(torch::Tensor positions, torch::Tensor sh_dc, torch::Tensor sh_rest, torch::Tensor cam,
-               int64_t deg, torch::Tensor out, int64_t num_threads) {
+void sh_colors(torch::Tensor positions, torch::Tensor sh_dc, torch::Tensor sh_rest, torch::Tensor turn,
+               torch::Tensor cam, int64_t deg, torch::Tensor out, int64_t num_threads) {
   positions = positions.contiguous(); sh_dc = sh_dc.contiguous(); sh_rest = sh_rest.contiguous();
   cam = cam.contiguous();
   TORCH_CHECK(cam.dtype() == torch::kFloat64 && cam.numel() == 16, "cam: 16 float64 expected");
@@ -488,10 +514,11 @@ void sh_colors(torch::Tensor positions, torch::Tensor sh_dc, torch::Tensor sh_re
   const float* P = positions.data_ptr<float>();
   const float* DC = sh_dc.data_ptr<float>();
   const float* REST = K ? sh_rest.data_ptr<float>() : nullptr;
+  const float* TURN = colour_turn(turn);
   float* colp = out.data_ptr<float>();
   parallel_chunks(n, num_threads, [&](int64_t begin, int64_t end) {
     for (int64_t i = begin; i < end; ++i)
-      sh_color(P + 3 * i, DC + 3 * i, REST ? REST + 3 * K * i : nullptr, deg, campos, colp + 3 * i);
+      sh_color(P + 3 * i, DC + 3 * i, REST ? REST + 3 * K * i : nullptr, deg, campos, TURN, colp + 3 * i);
   });
 }
 

@@ -379,6 +379,35 @@ def test_sh_rest_made_a_row_range_at_a_time_renders_the_same(sample_sh3, backend
         R._render(made, cam, sh_degree=0, backend=backend)
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_sh_rest_in_another_colour_space_renders_as_turned_back(sample_sh3, backend):
+    """A ColourRows SH rest (the search's luma/chroma clouds) renders as its rows turned back
+    to RGB do, to float rounding, whether the coded field is whole or row-made, at every
+    degree; the two coded forms render bit for bit alike (one kernel path turns both)."""
+    from gsz.decoder.cloud import ColourRows, MadeRows
+    c = sample_sh3.subset(np.arange(0, len(sample_sh3), 3))
+    turn = np.linalg.qr(np.random.default_rng(5).normal(size=(3, 3)))[0].astype(np.float32)
+    coded = np.ascontiguousarray((c.sh_rest.reshape(-1, 3) @ turn.T).reshape(c.sh_rest.shape))
+    rgb = (coded.reshape(-1, 3).astype(np.float64) @ turn).astype(np.float32).reshape(coded.shape)
+
+    def with_rest(rest):
+        return GaussianCloud(c.positions, c.scales, c.rotations, c.opacities, c.sh_dc, rest,
+                             c.sh_degree)
+    whole = with_rest(ColourRows(coded, turn))
+    made = with_rest(ColourRows(MadeRows(coded.shape, lambda a, b: coded[a:b].copy()), turn))
+    assert np.allclose(np.asarray(whole.sh_rest), rgb, atol=1e-6)
+    cam = R.framing_camera(c.positions, 96, 72)
+    for deg in (None, 2, 0):
+        ref = R._render(with_rest(rgb), cam, sh_degree=deg, backend=backend).image
+        a = R._render(whole, cam, sh_degree=deg, backend=backend).image
+        b = R._render(made, cam, sh_degree=deg, backend=backend).image
+        assert a.tobytes() == b.tobytes()
+        assert np.abs(a - ref).max() < 1e-5
+    # the turn matters: the coded colours rendered as if RGB are far off
+    full = R._render(with_rest(rgb), cam, backend=backend).image
+    assert np.abs(R._render(with_rest(coded), cam, backend=backend).image - full).max() > 1e-2
+
+
 def test_bad_input_raises_gsz_error(sample_sh0):
     cam = R.framing_camera(sample_sh0.positions, 32, 24)
     with pytest.raises(GszError, match="sh_degree"):

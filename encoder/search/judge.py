@@ -118,9 +118,7 @@ class Judge:
         from ...evaluation.metrics import quantize_8bit
         from ...evaluation.render import render
         self.sh_colour = sh_colour
-        # the references and ~13 sensitivity renders read the RGB rows: made once (at most
-        # WHOLE_SH_MAX_BYTES, dropped after the set-up) rather than per render (+12 s at 1.2 M)
-        cloud = self.rendered(cloud, whole=True)
+        cloud = self.rendered(cloud)
         self.cameras = eval_cameras(cloud, sopts, cameras)
         with progress.stage("eval-reference", f"{len(self.cameras)} train views"):
             # float renders (the first two also serve as the sensitivity's base), 8-bit as
@@ -134,14 +132,11 @@ class Judge:
                 self.weights = channel_weights(cloud, self.cameras[:2], seed=sopts.seed,
                                                base_images=ref_float[:2])
 
-    def rendered(self, cloud, whole: bool = False):
-        """``cloud`` as rendered: its SH rest in RGB, made whole once (:func:`rows_once`) where
-        they were row-made already (a candidate's decoded SH) or ``whole``; otherwise a whole
-        SH rest turned to RGB stays row-made, a range per render (a screened grid: no second
-        whole copy beside it for its few renders)."""
-        made = isinstance(cloud.sh_rest, MadeRows)
-        view = rgb_view(cloud, self.sh_colour)
-        return rows_once(view) if made or whole else view
+    def rendered(self, cloud):
+        """``cloud`` as rendered: a row-made SH rest (a candidate's decoded SH) made whole once
+        for all its views (:func:`rows_once`), then seen in RGB (:func:`rgb_view`: the
+        renderer turns the colours, the field is not copied)."""
+        return rgb_view(rows_once(cloud), self.sh_colour)
 
     def score(self, cloud, best_views=None) -> tuple[float, list, int]:
         """:func:`train_psnr` on this search's views."""
