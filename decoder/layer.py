@@ -30,7 +30,7 @@ from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, 
 from .pages import small_pages
 from .raht import build_raht_tree
 from .rotation import quaternion_f32_from_trig
-from .sh import read_sh_checked
+from .sh import read_sh_checked, turn_dc
 from .threads import cores
 
 
@@ -148,7 +148,7 @@ def plan_parts(entries, sh_degree: int) -> Plan:
         name = ctype.decode("ascii")
         layer, tile = (flags >> LAYER_SHIFT) & 0xFF, (flags >> TILE_SHIFT) & 0xFFFF
         tiled = tile_chunk is not None
-        if ctype in (CHUNK_SHVQ, CHUNK_SHCL, CHUNK_SHXF) and sh_degree == 0:
+        if ctype in (CHUNK_SHVQ, CHUNK_SHCL) and sh_degree == 0:
             raise GszFormatError(f"{name} chunk in a file of SH degree 0 (chunk {i})")
         if tile and not tiled:
             raise GszFormatError(f"chunk {i} ({name}) belongs to tile {tile}, but the file has no TILE chunk")
@@ -371,6 +371,9 @@ def _decode_layer(chunks: dict, header, state: LayerState, overlap: bool, label:
         rwgt = _read_weights(chunks, m)
         cloud = _finish_layer(gh, codes, _read_attributes_and_sh(chunks, header, state, m, dest, rwgt),
                               header, state, dest, leaf_weights=leaf_weights_of(rwgt))
+    # the DC colour's SHXF transform (1.7), on the f32 values every path made alike
+    if not turn_dc(chunks.get(CHUNK_SHXF), cloud.sh_dc, header.sh_degree):
+        _check_finite({name: name != "sh_dc" for name in FIELDS})
     state.decoded_points += m
     return cloud
 

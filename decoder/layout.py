@@ -7,7 +7,7 @@ CHUNK_META = b"META"   # zstd-compressed UTF-8 JSON, informative only (optional)
 CHUNK_TILE = b"TILE"   # tile table: per spatial tile its bounding box and Gaussian count (1.2)
 CHUNK_SHCL = b"SHCL"   # importance classes of a part's kept SH vectors: their coding order (1.3)
 CHUNK_RWGT = b"RWGT"   # importance classes and weights of a part's RAHT leaves (1.5)
-CHUNK_SHXF = b"SHXF"   # the colour space a part's SH vectors are coded in: luma/chroma (1.6)
+CHUNK_SHXF = b"SHXF"   # the colour space of a part's SH vectors (1.6) and DC colour (1.7): luma/chroma
 KNOWN_CHUNKS = (CHUNK_GEOM, CHUNK_ATTR, CHUNK_SHVQ, CHUNK_META, CHUNK_TILE, CHUNK_SHCL, CHUNK_RWGT,
                 CHUNK_SHXF)
 

@@ -28,11 +28,13 @@ Gaussians finer SH than unimportant ones::
 With SHCL, the kept ChannelSet stores the kept vectors ordered by (class, Morton order):
 :func:`class_order` is that order, the one truth the encoder codes in.
 
-SHXF chunk (format 1.6, optional per part): the colour space the part's SH vectors are coded
-in (GSZ.md §8.2)::
+SHXF chunk (format 1.6, optional per part): the colour space the part's SH coefficients are
+coded in (GSZ.md §8.2)::
 
-    u8   transform          1 = luma/chroma: every stored (a, b, c) triplet of one coefficient
-                            is turned back into (R, G, B) by :func:`luma_chroma_to_rgb`
+    u8   transforms         bit 0 (1.6): the SH vectors are luma/chroma: every stored (a, b, c)
+                            triplet of one coefficient is turned back into (R, G, B) by
+                            :func:`luma_chroma_to_rgb`; bit 1 (1.7): so is the DC colour, after
+                            the inverse RAHT (:func:`turn_dc`); other bits 0, not both 0
 
 A view-dependent change in a real capture is mostly a change of brightness, so its three colour
 channels are strongly correlated; coded as luma and two chroma differences they take fewer bits
@@ -62,22 +64,39 @@ def class_order(classes: np.ndarray) -> np.ndarray:
     return np.argsort(c, kind="stable")
 
 
-#: SHXF transform ids (GSZ.md §8.2): 1 = luma/chroma, the only one defined
+#: SHXF transform bits (GSZ.md §8.2): 1 = the SH vectors as luma/chroma (1.6), 2 = the DC
+#: colour as luma/chroma (1.7); 0 = no SHXF chunk (RGB)
 SH_COLOUR_RGB = 0
 SH_COLOUR_LUMA_CHROMA = 1
+SH_COLOUR_DC = 2
+SH_COLOUR_BITS = SH_COLOUR_LUMA_CHROMA | SH_COLOUR_DC
 #: the inverse's float64 constants 1/sqrt(3), 1/sqrt(2), 1/sqrt(6), exactly as the spec gives them
 _S3 = float.fromhex("0x1.279a74590331dp-1")
 _S2 = float.fromhex("0x1.6a09e667f3bccp-1")
 _S6 = float.fromhex("0x1.a20bd700c2c3fp-2")
 
 
-def read_sh_colour(data) -> int:
-    """Decode an SHXF chunk: the transform id (only SH_COLOUR_LUMA_CHROMA is defined)."""
+def read_sh_colour(data, sh_degree: int | None = None) -> int:
+    """Decode an SHXF chunk: its transform bits (SH_COLOUR_LUMA_CHROMA, SH_COLOUR_DC or both);
+    ``sh_degree`` 0: the SH vector bit is rejected (the part has none)."""
     r = Reader(data, "SHXF chunk")
     t = r.u8()
-    r.check(t == SH_COLOUR_LUMA_CHROMA, f"unknown SH colour transform {t} (this decoder knows 1)")
+    r.check(t != 0 and not t & ~SH_COLOUR_BITS,
+            f"unknown SH colour transform {t} (this decoder knows 1, 2 and 3)")
+    r.check(sh_degree != 0 or not t & SH_COLOUR_LUMA_CHROMA,
+            "SH vector transform (bit 0) in a file of SH degree 0")
     r.expect_end()
     return t
+
+
+def turn_dc(colour_chunk, sh_dc: np.ndarray, sh_degree: int) -> bool:
+    """A part's decoded DC colour float32 [M, 3] turned back to RGB in place when its SHXF
+    chunk (or None) sets the DC bit (GSZ.md §8.2, 1.7); returns whether every value is finite
+    (True when nothing was turned: the caller checked the stored values)."""
+    if colour_chunk is None or not read_sh_colour(colour_chunk, sh_degree) & SH_COLOUR_DC:
+        return True
+    _luma_chroma_inverse(sh_dc[:, 0], sh_dc[:, 1], sh_dc[:, 2], sh_dc[:, 0], sh_dc[:, 1], sh_dc[:, 2])
+    return bool(np.isfinite(sh_dc).all())
 
 
 def _luma_chroma_inverse(a, b, c, r, g, bl) -> None:
@@ -184,7 +203,7 @@ def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray 
                 "codeword indices but no SH codebook in this or an earlier layer")
         kcb = 0 if codebook is None else codebook.shape[1]
     classes = None if classes_chunk is None else read_sh_classes(classes_chunk, p, voxel_classes)
-    colour = SH_COLOUR_RGB if colour_chunk is None else read_sh_colour(colour_chunk)
+    colour = SH_COLOUR_RGB if colour_chunk is None else read_sh_colour(colour_chunk) & SH_COLOUR_LUMA_CHROMA
     if native.enabled():
         sh_rest, finite = _assemble_native(r, m, k, d, p, kcb, codebook, classes, dest, voxel_classes,
                                            colour)

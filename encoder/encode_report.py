@@ -106,8 +106,8 @@ class EncodeReport:
     memory: dict                # peak RSS {peak_rss_mb, stages: {stage: {peak_mb, rise_mb}}}
     cpu_seconds: float          # CPU seconds of the process over the encode (all its threads)
     target_bytes: int | None = None   # the size budget (None: a fixed configuration)
-    sh_colour: str | None = None      # the SH rest's colour space in the file, "rgb" or "luma-chroma"
-    #                                   (an SHXF chunk); None without SH rest
+    sh_colour: str | None = None      # the colour space of the file's SH rest and DC (SHXF chunk):
+    #                                   "rgb", "luma-chroma", "luma-chroma DC" or "luma-chroma SH rest"
     bits: dict | None = None    # group widths {raht: [7][B], scales: [3][B], raht_channels, scale_channels,
     #                             sh, sh_kept: per part [D][B] or None}; a fixed encode's once charted
     input_fixes: list | None = None   # the input values sanitising bounded or dropped; None: none

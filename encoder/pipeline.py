@@ -14,6 +14,7 @@ Stages (each timed, progress on stderr):
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import time
@@ -32,7 +33,8 @@ from ..decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_RWGT, CH
 from ..decoder.morton import morton_encode
 from ..decoder.raht import build_raht_tree
 from ..decoder.rotation import quaternion_to_euler
-from ..decoder.sh import MAX_CODEBOOK, MAX_SH_CLASSES, SH_CLASSES_FROM_RWGT, class_order, luma_chroma_to_rgb
+from ..decoder.sh import (MAX_CODEBOOK, MAX_SH_CLASSES, SH_CLASSES_FROM_RWGT, SH_COLOUR_DC, SH_COLOUR_LUMA_CHROMA,
+                          class_order, luma_chroma_to_rgb)
 from ..decoder.threads import for_ranges, thread_map
 from ..evaluation.cameras import DEFAULT_VIEW_WIDTH
 
@@ -169,10 +171,11 @@ class SceneOptions:
     executor         where per-tile work runs: "local" worker processes, "inline", "ray" or
                      "ray://HOST:PORT" (:mod:`gsz.encoder.executor`); the bytes do not depend on it
     workers          worker processes / local Ray CPUs (None: the machine's cores less one)
-    sh_colour        colour space of the SH rest: "luma-chroma" (an SHXF chunk per part,
-                     format 1.6: correlated channels code in fewer bits), "rgb", or "auto":
-                     luma/chroma unless the input's SH rest sit on a delivery format's coarse
-                     grid (:mod:`gsz.encoder.sh_colour`, docs/design/sh-colour.md)
+    sh_colour        colour space of the SH rest and DC colour: "luma-chroma" (an SHXF chunk
+                     per part, format 1.7: correlated channels code in fewer bits), "rgb", or
+                     "auto": the DC as luma/chroma, the SH rest too unless they sit on a
+                     delivery format's coarse grid (:mod:`gsz.encoder.sh_colour`,
+                     docs/design/sh-colour.md)
     seed             RNG seed (VQ); the same input and options give byte-identical output
     """
 
@@ -374,8 +377,8 @@ class Stage:
     kept       Gaussians kept by pruning (before merging into M voxels)
     source     [M] int64 index into the input cloud of the one Gaussian a voxel holds, -1 where
                several were merged (lets the size search reuse per-Gaussian work across taus)
-    sh_colour  the SHXF transform id ``sh`` is coded in (gsz.decoder.sh; 0: RGB, no chunk): the
-               cloud the stage was made from already holds its SH rest in that space
+    sh_colour  the SHXF transform bits ``sh`` and the DC are coded in (gsz.decoder.sh; 0: RGB,
+               no chunk): the cloud the stage was made from already holds them in that space
     executor   where the per-tile work of a tiled stage runs (:mod:`gsz.encoder.executor`;
                None: here)
     cache      scratch for work that depends on the stage only (the size search's tables)
@@ -584,7 +587,8 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
     sh = SourcedRows.of_grid(cloud.sh_rest.reshape(len(cloud), -1), source, vox)
     return Stage(reserve=float(reserve), depth=d, layers=parts, sh=sh, importance=vox.importance,
                  sh_degree=cloud.sh_degree, input_gaussians=len(cloud), kept=len(kept), source=source,
-                 sh_colour=int(sh_colour) if cloud.sh_degree else 0, executor=executor)
+                 sh_colour=int(sh_colour) if cloud.sh_degree else int(sh_colour) & SH_COLOUR_DC,
+                 executor=executor)
 
 
 #: importance above this quantile counts as the quantile's value in class and block weights:
@@ -1162,8 +1166,10 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
     sh_rest in output order)."""
     positions = stage.positions()
     data, meta_len = write_file(stage, positions, attr, sh, meta, sh_classes)
-    if sh is not None and stage.sh_colour:
+    if sh is not None and stage.sh_colour & SH_COLOUR_LUMA_CHROMA:
         sh_rest = luma_chroma_to_rgb(sh_rest)           # what the decoder turns them into
+    if stage.sh_colour & SH_COLOUR_DC:
+        decoded = dataclasses.replace(decoded, sh_dc=luma_chroma_to_rgb(decoded.sh_dc))
     return data, decoded_cloud(stage, positions, decoded, sh_rest if sh is not None else None), meta_len
 
 
@@ -1178,7 +1184,7 @@ def decoded_cloud(stage: Stage, positions: np.ndarray, decoded, sh_rest) -> Gaus
 
 
 def sh_colour_chunk(transform: int) -> bytes:
-    """An SHXF chunk's payload (GSZ.md §8.2): the transform id."""
+    """An SHXF chunk's payload (GSZ.md §8.2): the transform bits."""
     return bytes([int(transform)])
 
 
@@ -1191,10 +1197,12 @@ def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None,
                 and format version 1.2.
     sh_classes  per part the SHCL payload or None; any SHCL makes the file version 1.3, any
                 direct-coded geometry (OCTREE.md scheme 1) 1.4.  A stage coded in a colour
-                transform (``stage.sh_colour``) gets an SHXF chunk per part and version 1.6."""
+                transform (``stage.sh_colour``) gets an SHXF chunk per part and version 1.6,
+                1.7 when it turns the DC colour."""
     import zstandard
     from ..decoder.container import (MINOR_DIRECT, MINOR_LAYERS, MINOR_RAHT_WEIGHTS, MINOR_SH_CLASSES,
-                                     MINOR_SH_COLOUR, MINOR_TILES, TILE_SHIFT, VERSION_MAJOR)
+                                     MINOR_DC_COLOUR, MINOR_SH_COLOUR, MINOR_TILES, TILE_SHIFT,
+                                     VERSION_MAJOR)
     from ..decoder.geometry import octree_scheme
     from ..decoder.octree import SCHEME_DIRECT
     from ..decoder.layout import CHUNK_TILE
@@ -1218,9 +1226,9 @@ def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None,
         if part.raht_weights is not None:
             chunks.append(Chunk(CHUNK_RWGT, part.weights_chunk, flags))
         chunks.append(Chunk(CHUNK_ATTR, attr[pi], flags))
+        if stage.sh_colour:
+            chunks.append(Chunk(CHUNK_SHXF, sh_colour_chunk(stage.sh_colour), flags))
         if sh is not None:
-            if stage.sh_colour:
-                chunks.append(Chunk(CHUNK_SHXF, sh_colour_chunk(stage.sh_colour), flags))
             if sh_classes is not None and sh_classes[pi] is not None:
                 chunks.append(Chunk(CHUNK_SHCL, sh_classes[pi], flags))
             chunks.append(Chunk(CHUNK_SHVQ, sh[pi], flags))
@@ -1231,7 +1239,8 @@ def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None,
                         bbox_min=tuple(positions.min(0)),
                         bbox_max=tuple(positions.max(0)),
                         version=(VERSION_MAJOR,
-                                 MINOR_SH_COLOUR if any(c.type == CHUNK_SHXF for c in chunks)
+                                 MINOR_DC_COLOUR if stage.sh_colour & SH_COLOUR_DC
+                                 else MINOR_SH_COLOUR if any(c.type == CHUNK_SHXF for c in chunks)
                                  else MINOR_RAHT_WEIGHTS if any(c.type == CHUNK_RWGT for c in chunks)
                                  else MINOR_DIRECT if any(c.type == CHUNK_GEOM and octree_scheme(c.data) == SCHEME_DIRECT
                                                      for c in chunks)
@@ -1348,7 +1357,7 @@ def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, st
         mode=MODE_FIXED, bytes=len(data), input_gaussians=n_in, voxels=m, bytes_per_gaussian=len(data) / m,
         depth=stage.depth, sh_degree=cloud.sh_degree, reserve=opts.reserve,
         codebook_size=sh_stats.get("codebook_size", 0), sh_keep=sh_stats.get("kept", 0), components=sizes,
-        sh_colour=sh_colour_name(stage.sh_colour) if cloud.sh_degree else None,
+        sh_colour=sh_colour_name(stage.sh_colour),
         layers=layer_report(data), seconds=dict(progress.seconds), total_seconds=time.perf_counter() - starts[0],
         memory=progress.memory_report(), cpu_seconds=time.process_time() - starts[1],
         fixed=FixedDetails(kept_after_prune=stage.kept,

@@ -206,7 +206,9 @@ def _fuzzed_files(count: int, seed: int = 20):
             pos = int(rng.integers(a, b))
             buf[pos] ^= 1 << int(rng.integers(8))
         else:               # a chunk truncated or grown (its table length fixed up as well)
-            delta = -int(rng.integers(1, min(64, b - a))) if rng.random() < 0.7 else int(rng.integers(1, 16))
+            # (a one-byte chunk, SHXF, is truncated to nothing)
+            delta = -int(rng.integers(1, min(64, b - a) if b - a > 1 else 2)) if rng.random() < 0.7 \
+                else int(rng.integers(1, 16))
             idx = [k for k, ch in enumerate(c.chunks) if ch.offset == a][0]
             buf = buf[:b + min(delta, 0)] + (bytes(rng.integers(0, 256, max(delta, 0), dtype=np.uint8))) + buf[b:]
             import struct

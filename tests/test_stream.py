@@ -192,8 +192,9 @@ def test_layer_order_is_validated(sh3_layered):
     with pytest.raises(GszFormatError, match="belongs to layer 2, but layer 1 has no chunks"):
         StreamDecoder().feed(bad)
     # layer 0's SHVQ after layer 1's chunks: layer 0 would never be complete before layer 1
-    late = [ch for ch in chunks if not (ch.type == b"SHVQ" and ch.flags >> LAYER_SHIFT == 0)]
-    late.insert(5, chunks[2])
+    shvq0 = next(ch for ch in chunks if ch.type == b"SHVQ" and ch.flags >> LAYER_SHIFT == 0)
+    late = [ch for ch in chunks if ch is not shvq0]
+    late.insert(5, shvq0)
     with pytest.raises(GszFormatError, match=r"\(SHVQ\) of layer 0 follows a chunk of layer 1"):
         decode(write_container(c.header, late))
     # a missing ATTR in layer 2

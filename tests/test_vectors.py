@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from gsz.decoder import decode
+from gsz.decoder.container import read_container
 
 VEC = Path(__file__).resolve().parent.parent / "format_spec" / "vectors"
 NAMES = sorted(p.stem for p in VEC.glob("*.gsz"))
@@ -121,7 +122,25 @@ def test_shxf_vector_needs_the_colour_transform(monkeypatch):
     right = decode(data)
     for other in _decoded_on_each_path(data):
         assert other.equals(right)                  # both paths turn it back bit for bit
-    monkeypatch.setattr(sh, "read_sh_colour", lambda chunk: 0)
+    monkeypatch.setattr(sh, "read_sh_colour", lambda chunk, sh_degree=None: 0)
     for wrong in _decoded_on_each_path(data):
         assert not np.array_equal(wrong.sh_rest, right.sh_rest)
         np.testing.assert_array_equal(wrong.sh_dc, right.sh_dc)
+
+
+@pytest.mark.parametrize("name,bits", [("sh0_plant_2k_dcxf", 2), ("sh1_jug_2k_dcxf", 3)])
+def test_dc_colour_vectors_need_the_dc_turn(monkeypatch, name, bits):
+    # format 1.7: a decoder that ignores SHXF's DC bit returns luma/chroma as the DC colour
+    import gsz.decoder.layer as layer
+    data = (VEC / f"{name}.gsz").read_bytes()
+    c = read_container(data)
+    assert c.header.version == (1, 7)
+    assert [ch.data for ch in c.chunks if ch.type == b"SHXF"] == [bytes([bits])]
+    right = decode(data)
+    for other in _decoded_on_each_path(data):
+        assert other.equals(right)
+    monkeypatch.setattr(layer, "turn_dc", lambda chunk, sh_dc, degree: True)
+    for wrong in _decoded_on_each_path(data):
+        assert not np.array_equal(wrong.sh_dc, right.sh_dc)
+        np.testing.assert_array_equal(wrong.sh_rest, right.sh_rest)
+        np.testing.assert_array_equal(wrong.opacities, right.opacities)

@@ -19,6 +19,7 @@ from ...decoder.pages import small_pages
 from ..pipeline import (EncodeOptionsError, EncodeResult, Stage, attribute_chunks, compute_train_importance,
                         prepare_stage, raht_classes_for, sh_chunk, sh_set_blocks, voxelize_stage, write_file)
 from ..progress import Progress
+from ...decoder.sh import SH_COLOUR_DC
 from ..sh_colour import choose_sh_colour, coded_cloud
 from .candidate import Candidate, best_of
 from .codebooks import Codebooks
@@ -145,7 +146,7 @@ class BudgetSearch:
     judge and candidates, and the records the report shows."""
 
     def __init__(self, cloud, target_bytes: int, sopts: SearchOptions, progress: Progress | None,
-                 geometry_pool, executor=None, reuse_input: bool = False):
+                 geometry_pool, executor=None, reuse_input: bool = False, sh_colour: int | None = None):
         def bad(msg):
             raise EncodeOptionsError(msg)
         sopts.check_scene_options(bad)
@@ -155,9 +156,14 @@ class BudgetSearch:
         cloud.validate()
         # the search codes, quantises and allocates in the SH colour space the file will hold
         # (squared errors are RGB's: the rotation is orthonormal); the judge renders in RGB and
-        # the result's cloud is the decoder's.  ``reuse_input``: ``cloud`` may be overwritten
-        self.sh_colour = choose_sh_colour(cloud, sopts.sh_colour)
-        cloud = coded_cloud(cloud, self.sh_colour, in_place=reuse_input)
+        # the result's cloud is the decoder's.  ``reuse_input``: ``cloud`` may be overwritten.
+        # ``sh_colour``: the SHXF bits ``cloud`` is coded in already (the search without SH rest
+        # another search starts), else None: chosen and applied here
+        if sh_colour is None:
+            self.sh_colour = choose_sh_colour(cloud, sopts.sh_colour)
+            cloud = coded_cloud(cloud, self.sh_colour, in_place=reuse_input)
+        else:
+            self.sh_colour = int(sh_colour)
         self.sopts, self.cloud, self.geometry_pool = sopts, cloud, geometry_pool
         self.executor = executor
         self.progress = progress or Progress(quiet=True)
@@ -491,7 +497,7 @@ class BudgetSearch:
         self.progress.log(f"no SH vector kept exact: trying the file without SH rest at tau {best.reserve}")
         self.forget_stages()             # the search without SH makes its own
         flat = BudgetSearch(self.cloud.with_sh_degree(0), self.target, self.sopts, self.progress,
-                            self.geometry_pool, self.executor)
+                            self.geometry_pool, self.executor, sh_colour=self.sh_colour & SH_COLOUR_DC)
         flat.importance, flat.depth, flat.judge = self.importance, best.depth, self.judge
         flat.anchor = self.anchor
         i = self.taus.index(best.reserve)

@@ -10,7 +10,7 @@ from ...decoder.cloud import MADE_ROWS_STEP, MadeRows
 from ...decoder.pages import trim_heap
 from ...decoder.threads import for_ranges
 from ...evaluation.cameras import load_cameras
-from ..sh_colour import rgb_view
+from ..sh_colour import coded_weights, rgb_view
 from .options import SearchOptions
 from .sensitivity import channel_weights
 
@@ -113,8 +113,8 @@ class Judge:
     """The train views, their reference renders and the channel weights of one search."""
 
     def __init__(self, cloud, sopts: SearchOptions, progress, cameras=None, sh_colour: int = 0):
-        """``sh_colour``: the SHXF transform the search's clouds hold their SH rest in; every
-        cloud is rendered in RGB (:func:`gsz.encoder.sh_colour.rgb_view`), as a decoder shows it."""
+        """``sh_colour``: the SHXF transform bits the search's clouds are coded in; every cloud
+        is rendered in RGB (:func:`gsz.encoder.sh_colour.rgb_view`), as a decoder shows it."""
         from ...evaluation.metrics import quantize_8bit
         from ...evaluation.render import render
         self.sh_colour = sh_colour
@@ -129,8 +129,9 @@ class Judge:
         if sopts.weight_channels:
             trim_heap()
             with progress.stage("sensitivity", "per-channel rendering weights of Omega"):
-                self.weights = channel_weights(cloud, self.cameras[:2], seed=sopts.seed,
-                                               base_images=ref_float[:2])
+                # measured on the RGB view, then mixed into the coded DC channels' weights
+                self.weights = coded_weights(channel_weights(cloud, self.cameras[:2], seed=sopts.seed,
+                                                             base_images=ref_float[:2]), sh_colour)
 
     def rendered(self, cloud):
         """``cloud`` as rendered: a row-made SH rest (a candidate's decoded SH) made whole once

@@ -37,7 +37,7 @@ def search_report(search, chosen: Candidate) -> EncodeReport:
         input_gaussians=len(search.cloud), voxels=enc.num_points,
         bytes_per_gaussian=len(data) / enc.num_points, sh_degree=search.cloud.sh_degree if sh else 0,
         codebook_size=enc.codebook_size, sh_keep=enc.sh_keep if sh else 0,
-        sh_colour=sh_colour_name(search.sh_colour) if sh else None,
+        sh_colour=sh_colour_name(search.sh_colour),
         layers=layer_report(data),
         bits={"raht": enc.raht_bits.tolist(), "scales": enc.scale_bits.tolist(),
               "raht_channels": list(RAHT_CHANNELS), "scale_channels": list(DIRECT_CHANNELS),

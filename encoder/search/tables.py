@@ -138,7 +138,7 @@ def container_overhead(num_chunks: int) -> int:
 def num_chunks(stage: Stage) -> int:
     """Chunks of the stage's file: per layer GEOM, ATTR (and SHVQ with SH, and SHXF with a
     colour transform), plus META."""
-    per_part = (4 if stage.sh_colour else 3) if stage.sh.shape[1] else 2
+    per_part = (3 if stage.sh.shape[1] else 2) + (1 if stage.sh_colour else 0)
     return len(stage.layers) * per_part + 1
 
 

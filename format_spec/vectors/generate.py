@@ -75,6 +75,12 @@ VECTORS = [
     # vectors, 600 kept and the rest codewords, are stored as luma/chroma (an SHXF chunk)
     ("sh2_jug_2k_shxf", "measuring_jug_sh3_12k.ply", 2000, 2,
      dict(raht_classes=1, reserve=1.0, bits=10, codebook=32, keep=600, sh_colour="luma-chroma")),
+    # format 1.7: the DC colour as luma/chroma too (SHXF bit 1), alone (SH degree 0) and with the
+    # SH vectors' transform (bits 1 and 0)
+    ("sh0_plant_2k_dcxf", "houseplant_sh0_20k.ply", 2000, 0,
+     dict(reserve=1.0, bits=10, sh_colour="auto")),
+    ("sh1_jug_2k_dcxf", "measuring_jug_sh3_12k.ply", 2000, 1,
+     dict(reserve=1.0, bits=10, codebook=32, keep=600, sh_colour="luma-chroma")),
 ]
 #: vectors whose scales and opacities get seeded Gaussian noise of this sigma before encoding
 NOISED = {"sh0_plant_3000_laplace": 0.05}
@@ -171,8 +177,8 @@ def intermediates(data: bytes) -> list[dict]:
             sh["indices_sha256"] = sha(idx, "<u4")
             sh["indices_first"] = idx[:8].tolist()
             row["shvq"] = sh
-            if CHUNK_SHXF in got:
-                row["shxf"] = {"transform": read_sh_colour(c.chunks[got[CHUNK_SHXF]].data)}
+        if CHUNK_SHXF in got:           # GSZ.md section 8.2: "raht" and "shvq" are stored values
+            row["shxf"] = {"transform": read_sh_colour(c.chunks[got[CHUNK_SHXF]].data, degree)}
         rows.append(row)
     return rows
 

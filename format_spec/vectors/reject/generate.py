@@ -465,13 +465,13 @@ def with_shxf(base: bytes, payload: bytes, *, flags: int = 1) -> bytes:
 
 
 def _shxf_vectors(sh1: bytes, add) -> None:
-    """SHXF (GSZ.md §8.2): the valid chunk is the one byte 1 (luma/chroma; the base's SH vectors
-    are all 0, so any transform decodes them)."""
+    """SHXF (GSZ.md §8.2): the valid chunk is the one byte 1, 2 or 3 (luma/chroma SH vectors,
+    DC colour or both; the base's SH vectors are all 0, so any transform decodes them)."""
     ok = bytes([1])
-    add("shxf_transform_0", with_shxf(sh1, b"\x00"), "GSZ.md §8.2 transform id 1",
+    add("shxf_transform_0", with_shxf(sh1, b"\x00"), "GSZ.md §8.2 transform bits 1, 2 or 3",
         "unknown SH colour transform 0")
-    add("shxf_transform_2", with_shxf(sh1, b"\x02"), "GSZ.md §8.2 transform id 1",
-        "unknown SH colour transform 2")
+    add("shxf_transform_4", with_shxf(sh1, b"\x04"), "GSZ.md §8.2 transform bits 1, 2 or 3",
+        "unknown SH colour transform 4")
     add("shxf_empty", with_shxf(sh1, b""), "GSZ.md §8.2 one byte (no transform id)", "SHXF chunk: truncated")
     add("shxf_trailing_byte", with_shxf(sh1, ok + b"\x00"), "GSZ.md §8.2 nothing after",
         "SHXF chunk: 1 unexpected trailing bytes")
@@ -479,8 +479,9 @@ def _shxf_vectors(sh1: bytes, add) -> None:
         "layer 0 has two SHXF chunks")
     # SH degree 0 without the SHVQ chunk, so that the SHXF chunk is the one rule broken
     h, chunks = split(with_header(with_shxf(sh1, ok), "<B", 24, 0))
-    add("shxf_in_sh0_file", join(h, [c for c in chunks if c[0] != b"SHVQ"]), "GSZ.md §4 SHXF when sh_degree = 0",
-        "SHXF chunk in a file of SH degree 0")
+    add("shxf_in_sh0_file", join(h, [c for c in chunks if c[0] != b"SHVQ"]),
+        "GSZ.md §8.2 the SH vector bit when sh_degree = 0",
+        "SH vector transform (bit 0) in a file of SH degree 0")
 
 
 def _direct_vectors(add) -> None:
