@@ -698,12 +698,12 @@ def build(json_dir: Path = JSON_DIR) -> dict:
              "command, commit and machine of its JSON).  Regenerate all of them with", "",
              f"    {REGEN}", "",
              f"and check that the committed pages are current with `{REGEN} --check` (a test does).  "
-             "Re-running a benchmark rewrites its JSON; then regenerate.  Decisions and their evidence: "
+             "A re-run benchmark rewrites its JSON; then regenerate.  Decisions, evidence: "
              "[docs/design/](../design/README.md).  Older results: git history.", ""]
     lines += table(["page", "topic", "from"], [[f"[{nm}]({nm})", t, ", ".join(code(j) for j in js)]
                                               for nm, t, js in sorted(index)])
     if left:
-        lines += ["JSON without a page yet: " + ", ".join(code(x) for x in left) + ".", ""]
+        lines += ["JSON with no page: " + ", ".join(code(x) for x in left) + ".", ""]
     pages["README.md"] = "\n".join(lines)
     return {k: v.rstrip("\n") + "\n" for k, v in pages.items()}
 
