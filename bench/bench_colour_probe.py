@@ -11,7 +11,8 @@ at ``--size`` bytes:
 * ``ycc``: ``gsz-encode --sh-colour luma-chroma``: every SH rest triplet rotated by the fixed
   orthonormal luma/chroma matrix (:mod:`gsz.encoder.sh_colour`), the decoder turning it back.
   (Before the format carried it, this probe rotated the scene outside the codec; the rows
-  since then come from the codec itself.)
+  since then come from the codec itself.  Since format 1.7 ``luma-chroma`` also turns the DC
+  colour and ``rgb`` does not: bench_dc_colour_probe.py measures the DC alone.)
 
 Both are scored with gsz-eval's protocol against the scene (8 default test views at 800 px).
 Also printed: the zeroth-order entropy of the SH rest quantised at a few uniform steps, per
@@ -38,6 +39,35 @@ from rd import gsz_source, machine  # noqa: E402
 ENTROPY_STEPS = (0.005, 0.01, 0.02, 0.04)
 
 
+def probe_scene(path: str, noise: bool):
+    """(scene, test cameras, their reference renders): the scene read (with the RD bench's noise
+    when ``noise``) and gsz-eval's 8 default test views -- what both colour probes score on."""
+    from gsz.decoder import read_ply
+    from gsz.evaluation.cameras import load_cameras
+    from gsz.evaluation.evaluate import render_views
+    scene = read_ply(path)
+    if noise:
+        from bench_codec import add_noise
+        scene = add_noise(scene)
+    cams = load_cameras(None, scene, n_test=8).test
+    return scene, cams, render_views(scene, cams)
+
+
+def keep_row(out: Path, row: dict, script: str, argv) -> list:
+    """Stamp ``row`` (commit, machine, time, the command) and write it into ``out``'s rows in
+    place of an earlier row of the same (scene, noised, size); returns every row."""
+    import gsz
+    row.update(commit=(gsz_source(gsz).get("commit") or "")[:7] or None, machine=machine(),
+               when=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+               command=f"bench/{script} " + " ".join(argv if argv is not None else sys.argv[1:]))
+    rows = json.loads(out.read_text())["rows"] if out.exists() else []
+    key = (row["scene"], row["noised"], row["size"])
+    rows = [r for r in rows if (r["scene"], r["noised"], r["size"]) != key] + [row]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"rows": rows}, indent=1) + "\n")
+    return rows
+
+
 def entropy_bits(sh: np.ndarray, step: float) -> float:
     """Zeroth-order entropy (bits per vector) of [N, K, 3] values rounded to multiples of step,
     summed over the 3K components."""
@@ -56,16 +86,11 @@ def main(argv=None) -> int:
     p.add_argument("--noise", action="store_true")
     p.add_argument("--out", type=Path, default=ROOT / "bench" / "out" / "colour_probe.json")
     a = p.parse_args(argv)
-    import gsz
-    from gsz.decoder import decode, read_ply, write_ply
+    from gsz.decoder import decode, write_ply
     from gsz.encoder.cli import main as encode_main
-    from gsz.evaluation.cameras import load_cameras
-    from gsz.evaluation.evaluate import evaluate, render_views
+    from gsz.evaluation.evaluate import evaluate
 
-    scene = read_ply(a.scene)
-    if a.noise:
-        from bench_codec import add_noise
-        scene = add_noise(scene)
+    scene, cams, refs = probe_scene(a.scene, a.noise)
     if not scene.sh_degree:
         p.error(f"{a.scene}: no SH rest to transform (SH degree 0)")
     row = {"scene": Path(a.scene).stem, "noised": a.noise, "size": a.size, "gaussians": len(scene)}
@@ -76,10 +101,9 @@ def main(argv=None) -> int:
                        "ycc_bits": round(entropy_bits(ycc, s), 1)} for s in ENTROPY_STEPS]
     for e in row["entropy"]:
         print(f"step {e['step']}: {e['rgb_bits']} -> {e['ycc_bits']} bits a vector", file=sys.stderr)
-    cams = load_cameras(None, scene, n_test=8).test
-    refs = render_views(scene, cams)
-    from gsz.encoder.sh_colour import SH_COLOUR_RGB, choose_sh_colour
-    row["auto"] = "rgb" if choose_sh_colour(scene) == SH_COLOUR_RGB else "ycc"
+    from gsz.decoder.sh import SH_COLOUR_LUMA_CHROMA
+    from gsz.encoder.sh_colour import choose_sh_colour
+    row["auto"] = "ycc" if choose_sh_colour(scene) & SH_COLOUR_LUMA_CHROMA else "rgb"     # the SH rest's
     with tempfile.TemporaryDirectory(prefix="gsz-colour-") as tmp:
         ply = Path(tmp) / "scene.ply"
         write_ply(scene, ply)
@@ -93,13 +117,7 @@ def main(argv=None) -> int:
             row[space] = {"bytes": out.stat().st_size, "psnr": round(res["psnr"], 2), "ssim": round(res["ssim"], 5)}
             print(f"{space}: {row[space]['bytes']:,} B, {res['psnr']:.2f} dB", file=sys.stderr, flush=True)
     row["gain_db"] = round(row["ycc"]["psnr"] - row["rgb"]["psnr"], 2)
-    row.update(commit=(gsz_source(gsz).get("commit") or "")[:7] or None, machine=machine(),
-               when=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-               command="bench/bench_colour_probe.py " + " ".join(argv if argv is not None else sys.argv[1:]))
-    rows = json.loads(a.out.read_text())["rows"] if a.out.exists() else []
-    rows = [r for r in rows if (r["scene"], r["noised"], r["size"]) != (row["scene"], a.noise, a.size)] + [row]
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps({"rows": rows}, indent=1) + "\n")
+    rows = keep_row(a.out, row, "bench_colour_probe.py", argv)
     print("| scene | noised | budget B | RGB dB | luma/chroma dB | gain dB |\n|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['scene']} | {'yes' if r['noised'] else 'no'} | {r['size']:,} | {r['rgb']['psnr']:.2f} | "

@@ -21,14 +21,13 @@ to see RGB: the same choices the codec now makes; their RGB figures equal the RD
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from rd import gsz_source, machine  # noqa: E402
+from bench_colour_probe import keep_row, probe_scene  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -38,25 +37,18 @@ def main(argv=None) -> int:
     p.add_argument("--noise", action="store_true")
     p.add_argument("--out", type=Path, default=ROOT / "bench" / "out" / "dc_colour_probe.json")
     a = p.parse_args(argv)
-    import gsz
-    from gsz.decoder import decode, read_ply
+    from gsz.decoder import decode
     from gsz.decoder.sh import SH_COLOUR_DC
     from gsz.encoder.search import SearchOptions, driver, encode_to_budget
-    from gsz.evaluation.cameras import load_cameras
-    from gsz.evaluation.evaluate import evaluate, render_views
+    from gsz.evaluation.evaluate import evaluate
 
-    scene = read_ply(a.scene)
-    if a.noise:
-        from bench_codec import add_noise
-        scene = add_noise(scene)
-    cams = load_cameras(None, scene, n_test=8).test
-    refs = render_views(scene, cams)
+    scene, cams, refs = probe_scene(a.scene, a.noise)
     chosen = driver.choose_sh_colour
 
     def rgb_dc(cloud, mode="auto"):
         return chosen(cloud, mode) & ~SH_COLOUR_DC
 
-    rows = json.loads(a.out.read_text())["rows"] if a.out.exists() else []
+    rows = []
     for size in (int(s) for s in a.sizes.split(",")):
         row = {"scene": Path(a.scene).stem, "noised": a.noise, "size": size, "gaussians": len(scene)}
         for name in ("rgb", "dc"):
@@ -72,12 +64,7 @@ def main(argv=None) -> int:
             print(f"{row['scene']} {size:,} {name}: {len(res.data):,} B, {ev['psnr']:.2f} dB",
                   file=sys.stderr, flush=True)
         row["gain_db"] = round(row["dc"]["psnr"] - row["rgb"]["psnr"], 2)
-        row.update(commit=(gsz_source(gsz).get("commit") or "")[:7] or None, machine=machine(),
-                   when=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-                   command="bench/bench_dc_colour_probe.py " + " ".join(argv if argv is not None else sys.argv[1:]))
-        rows = [r for r in rows if (r["scene"], r["noised"], r["size"]) != (row["scene"], a.noise, size)] + [row]
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        a.out.write_text(json.dumps({"rows": rows}, indent=1) + "\n")
+        rows = keep_row(a.out, row, "bench_dc_colour_probe.py", argv)
     print("| scene | noised | budget B | RGB DC dB | luma/chroma DC dB | gain dB |\n|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['scene']} | {'yes' if r['noised'] else 'no'} | {r['size']:,} | {r['rgb']['psnr']:.2f} | "

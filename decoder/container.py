@@ -21,9 +21,9 @@ from .errors import GszFormatError, GszTruncatedError
 MAGIC = b"\x89GSZ\r\n\x1a\n"
 VERSION_MAJOR = 1
 #: the newest minor version this decoder knows (1.2 added spatial tiles, 1.3 SH classes, 1.4
-#: direct-coded octree points, 1.5 RAHT leaf weights, 1.6 the SH colour transform); an encoder
-#: writes the lowest minor whose features the file uses
-VERSION_MINOR = 6
+#: direct-coded octree points, 1.5 RAHT leaf weights, 1.6 the SH colour transform, 1.7 its DC
+#: colour bit); an encoder writes the lowest minor whose features the file uses
+VERSION_MINOR = 7
 MINOR_LAYERS = 1
 MINOR_TILES = 2
 MINOR_SH_CLASSES = 3

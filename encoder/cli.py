@@ -74,9 +74,10 @@ def build_parser() -> argparse.ArgumentParser:
                            "important Gaussians get finer opacity, rotation and colour for the same "
                            f"bytes); 1: plain RAHT (default {d.raht_classes})")
     both.add_argument("--sh-colour", choices=SH_COLOUR_CHOICES, default=d.sh_colour,
-                      help="colour space of the SH rest: luma-chroma (format 1.6: correlated "
-                           "channels code in fewer bits), rgb, or auto: luma-chroma unless the "
-                           "input's SH sit on a delivery format's coarse grid (default auto)")
+                      help="colour space of the DC colour and SH rest: luma-chroma (format 1.7: "
+                           "correlated channels code in fewer bits), rgb, or auto: the DC as "
+                           "luma-chroma, the SH rest too unless they sit on a delivery format's "
+                           "coarse grid (default auto)")
     both.add_argument("--seed", type=int, default=d.seed, help="RNG seed (VQ)")
     lay = p.add_argument_group("layers, tiles and workers")
     lay.add_argument("--layers", type=int, nargs="?", default=d.layers, const=STREAMING_LAYERS, metavar="L",

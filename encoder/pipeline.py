@@ -564,8 +564,8 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
     codes their attributes later).  ``voxelized``: the (kept, Voxelized) of
     :func:`voxelize_stage` for these arguments when the caller already has it.  ``pool``: an
     executor that codes the geometry while the caller goes on (the octree coder runs without
-    the GIL; nothing before the file size needs its bytes).  ``sh_colour``: the SHXF transform
-    ``cloud``'s SH rest are already in (:func:`gsz.encoder.sh_colour.coded_cloud`)."""
+    the GIL; nothing before the file size needs its bytes).  ``sh_colour``: the SHXF transform bits
+    ``cloud``'s SH rest and DC are already in (:func:`gsz.encoder.sh_colour.coded_cloud`)."""
     progress = progress or Progress(quiet=True)
     if voxelized is None:
         voxelized = voxelize_stage(cloud, importance, reserve, depth=depth, rel_error=rel_error,
@@ -1277,7 +1277,7 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
     GszInputWarning per fix, naming ``source``).  Returns the .gsz bytes, the cloud the decoder
     will reconstruct, and a report (sizes per component, seconds per stage, input fixes).
     ``reuse_input``: the caller is done with ``cloud``; its arrays may be overwritten instead
-    of copied (the SH rest's colour transform)."""
+    of copied (the colour transform of the SH rest and DC)."""
     from .sanitize import fixes_report, sanitize_cloud
     opts = (options or EncodeOptions()).validate()
     progress = progress or Progress(quiet=True)
@@ -1309,7 +1309,7 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
 def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, starts,
                   colour: int = 0) -> EncodeResult:
     """The encode after importance; ``starts``: (perf_counter, process_time) at its beginning;
-    ``cloud``'s SH rest are in the colour space ``colour`` (an SHXF transform id)."""
+    ``cloud``'s SH rest and DC are in the colour space ``colour`` (SHXF transform bits)."""
     n_in = len(cloud)
     stage = prepare_stage(cloud, importance, opts.reserve, depth=opts.depth,
                           rel_error=opts.rel_error, layers=opts.layers, first_layer=opts.first_layer,

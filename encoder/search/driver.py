@@ -45,7 +45,7 @@ def encode_to_budget(cloud, target_bytes: int, *, options: SearchOptions | None 
     smallest reachable size when the budget cannot be met.  Absurd input values are bounded and
     far-away Gaussians dropped first, as :func:`gsz.encoder.pipeline.encode` does (``source``
     names the scene in the warnings).  ``reuse_input``: the caller is done with ``cloud`` (the
-    CLI, which read it): its arrays may be overwritten instead of copied (the SH rest's colour
+    CLI, which read it): its arrays may be overwritten instead of copied (the colour
     transform, :func:`gsz.encoder.sh_colour.coded_cloud`).
     """
     from concurrent.futures import ThreadPoolExecutor
