@@ -457,8 +457,7 @@ class BudgetSearch:
             i, d = taus.index(best.reserve), best.depth
             nbrs = [taus[j] for j in (i - 1, i + 1)
                     if 0 <= j < len(taus) and (taus[j], d) not in self.evaluated]
-            if not nbrs:
-                break
+            tried = len(self.evaluated)
             for tau in nbrs:
                 self.try_tau(tau, d)
             # where neither neighbour won, each once more a level away from the best depth:
@@ -473,6 +472,11 @@ class BudgetSearch:
                         and (taus[j], dj) not in self.evaluated):
                     self.progress.log(f"tau {taus[j]} a level {way}, at depth {dj}")
                     self.try_tau(taus[j], dj)
+            # both neighbours may have lost at this depth in an earlier round (before the depth
+            # was walked again), and the level-away moves are still to try (plaza noised 40x:
+            # tau 0.3 best at depth 11 after the rewalk, tau 0.4 lost at 11, wins at 10 and 9)
+            if len(self.evaluated) == tried:
+                break
         if not self.candidates:
             return
         best = self.best()
