@@ -477,6 +477,26 @@ def test_tau_refinement_tries_the_larger_tau_a_level_shallower():
     assert (0.7, 8) in s.evaluated           # from the new best, the same step again
 
 
+def test_tau_refinement_moves_a_level_away_where_both_neighbours_already_lost():
+    """After the depth was walked again, both tau neighbours of the best may already have lost
+    at its new depth; the refinement still tries them a level away (plaza noised 40x, train
+    PSNR of the search's candidates: tau 0.3 best at depth 11, tau 0.4 wins at 10 and 9)."""
+    from collections import defaultdict
+    table = defaultdict(lambda: 20.0)       # anything else the refinement tries loses
+    table.update({(1.0, 11): 8.0, (0.3, 11): 27.71, (0.2, 11): 24.96, (0.4, 11): 27.33,
+             (0.4, 10): 28.29, (0.5, 10): 26.85, (0.5, 9): 28.58, (0.4, 9): 28.71,
+             (0.6, 9): 27.68, (0.3, 10): 27.67, (0.2, 12): 24.97})
+    from gsz.encoder.search.driver import BudgetSearch
+    s = _TauWalkScene(table, 11)
+    s.taus = [1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2]
+    s.sopts.refine_steps = 4
+    for first in ((0.2, 11), (0.4, 11), (0.3, 11)):
+        s.try_tau(*first)
+    BudgetSearch.refine_tau(s)
+    assert (0.4, 10) in s.evaluated
+    assert s.best().reserve >= 0.4 and s.best().depth <= 10
+
+
 def test_high_rate_budgets_start_the_depth_walk_deeper_within_its_range():
     """At high rates the walk ends several levels below the position-error start (1.5-3 levels
     per doubling of the bits per Gaussian on the shared scenes): the first stage starts part of
