@@ -144,6 +144,8 @@ class EncodeReport:
                 "kept_after_prune": f.kept_after_prune, "voxels": self.voxels,
                 "bytes_per_gaussian": self.bytes_per_gaussian, "depth": self.depth,
                 "merged_fraction": f.merged_fraction, "sh_degree": self.sh_degree,
+                # an SH-0 file's DC colour has a colour space too (SHXF bit 1)
+                "sh_colour": self.sh_colour,
                 "components": self.components, "sh": sh, "seconds": self.seconds,
                 "total_seconds": self.total_seconds, "memory": self.memory, "options": f.options,
                 "layers": self.layers}

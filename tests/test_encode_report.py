@@ -12,9 +12,10 @@ from gsz.encoder.encode_report import (MODE_FIXED, MODE_SEARCH, EncodeReport, Fi
                                        WrittenFile)
 
 # the keys gsz-encode --json printed before the typed report (captured on tests/data samples),
-# and keys added since at the place given: the search's "sh_colour" (format 1.6) after "sh_path"
+# and keys added since at the place given: the search's "sh_colour" (format 1.6) after "sh_path",
+# the fixed configuration's after "sh_degree" (format 1.7: an SH-0 file's DC has a colour space)
 FIXED = ["bytes", "input_gaussians", "kept_after_prune", "voxels", "bytes_per_gaussian", "depth",
-         "merged_fraction", "sh_degree", "components", "sh", "seconds", "total_seconds", "memory", "options",
+         "merged_fraction", "sh_degree", "sh_colour", "components", "sh", "seconds", "total_seconds", "memory", "options",
          "layers"]
 SEARCH = ["mode", "target_bytes", "bytes", "deviation", "reserve", "depth", "input_gaussians", "voxels",
           "bytes_per_gaussian", "sh_degree", "codebook_size", "sh_keep", "sh_path", "sh_colour", "layers",

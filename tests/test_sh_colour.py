@@ -63,6 +63,15 @@ def test_auto_keeps_rgb_on_a_grid_and_picks_luma_chroma_off_it():
     assert choose_sh_colour(sample("sh0", 500)) == 2 and choose_sh_colour(sample("sh0", 500), "rgb") == 0
 
 
+def test_fixed_encode_reports_the_dc_colour_space_of_an_sh0_file():
+    """An SH-0 file has no SH rest, but its DC colour is coded as luma/chroma: the fixed
+    configuration's JSON says so, as the search's does."""
+    cloud = sample("sh0", 800)
+    for option, name in (("auto", "luma-chroma DC"), ("rgb", "rgb")):
+        js = encode(cloud, EncodeOptions(**FAST, sh_colour=option)).report.to_json()
+        assert js["sh_colour"] == name and js["sh"] == {}
+
+
 @pytest.mark.parametrize("n,layers,tiles", [(3000, 1, None), (9000, 2, 4096)])
 def test_round_trip_on_both_decoder_paths(n, layers, tiles):
     cloud = _noised(n)
