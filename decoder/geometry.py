@@ -84,7 +84,11 @@ class GeometryHeader:
 def voxel_centres(ijk: np.ndarray, origin, side: float, depth: int) -> np.ndarray:
     """Decoded positions ``origin + (ijk + 0.5) * side / 2^d`` as [M, 3] float64 (normative)."""
     pitch = float(side) / float(1 << int(depth))
-    return np.asarray(origin, np.float64) + (np.asarray(ijk, np.float64) + 0.5) * pitch
+    c = np.array(ijk, np.float64)           # in place from here: one [M, 3] float64, not three
+    c += 0.5
+    c *= pitch
+    c += np.asarray(origin, np.float64)
+    return c
 
 
 def read_geometry_header(data, *, max_points: int) -> GeometryHeader:

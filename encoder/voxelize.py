@@ -242,6 +242,10 @@ def bounding_cube(positions: np.ndarray) -> tuple[np.ndarray, float]:
     return lo, side
 
 
+#: Rows of the float64 coordinate temporaries at a time (:func:`voxel_coords`, the voxel centres).
+VOXEL_COORD_ROWS = 1 << 18
+
+
 def voxel_coords(positions: np.ndarray, depth: int, origin: np.ndarray, side: float) -> np.ndarray:
     """Integer voxel coordinates ``floor((p - origin) / side * 2^d)`` clipped to [0, 2^d - 1].
 
@@ -251,8 +255,17 @@ def voxel_coords(positions: np.ndarray, depth: int, origin: np.ndarray, side: fl
     d = _check_depth(depth)
     x = _check_positions(positions)
     n = float(1 << d)
-    q = np.floor((x - np.asarray(origin, np.float64)) * (n / float(side)))
-    return np.clip(q, 0, n - 1).astype(np.int64)
+    origin, scale = np.asarray(origin, np.float64), n / float(side)
+    out = np.empty(x.shape, np.int64)
+    # in row steps: the float64 temporaries of a whole 6 M-Gaussian scene were 3 x 144 MB at
+    # the search's memory peak (the next depth's voxelisation)
+    for s in range(0, x.shape[0], VOXEL_COORD_ROWS):
+        q = x[s:s + VOXEL_COORD_ROWS] - origin
+        q *= scale
+        np.floor(q, out=q)
+        np.clip(q, 0, n - 1, out=q)
+        out[s:s + VOXEL_COORD_ROWS] = q
+    return out
 
 
 def merge_fraction(positions: np.ndarray, depth: int, cube=None) -> float:
@@ -472,6 +485,7 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
     codes = morton_encode(ijk_pt)
     # np.unique sorts: voxel rows come out in ascending Morton order.
     uniq, first, inv = np.unique(codes, return_index=True, return_inverse=True)
+    del codes
     inv = inv.reshape(-1).astype(np.int64)
     moved = 0
     if relocate and first.size < n:
@@ -479,8 +493,12 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
     if moved:
         _, first, inv = np.unique(morton_encode(ijk_pt), return_index=True, return_inverse=True)
         inv = inv.reshape(-1).astype(np.int64)
+    # the per-Gaussian coordinates go before the per-voxel fields are made: at 6 M Gaussians
+    # they are ~300 MB, and the next depth's voxelisation is the search's memory peak
+    del x, uniq
     m = first.shape[0]
     ijk = ijk_pt[first]
+    del ijk_pt
     counts = np.bincount(inv, minlength=m)
 
     # Singletons (the vast majority at a sensible depth) are copied bit-exactly (an index array
@@ -563,7 +581,10 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
         d_sh = 3 * cloud.sh_rest.shape[1]
         sh = SourcedRows(cloud.sh_rest.reshape(len(cloud), d_sh), source, own.reshape(len(own), d_sh))
         out["sh_rest"] = np.zeros((m, 0, 3), np.float32)
-    merged = GaussianCloud(positions=voxel_centres(ijk, origin, side, d).astype(np.float32),
+    positions = np.empty((m, 3), np.float32)
+    for s in range(0, m, VOXEL_COORD_ROWS):       # no [M, 3] float64 beside the fields
+        positions[s:s + VOXEL_COORD_ROWS] = voxel_centres(ijk[s:s + VOXEL_COORD_ROWS], origin, side, d)
+    merged = GaussianCloud(positions=positions,
                            sh_degree=0 if sourced else cloud.sh_degree, **out)
     return Voxelized(ijk=ijk, cloud=merged, importance=vox_imp, origin=np.asarray(origin, np.float64),
                      side=float(side), depth=d, merged_fraction=1.0 - m / n, index_of_point=inv,
