@@ -75,10 +75,11 @@ def measure(path: Path, repeats: int, encode_too: bool = False, paths=("numpy", 
     import gsz.decoder  # noqa: F401  (registers the submodules)
     D = sys.modules["gsz.decoder.decode"]
     from gsz.decoder import native
-    from gsz.decoder.attributes import attributes_from_coefficients, parse_attributes
+    from gsz.decoder.attributes import (attributes_from_coefficients, direct_in_point_order, leaf_weights_of,
+                                        parse_attributes, read_raht_weights)
     from gsz.decoder.container import read_container
     from gsz.decoder.geometry import read_geometry_header
-    from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHVQ, KNOWN_CHUNKS
+    from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_RWGT, CHUNK_SHVQ, KNOWN_CHUNKS
     from gsz.decoder.pages import small_pages
     from gsz.decoder.sh import read_sh
 
@@ -111,17 +112,25 @@ def measure(path: Path, repeats: int, encode_too: bool = False, paths=("numpy", 
             gh = read_geometry_header(ch[CHUNK_GEOM], max_points=c.header.num_gaussians)
             dt, codes = best_of(gh.decode_codes, repeats)
             totals["geometry"] += dt
-            dt, (dc, ac, direct) = best_of(lambda: parse_attributes(ch[CHUNK_ATTR], gh.num_points), repeats)
+            # the part's RAHT leaf weights (format 1.5): point order of the scales, SH classes
+            rwgt = None if CHUNK_RWGT not in ch else read_raht_weights(ch[CHUNK_RWGT], gh.num_points)
+
+            def attributes():
+                dc, ac, direct = parse_attributes(ch[CHUNK_ATTR], gh.num_points)
+                return dc, ac, direct_in_point_order(direct, rwgt)
+            dt, (dc, ac, direct) = best_of(attributes, repeats)
             totals["attributes"] += dt
             if c.header.sh_degree > 0:
                 dt, (_, cb) = best_of(lambda: read_sh(ch[CHUNK_SHVQ], gh.num_points, c.header.sh_degree,
-                                                      codebook, ch.get(b"SHCL"), colour_chunk=ch.get(b"SHXF")),
+                                                      codebook, ch.get(b"SHCL"), colour_chunk=ch.get(b"SHXF"),
+                                                      voxel_classes=None if rwgt is None else rwgt.classes),
                                               repeats)
                 totals["sh"] += dt
                 codebooks[part.tile] = cb if codebook is None else codebook
 
             def finish():
-                attrs = attributes_from_coefficients(dc, ac, direct, codes, gh.depth)
+                attrs = attributes_from_coefficients(dc, ac, direct, codes, gh.depth,
+                                                     leaf_weights=leaf_weights_of(rwgt))
                 pos = gh.positions(codes)
                 ok = native.module().all_finite if native.enabled() else (lambda a: np.isfinite(a).all())
                 return all(ok(a) for a in (pos, attrs.scales, attrs.rotations, attrs.opacities, attrs.sh_dc))
