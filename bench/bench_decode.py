@@ -76,10 +76,11 @@ def measure(path: Path, repeats: int, encode_too: bool = False, paths=("numpy", 
     D = sys.modules["gsz.decoder.decode"]
     from gsz.decoder import native
     from gsz.decoder.attributes import (attributes_from_coefficients, direct_in_point_order, leaf_weights_of,
-                                        parse_attributes, read_raht_weights)
+                                        parse_attributes)
     from gsz.decoder.container import read_container
     from gsz.decoder.geometry import read_geometry_header
-    from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_RWGT, CHUNK_SHVQ, KNOWN_CHUNKS
+    from gsz.decoder.layer import _read_weights as read_weights      # the decoder's own
+    from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHVQ, KNOWN_CHUNKS
     from gsz.decoder.pages import small_pages
     from gsz.decoder.sh import read_sh
 
@@ -113,7 +114,7 @@ def measure(path: Path, repeats: int, encode_too: bool = False, paths=("numpy", 
             dt, codes = best_of(gh.decode_codes, repeats)
             totals["geometry"] += dt
             # the part's RAHT leaf weights (format 1.5): point order of the scales, SH classes
-            rwgt = None if CHUNK_RWGT not in ch else read_raht_weights(ch[CHUNK_RWGT], gh.num_points)
+            rwgt = read_weights(ch, gh.num_points)
 
             def attributes():
                 dc, ac, direct = parse_attributes(ch[CHUNK_ATTR], gh.num_points)

@@ -35,7 +35,7 @@ class Geometry:
 
     @property
     def positions(self) -> np.ndarray:
-        return voxel_centres(self.ijk, self.origin, self.side, self.depth).astype(np.float32)
+        return centres_float32(self.ijk.T, self.origin, self.side, self.depth)
 
 
 @dataclass
@@ -57,19 +57,7 @@ class GeometryHeader:
         ``out`` when given)."""
         if native.enabled():
             return self.native_positions(codes, out)[0]
-        # voxel_centres axis by axis (the same float64 operations per element, on contiguous
-        # rows instead of an [M, 3] integer and a float64 intermediate)
-        ijk = morton_decode_planes(codes)
-        pitch = float(self.side) / float(1 << int(self.depth))
-        if out is None:
-            out = np.empty((ijk.shape[1], 3), dtype=np.float32)
-        for axis in range(3):
-            v = ijk[axis].astype(np.float64)
-            v += 0.5
-            v *= pitch
-            v += float(self.origin[axis])
-            out[:, axis] = v
-        return out
+        return centres_float32(morton_decode_planes(codes), self.origin, self.side, self.depth, out)
 
     def native_positions(self, codes: np.ndarray, out: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
         """:meth:`positions` in C, and whether every coordinate is finite (native only)."""
@@ -84,11 +72,24 @@ class GeometryHeader:
 def voxel_centres(ijk: np.ndarray, origin, side: float, depth: int) -> np.ndarray:
     """Decoded positions ``origin + (ijk + 0.5) * side / 2^d`` as [M, 3] float64 (normative)."""
     pitch = float(side) / float(1 << int(depth))
-    c = np.array(ijk, np.float64)           # in place from here: one [M, 3] float64, not three
-    c += 0.5
-    c *= pitch
-    c += np.asarray(origin, np.float64)
-    return c
+    return np.asarray(origin, np.float64) + (np.asarray(ijk, np.float64) + 0.5) * pitch
+
+
+def centres_float32(axes, origin, side: float, depth: int, out: np.ndarray | None = None) -> np.ndarray:
+    """:func:`voxel_centres` as float32 [M, 3] (into ``out`` when given), axis by axis: the same
+    float64 operations per element, with one [M] float64 at a time instead of an [M, 3] float64
+    beside the output.  ``axes``: the three integer coordinate rows, [3, M] (Morton-decoded
+    planes, or ``ijk.T``)."""
+    pitch = float(side) / float(1 << int(depth))
+    if out is None:
+        out = np.empty((len(axes[0]), 3), dtype=np.float32)
+    for axis in range(3):
+        v = np.asarray(axes[axis]).astype(np.float64)
+        v += 0.5
+        v *= pitch
+        v += float(origin[axis])
+        out[:, axis] = v
+    return out
 
 
 def read_geometry_header(data, *, max_points: int) -> GeometryHeader:

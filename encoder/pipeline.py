@@ -422,10 +422,14 @@ class Stage:
 
     def positions(self) -> np.ndarray:
         """float32 [M, 3] decoded positions in output order (each part on its own grid)."""
-        from ..decoder.geometry import voxel_centres
-        from ..decoder.morton import morton_decode
-        return np.concatenate([voxel_centres(morton_decode(l.codes), *l.grid).astype(np.float32)
-                               for l in self.layers])
+        from ..decoder.geometry import centres_float32
+        from ..decoder.morton import morton_decode_planes
+        out = np.empty((self.num_points, 3), np.float32)
+        end = 0
+        for l in self.layers:                   # each part straight into its rows
+            centres_float32(morton_decode_planes(l.codes), *l.grid, out=out[end:end + l.num_points])
+            end += l.num_points
+        return out
 
     @property
     def order(self) -> np.ndarray:

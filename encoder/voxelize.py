@@ -63,7 +63,7 @@ import numpy as np
 from ..decoder.cloud import GaussianCloud, MadeRows
 from ..decoder.errors import GszError
 # The decoder's reconstruction rule is the normative one; re-exported for encoder callers.
-from ..decoder.geometry import voxel_centres  # noqa: F401  (origin + (ijk + 0.5) * pitch)
+from ..decoder.geometry import centres_float32, voxel_centres  # noqa: F401  (origin + (ijk + 0.5) * pitch)
 from ..decoder.morton import MAX_DEPTH, morton_encode
 from ..decoder.rotation import quaternion_to_matrix
 from .orientation import canonical_orientations
@@ -242,7 +242,7 @@ def bounding_cube(positions: np.ndarray) -> tuple[np.ndarray, float]:
     return lo, side
 
 
-#: Rows of the float64 coordinate temporaries at a time (:func:`voxel_coords`, the voxel centres).
+#: Rows of :func:`voxel_coords`' float64 temporaries at a time.
 VOXEL_COORD_ROWS = 1 << 18
 
 
@@ -581,10 +581,7 @@ def voxelize(cloud: GaussianCloud, importance: np.ndarray, depth: int, cube=None
         d_sh = 3 * cloud.sh_rest.shape[1]
         sh = SourcedRows(cloud.sh_rest.reshape(len(cloud), d_sh), source, own.reshape(len(own), d_sh))
         out["sh_rest"] = np.zeros((m, 0, 3), np.float32)
-    positions = np.empty((m, 3), np.float32)
-    for s in range(0, m, VOXEL_COORD_ROWS):       # no [M, 3] float64 beside the fields
-        positions[s:s + VOXEL_COORD_ROWS] = voxel_centres(ijk[s:s + VOXEL_COORD_ROWS], origin, side, d)
-    merged = GaussianCloud(positions=positions,
+    merged = GaussianCloud(positions=centres_float32(ijk.T, origin, side, d),
                            sh_degree=0 if sourced else cloud.sh_degree, **out)
     return Voxelized(ijk=ijk, cloud=merged, importance=vox_imp, origin=np.asarray(origin, np.float64),
                      side=float(side), depth=d, merged_fraction=1.0 - m / n, index_of_point=inv,
