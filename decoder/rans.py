@@ -328,20 +328,22 @@ class ModelSet:
         lut = np.repeat(np.arange(count, dtype=np.int32), t["freq"][own])
         return lut, dict(freq=t["freq"][own], slot_start=t["cum"][own], value=t["value"][own])
 
-    def native_tables(self, max_lut_entries: int) -> tuple:
+    def native_tables(self, max_lut_entries: int, lut: bool = True) -> tuple:
         """Build (once) the compact decoding tables of the C decoder (``_native.rans_tables``:
-        same frequencies as :meth:`build`); ``max_lut_entries`` as there."""
+        same frequencies as :meth:`build`); ``max_lut_entries`` as there.  ``lut=False``: without
+        the set's LUT (None), enough for block decoding, which makes one model's LUT at a time
+        (tables with a LUT serve both)."""
         lut_total = self.lut_entries()
         if lut_total > max_lut_entries:
             raise GszFormatError(f"rANS: model set needs {lut_total} LUT entries, "
                                  f"more than the {max_lut_entries} this stream allows")
-        if self._ntables is None:
+        if self._ntables is None or (lut and self._ntables[0] is None):
             c64 = (lambda a: np.ascontiguousarray(a, dtype=np.int64))
             self._ntables = native.module().rans_tables(
                 c64(self.types), c64(self.lo), c64(self.span), c64(self.prec), c64(self.group),
                 c64(self.binshift), c64(self.centre), c64(self.r_left), c64(self.r_right),
                 *(c64(a) for a in self.coarse_flat()),
-                int(max_lut_entries))
+                int(max_lut_entries), bool(lut))
         return self._ntables
 
     def coarse_flat(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -780,7 +782,9 @@ class RansDecoder:
         # a toggle in another thread cannot leave a native-only call on a NumPy decoder
         self._native = native.enabled() if use_native is None else bool(use_native) and native.native_available()
         if self._native:
-            self._nt = models.native_tables(lut_budget(n))
+            # without the LUT until a per-symbol decode asks for it: channel sets decode in
+            # blocks of one model, whose LUT the C decoder makes when it gets there
+            self._nt = models.native_tables(lut_budget(n), lut=False)
         else:
             self._t = models.build(lut_budget(n))
 
@@ -813,6 +817,8 @@ class RansDecoder:
             # the C loop: same decode step and the same checks (model range, empty models,
             # word stream), one symbol at a time
             out = np.empty(count, dtype=np.int64)
+            if self._nt[0] is None:
+                self._nt = self._models.native_tables(lut_budget(self._n))
             self._wpos = native.module().rans_decode(np.ascontiguousarray(mids), out, self._states,
                                                      self._word_bytes, self._wpos, self._pos,
                                                      self._nt)

@@ -628,6 +628,42 @@ def test_channel_set_symbols_and_range_checks_in_every_loop():
             read_channel_set_symbols(Reader(bytes(bad)), max_length=20000)
 
 
+@needs_native
+def test_block_decoding_makes_each_models_lut_itself():
+    """Channel sets decode with tables made without the set's LUT (the C loop makes one model's
+    LUT when a block needs it, kept while the next blocks use the same model): the values are
+    those of the whole-LUT tables, a per-symbol decode on the same decoder still works, and the
+    per-symbol C loop refuses LUT-less tables instead of reading past them."""
+    from gsz.decoder.rans import RansDecoder
+    rng = np.random.default_rng(21)
+    C, L, B, m = 3, 4001, 5, 7
+    tab = rng.integers(0, m - 1, C * B).astype(np.int64)
+    tab[1] = tab[0]                                  # consecutive blocks sharing a model
+    block = np.sort(np.concatenate([np.arange(L % B), np.repeat(np.arange(B), L // B)]))
+    mids = tab[(np.arange(C)[:, None] * B + block[None, :]).ravel()]
+    sym = np.round(rng.laplace(0, 40 * rng.uniform(0.2, 1.0, m)[mids])).astype(np.int64)
+    extra = rng.integers(0, m - 1, 300)              # a per-symbol tail after the blocks
+    tail = np.round(rng.laplace(0, 5, extra.size)).astype(np.int64)
+    blob = encode_stream(np.concatenate([sym, tail]), np.concatenate([mids, extra]), m)
+    models, pos = read_model_set(blob, 0)
+    dec = RansDecoder(memoryview(blob)[pos:], mids.size + extra.size, models, use_native=True)
+    assert dec._nt[0] is None                        # made without the LUT
+    out = np.empty(C * L, np.int64)
+    dec.decode_blocks(tab, C, L, B, out)
+    np.testing.assert_array_equal(out, sym)
+    np.testing.assert_array_equal(dec.decode(extra), tail)
+    dec.finish()
+    assert models.native_tables(1 << 40)[0] is not None
+    lutless = models.native_tables(1 << 40, lut=False)
+    assert lutless[0] is not None                    # the whole-LUT tables serve blocks too
+    models._ntables = None
+    lutless = models.native_tables(1 << 40, lut=False)
+    with pytest.raises(GszFormatError, match="LUT"):
+        native.module().rans_decode(mids[:4].copy(), np.empty(4, np.int64),
+                                    np.full(4, 1 << 16, np.int64), np.zeros(8, np.uint8), 0, 0,
+                                    lutless)
+
+
 # ------------------------------------------------------------------ encoder: identical bytes
 @needs_native
 @pytest.mark.parametrize("case", range(5))

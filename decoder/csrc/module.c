@@ -430,19 +430,21 @@ static PyObject *py_bank_encode(PyObject *self, PyObject *args)
 /* ================================================================== rANS decoding */
 PyDoc_STRVAR(rans_tables_doc,
 "rans_tables(types, lo, span, prec, group, binshift, centre, rl, rr, nbins, bins, levels,\n"
-"            max_lut) -> (lut, fc, val, lut_base, sym_base, mprec)\n\n"
+"            max_lut, with_lut=True) -> (lut, fc, val, lut_base, sym_base, mprec)\n\n"
 "Build the compact native decoding tables of a ModelSet (int64 parameter arrays; nbins /\n"
 "bins / levels: the COARSE models' present-bin counts, bins and level codes, concatenated in\n"
 "model order).  Same weights and normalisation as gsz.decoder.rans (ENTROPY.md 3.3-3.5).\n"
 "Re-checks every parameter it relies on; raises GszFormatError when one is out of range or\n"
-"the LUT would exceed max_lut.");
+"the LUT would exceed max_lut.  with_lut=False: lut is None (the LUT is still counted against\n"
+"max_lut); such tables serve rans_decode_blocks, which makes each model's LUT when it needs it.");
 
 static PyObject *py_rans_tables(PyObject *self, PyObject *args)
 {
     PyObject *o[12];
     long long max_lut;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOL", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6],
-                          &o[7], &o[8], &o[9], &o[10], &o[11], &max_lut))
+    int with_lut = 1;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOL|p", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6],
+                          &o[7], &o[8], &o[9], &o[10], &o[11], &max_lut, &with_lut))
         return NULL;
     Py_buffer v[12];
     int nv = 0;
@@ -463,7 +465,7 @@ static PyObject *py_rans_tables(PyObject *self, PyObject *args)
     /* the tables are written straight into the bytes objects returned (no copy) */
     PyObject *bo[6] = {NULL, NULL, NULL, NULL, NULL, NULL}, *res = NULL;
     if (!e.failed) {
-        const Py_ssize_t sizes[6] = {(Py_ssize_t)(lut_total * 2), (Py_ssize_t)(sym_total * 4),
+        const Py_ssize_t sizes[6] = {(Py_ssize_t)(with_lut ? lut_total * 2 : 0), (Py_ssize_t)(sym_total * 4),
                                      (Py_ssize_t)(sym_total * 4), (Py_ssize_t)(p.M * 8),
                                      (Py_ssize_t)(p.M * 8), (Py_ssize_t)p.M};
         for (int i = 0; i < 6; i++) {
@@ -472,7 +474,7 @@ static PyObject *py_rans_tables(PyObject *self, PyObject *args)
         }
     }
     if (!e.failed) {
-        const MsetTables out = {(uint16_t *)PyBytes_AS_STRING(bo[0]),
+        const MsetTables out = {with_lut ? (uint16_t *)PyBytes_AS_STRING(bo[0]) : NULL,
                                 (uint32_t *)PyBytes_AS_STRING(bo[1]),
                                 (int32_t *)PyBytes_AS_STRING(bo[2]),
                                 (int64_t *)PyBytes_AS_STRING(bo[3]),
@@ -482,7 +484,7 @@ static PyObject *py_rans_tables(PyObject *self, PyObject *args)
         rans_tables_fill(&p, &out, &e);
         Py_END_ALLOW_THREADS
     }
-    if (!e.failed) res = PyTuple_Pack(6, bo[0], bo[1], bo[2], bo[3], bo[4], bo[5]);
+    if (!e.failed) res = PyTuple_Pack(6, with_lut ? bo[0] : Py_None, bo[1], bo[2], bo[3], bo[4], bo[5]);
     for (int i = 0; i < 6; i++) Py_XDECREF(bo[i]);
     release_views(v, nv);
     if (e.failed) return raise_err(&e);
@@ -508,13 +510,19 @@ static int rtab_load(RTabViews *t, PyObject *tables)
     t->nv = 0;
     if (!PyArg_ParseTuple(tables, "OOOOOO;rANS tables", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5]))
         return -1;
-    for (; t->nv < 6; t->nv++)
+    /* v[0]: the LUT, or None (tables made without it) -- an empty view then */
+    const int has_lut = o[0] != Py_None;
+    if (!has_lut) {
+        memset(&t->v[0], 0, sizeof t->v[0]);
+        t->v[0].buf = NULL;
+    }
+    for (t->nv = has_lut ? 0 : 1; t->nv < 6; t->nv++)
         if (getbuf(o[t->nv], &t->v[t->nv], 1, 'x', 0, "rANS tables") < 0) {
             rtab_release(t);
             return -1;
         }
     RTab *r = &t->t;
-    r->lut = t->v[0].buf;
+    r->lut = has_lut ? t->v[0].buf : NULL;
     r->fc = t->v[1].buf;
     r->val = t->v[2].buf;
     r->lbase = t->v[3].buf;

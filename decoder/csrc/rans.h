@@ -20,6 +20,8 @@
  * per slot (a single load, but a 4x larger table) was 1.7x slower on the flowers scene.
  */
 #define PREC_EMPTY 255
+/* the largest model precision n (ENTROPY.md 3.2): a model's LUT has at most 2^16 slots */
+#define MAX_PREC_BITS 16
 
 /* A model set's parameters (int64 arrays of M models; nbins / bins / levels: the COARSE
  * models' present-bin counts, bins and level codes, concatenated in model order). */
@@ -38,7 +40,8 @@ typedef struct {
     uint8_t *mprec;
 } MsetTables;
 
-/* The same tables as the decode loops read them. */
+/* The same tables as the decode loops read them (lut NULL, lut_len 0: made without a LUT;
+ * the block decoder then makes each model's LUT as it needs it). */
 typedef struct {
     const uint16_t *lut;
     const uint32_t *fc;

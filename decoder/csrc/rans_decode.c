@@ -2,6 +2,8 @@
  * tables (rans.h), the generic symbol loop and the per-block loop of quantised channel sets. */
 #include "rans.h"
 
+#include <string.h>
+
 /* The d-th largest (1 <= d <= k) of k distinct keys.  Small k: a size-d min-heap; large k: an
  * MSB-first radix select (12-bit digits over the 60-bit keys, five linear passes). */
 static uint64_t select_dth_largest(const uint64_t *key, int64_t k, int64_t d, uint32_t *hist,
@@ -161,6 +163,19 @@ static int64_t mset_weights(const MsetParams *p, int64_t m, int64_t *ci, int64_t
     return k;
 }
 
+/* p[0..n) = v, four slots per store: a model's LUT is refilled once per block it decodes, and
+ * slot by slot its 2^16 slots cost about as much as decoding the block. */
+static inline void fill_u16(uint16_t *p, int64_t n, uint16_t v)
+{
+    const uint64_t pat = (uint64_t)v * 0x0001000100010001ull;
+    int64_t z = 0;
+    for (; z + 8 <= n; z += 8) {
+        memcpy(p + z, &pat, 8);
+        memcpy(p + z + 4, &pat, 8);
+    }
+    for (; z < n; z++) p[z] = v;
+}
+
 /* Scratch of rans_tables_fill (one model at a time: at most 2^16 + 1 present values). */
 typedef struct {
     int64_t *w, *fr, *off;
@@ -200,7 +215,7 @@ static int mset_normalise(const MsetParams *p, int64_t m, int64_t k, const MsetS
     for (int64_t i = 0; i < k; i++) {
         o->fc[spos + i] = ((uint32_t)cum << 16) | (uint32_t)(fr[i] - 1);
         o->val[spos + i] = (int32_t)(p->lo[m] + s->off[i]);
-        for (int64_t z = 0; z < fr[i]; z++) o->lut[lpos + cum + z] = (uint16_t)i;
+        if (o->lut) fill_u16(o->lut + lpos + cum, fr[i], (uint16_t)i);
         cum += fr[i];
     }
     return 0;
@@ -262,6 +277,7 @@ static inline int rans_step(const RTab *t, RState *s, int64_t m, int64_t *out, E
 int rans_decode_run(const RTab *t, RState *s, const int64_t *mids, int64_t *out, int64_t count,
                     Err *e)
 {
+    if (!t->lut) return fail(e, "rANS: per-symbol decoding needs tables made with their LUT");
     for (int64_t j = 0; j < count; j++)
         if (rans_step(t, s, mids[j], out + j, e) < 0) return -1;
     return 0;
@@ -410,10 +426,49 @@ decode_block_sym16_fast(const uint16_t *lut, const uint32_t *fc, const int32_t *
     decode_block_fast_body(lut, fc, val, n, s, len, NULL, uout, 0.0, 0.0, qm, DEQ_SYM16, bo);
 }
 
+/* Tables without a LUT (rans_tables(with_lut=False)): model m's LUT is made from its (cum,
+ * freq) entries into one 2^16-slot buffer when a block needs it, and kept while the next
+ * blocks use the same model.  A set's whole LUT is 2 bytes per slot of every model (100 MB
+ * for a 1.2 M-Gaussian file's kept SH set): fresh pages and a pass over them per decode,
+ * where one model's slots stay in the cache. */
+typedef struct {
+    uint16_t *buf;
+    int64_t model;          /* whose LUT buf holds, -1 none */
+} LazyLut;
+
+static const uint16_t *lazy_lut(const RTab *t, LazyLut *z, int64_t m, unsigned n, Err *e)
+{
+    if (z->model == m) return z->buf;
+    const int64_t sb = t->sbase[m];
+    int64_t k = (m + 1 < t->nmodels ? t->sbase[m + 1] : t->nsym) - sb;
+    const int64_t T = (int64_t)1 << n;
+    if (k < 1 || k > T || sb + k > t->nsym) {
+        fail(e, "rANS: decoding table index out of range");
+        return NULL;
+    }
+    const uint32_t *fc = t->fc + sb;
+    int64_t cum = 0;
+    for (int64_t i = 0; i < k; i++) {
+        const int64_t c = fc[i] >> 16, f = (int64_t)(fc[i] & 0xFFFF) + 1;
+        if (c != (cum & 0xFFFF) || cum + f > T) {
+            fail(e, "rANS: decoding table entry out of range");
+            return NULL;
+        }
+        fill_u16(z->buf + cum, f, (uint16_t)i);
+        cum += f;
+    }
+    if (cum != T) {
+        fail(e, "rANS: decoding table entry out of range");
+        return NULL;
+    }
+    z->model = m;
+    return z->buf;
+}
+
 /* Block b of channel c (len symbols from element i0 on): one model for the whole block,
  * checked once, then a tight loop. */
-static int decode_one_block(const RTab *t, RState *s, const RBlocks *bl, int64_t c, int64_t b,
-                            int64_t i0, int64_t len, Err *e)
+static int decode_one_block(const RTab *t, LazyLut *z, RState *s, const RBlocks *bl, int64_t c,
+                            int64_t b, int64_t i0, int64_t len, Err *e)
 {
     const int64_t g = c * bl->B + b, m = bl->tab[g];
     if (m < 0 || m >= t->nmodels) return fail(e, "rANS: model id outside the model set");
@@ -421,10 +476,11 @@ static int decode_one_block(const RTab *t, RState *s, const RBlocks *bl, int64_t
     if (n == PREC_EMPTY) return fail(e, "rANS: symbol refers to an empty model");
     const uint64_t mask = ((uint64_t)1 << n) - 1;
     const int64_t lb = t->lbase[m], sb = t->sbase[m];
-    if (lb < 0 || lb + (int64_t)mask >= t->lut_len || sb < 0 || sb >= t->nsym)
+    if (sb < 0 || sb >= t->nsym || (t->lut && (lb < 0 || lb + (int64_t)mask >= t->lut_len)))
         return fail(e, "rANS: decoding table index out of range");
     BlockOut bo = {0, 0, 0};
-    const uint16_t *lut = t->lut + lb;
+    const uint16_t *lut = t->lut ? t->lut + lb : lazy_lut(t, z, m, n, e);
+    if (!lut) return -1;
     const uint32_t *fc = t->fc + sb;
     const int32_t *val = t->val + sb;
     const int64_t at = c * bl->L + i0;
@@ -462,15 +518,20 @@ static int decode_one_block(const RTab *t, RState *s, const RBlocks *bl, int64_t
 int rans_decode_blocks_run(const RTab *t, RState *s, const RBlocks *bl, Err *e)
 {
     const int64_t base = bl->L / bl->B, extra = bl->L % bl->B;
-    for (int64_t c = 0; c < bl->C; c++) {
+    LazyLut z = {NULL, -1};
+    if (!t->lut && !(z.buf = malloc(((size_t)1 << MAX_PREC_BITS) * sizeof *z.buf)))
+        return fail_nomem(e);
+    int rc = 0;
+    for (int64_t c = 0; c < bl->C && !rc; c++) {
         int64_t i = 0;
         for (int64_t b = 0; b < bl->B; b++) {
             /* split_lengths: the first L mod B blocks hold one element more */
             const int64_t len = base + (b < extra);
             i += len;
             if (len == 0) continue;
-            if (decode_one_block(t, s, bl, c, b, i - len, len, e) < 0) return -1;
+            if (decode_one_block(t, &z, s, bl, c, b, i - len, len, e) < 0) { rc = -1; break; }
         }
     }
-    return 0;
+    free(z.buf);
+    return rc;
 }
