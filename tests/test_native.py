@@ -664,6 +664,65 @@ def test_block_decoding_makes_each_models_lut_itself():
                                     lutless)
 
 
+@needs_native
+@pytest.mark.parametrize("lanes", [2, 7, 8, 13, 64, 4096])
+def test_block_loop_avx2_and_scalar_identical(lanes):
+    """The AVX2 block loop (eight lanes at a time, words handed out in lane order) gives the
+    scalar loop's values, dequantised values, lane states and word position -- with lane counts
+    below 8, not a multiple of 8, or larger than the stream, precisions 1..16 and the blocks'
+    ends falling anywhere -- and both flag a symbol above its group's width."""
+    from gsz.decoder.rans import RansDecoder
+    from gsz.encoder.rans import encode_symbols, fit_model_set
+    mod = native.module()
+    rng = np.random.default_rng(lanes)
+    C, L, B = 4, 3001, 7
+    m = C * B
+    tab = np.arange(m, dtype=np.int64)
+    block = np.sort(np.concatenate([np.arange(L % B), np.repeat(np.arange(B), L // B)]))
+    mids = tab[(np.arange(C)[:, None] * B + block[None, :]).ravel()]
+    scale = np.exp(rng.uniform(-2, 7, m))
+    sym = np.abs(np.round(rng.laplace(0, scale[mids]))).astype(np.int64)
+    sym[mids == 3] = 5                               # a one-value model (a single slot run)
+    models = fit_model_set(sym, mids, m)
+    payload = encode_symbols(sym, mids, models, lanes=lanes)
+    qmax = np.array([int(sym[mids == g].max()) for g in range(m)], np.int64)
+    steps = rng.uniform(0.001, 0.1, m)
+    lo = rng.uniform(-1, 1, m)
+    results = []
+    for simd in (False, True):
+        old = mod.rans_simd(simd)
+        try:
+            outs = []
+            for kind in ("sym16", "deq", "bad"):
+                dec = RansDecoder(payload, sym.size, models, use_native=True)
+                if kind == "sym16":
+                    out = np.empty(C * L, np.uint16)
+                    dec.decode_blocks(tab, C, L, B, out, qmax=qmax)
+                elif kind == "deq":
+                    out = np.empty(C * L, np.float64)
+                    dec.decode_blocks(tab, C, L, B, out, steps=steps, lo=lo, qmax=qmax)
+                else:
+                    q = qmax.copy()
+                    q[5] -= 1                        # one group's width too small
+                    out = np.empty(C * L, np.uint16)
+                    with pytest.raises(GszFormatError, match="quantisation symbol"):
+                        dec.decode_blocks(tab, C, L, B, out, qmax=q)
+                    continue
+                dec.finish()
+                outs.append((out, dec._states.copy(), dec._wpos))
+            results.append(outs)
+        finally:
+            mod.rans_simd(old)
+    (a16, ast, aw), (adq, _, _) = results[0]
+    (b16, bst, bw), (bdq, _, _) = results[1]
+    np.testing.assert_array_equal(a16, sym)
+    np.testing.assert_array_equal(b16, a16)
+    np.testing.assert_array_equal(bst, ast)
+    assert aw == bw
+    np.testing.assert_array_equal(adq, lo[mids] + steps[mids] * sym)
+    assert adq.tobytes() == bdq.tobytes()
+
+
 # ------------------------------------------------------------------ encoder: identical bytes
 @needs_native
 @pytest.mark.parametrize("case", range(5))

@@ -645,6 +645,24 @@ static PyObject *py_rans_decode_blocks(PyObject *self, PyObject *args)
     return PyLong_FromLongLong(s.w);
 }
 
+PyDoc_STRVAR(rans_simd_doc,
+"rans_simd(on=None) -> bool\n\n"
+"Whether rans_decode_blocks may use its AVX2 loop (where the CPU has AVX2); on=False / True\n"
+"sets it (True only takes where the CPU has AVX2).  Returns the setting before the call.  The\n"
+"two loops give the same values; the switch is for tests and benchmarks.");
+
+static PyObject *py_rans_simd(PyObject *self, PyObject *args)
+{
+    PyObject *on = Py_None;
+    if (!PyArg_ParseTuple(args, "|O", &on)) return NULL;
+    int v = -1;
+    if (on != Py_None) {
+        v = PyObject_IsTrue(on);
+        if (v < 0) return NULL;
+    }
+    return PyBool_FromLong(rans_simd(v) > 0);
+}
+
 /* ================================================================== model sets, varints */
 PyDoc_STRVAR(read_varints_doc,
 "read_varints(buf, pos, count, out) -> int\n\n"
@@ -1176,6 +1194,7 @@ static PyMethodDef methods[] = {
     {"rans_decode_blocks", py_rans_decode_blocks, METH_VARARGS, rans_decode_blocks_doc},
     {"planes_to_f32", py_planes_to_f32, METH_VARARGS, planes_to_f32_doc},
     {"quat_from_trig", py_quat_from_trig, METH_VARARGS, quat_from_trig_doc},
+    {"rans_simd", py_rans_simd, METH_VARARGS, rans_simd_doc},
     {"voxel_positions", py_voxel_positions, METH_VARARGS, voxel_positions_doc},
     {"sh_assemble", py_sh_assemble, METH_VARARGS, sh_assemble_doc},
     {"all_finite", py_all_finite, METH_O, all_finite_doc},
@@ -1203,6 +1222,7 @@ PyMODINIT_FUNC PyInit__native(void)
     if (!FormatError) return NULL;
     raht_static_init();
     octree_static_init();
+    rans_simd(-1);
     PyObject *m = PyModule_Create(&moddef);
     if (!m) return NULL;
     if (PyModule_AddIntConstant(m, "ABI", GSZ_NATIVE_ABI) < 0

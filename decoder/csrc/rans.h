@@ -93,6 +93,9 @@ int rans_tables_fill(const MsetParams *p, const MsetTables *o, Err *e);
 int rans_decode_run(const RTab *t, RState *s, const int64_t *mids, int64_t *out, int64_t count,
                     Err *e);
 int rans_decode_blocks_run(const RTab *t, RState *s, const RBlocks *b, Err *e);
+/* Whether the block loop may use AVX2 where the CPU has it: on 0 no, 1 yes, -1 ask; returns the
+ * setting before the call (0 on builds without the AVX2 loop).  Called once at module init. */
+int rans_simd(int on);
 
 /* rans_encode.c: the encoders' final lane states and words (words in wb[wi..n)). */
 typedef struct {

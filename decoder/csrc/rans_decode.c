@@ -4,6 +4,13 @@
 
 #include <string.h>
 
+#if defined(__GNUC__) && defined(__x86_64__)
+#define GSZ_RANS_AVX2 1
+#include <immintrin.h>
+#else
+#define GSZ_RANS_AVX2 0
+#endif
+
 /* The d-th largest (1 <= d <= k) of k distinct keys.  Small k: a size-d min-heap; large k: an
  * MSB-first radix select (12-bit digits over the 60-bit keys, five linear passes). */
 static uint64_t select_dth_largest(const uint64_t *key, int64_t k, int64_t d, uint32_t *hist,
@@ -426,15 +433,143 @@ decode_block_sym16_fast(const uint16_t *lut, const uint32_t *fc, const int32_t *
     decode_block_fast_body(lut, fc, val, n, s, len, NULL, uout, 0.0, 0.0, qm, DEQ_SYM16, bo);
 }
 
+#if GSZ_RANS_AVX2
+/* 1: the AVX2 block loop may run (the CPU has AVX2), 0: not, -1: not yet asked */
+static int rans_avx2 = -1;
+/* For the lanes needing a word (bit i of an 8-bit mask), the index of the word lane i takes:
+ * the words are handed out in lane order (ENTROPY.md 4.3's symbol order). */
+static int32_t WORD_PERM[256][8];
+
+int rans_simd(int on)
+{
+    if (rans_avx2 < 0) {
+        for (int m = 0; m < 256; m++)
+            for (int i = 0, k = 0; i < 8; i++) {
+                WORD_PERM[m][i] = (m >> i) & 1 ? k : 0;
+                k += (m >> i) & 1;
+            }
+        __builtin_cpu_init();
+        rans_avx2 = __builtin_cpu_supports("avx2") ? 1 : 0;
+    }
+    const int was = rans_avx2;
+    if (on == 0) rans_avx2 = 0;
+    else if (on == 1) rans_avx2 = __builtin_cpu_supports("avx2") ? 1 : 0;
+    return was;
+}
+
+/* decode_block_fast_body eight symbols at a time: eight consecutive lanes (no wrap) decode
+ * together -- gathers of their LUT slots, (cum, freq) entries and values, one multiply -- and
+ * the lanes that renormalise take the next words in lane order (a permutation by the mask of
+ * lanes needing one).  The same integer steps as the scalar loop, so the same values; lanes
+ * up to the wrap and the last symbols take the scalar step.  len <= words left (as for the
+ * scalar fast loop); eight words are loaded at a time, so groups stop 8 words before the end.
+ * lut has 2^n + 1 readable slots (a 4-byte gather at slot 2^n - 1). */
+static __attribute__((target("avx2"), noinline)) void
+decode_block_avx2(const uint16_t *lut, const uint32_t *fc, const int32_t *val, unsigned n,
+                  RState *s, uint32_t *st32, int *live, int64_t len, double *fout,
+                  uint16_t *uout, double step, double l0, int64_t qm, BlockOut *bo)
+{
+    const int64_t lanes = s->lanes, nwords = s->nwords;
+    const uint8_t *words = s->words;
+    int64_t lane = s->lane, w = s->w, j = 0;
+    if (!*live) {               /* st32 keeps the states from block to block */
+        for (int64_t i = 0; i < lanes; i++) st32[i] = (uint32_t)s->st[i];
+        *live = 1;
+    }
+    const uint32_t mask = (uint32_t)(((uint64_t)1 << n) - 1), qmax = (uint32_t)qm;
+    const __m256i vmask = _mm256_set1_epi32((int)mask), lo16 = _mm256_set1_epi32(0xFFFF),
+                  one = _mm256_set1_epi32(1), zero = _mm256_setzero_si256(),
+                  vq = _mm256_set1_epi32((int)qmax);
+    const __m128i cnt = _mm_cvtsi32_si128((int)n);
+    const __m256d vstep = _mm256_set1_pd(step), vl0 = _mm256_set1_pd(l0);
+    __m256i badv = zero;
+    uint32_t bad_q = 0;
+    while (j < len) {
+        if (lane + 8 <= lanes && j + 8 <= len && w + 8 <= nwords) {
+            __m256i x = _mm256_loadu_si256((const __m256i *)(st32 + lane));
+            const __m256i slot = _mm256_and_si256(x, vmask);
+            const __m256i k = _mm256_and_si256(_mm256_i32gather_epi32((const int *)lut, slot, 2), lo16);
+            const __m256i ent = _mm256_i32gather_epi32((const int *)fc, k, 4);
+            const __m256i v = _mm256_i32gather_epi32((const int *)val, k, 4);
+            const __m256i f = _mm256_add_epi32(_mm256_and_si256(ent, lo16), one);
+            const __m256i c = _mm256_srli_epi32(ent, 16);
+            x = _mm256_add_epi32(_mm256_mullo_epi32(f, _mm256_srl_epi32(x, cnt)), _mm256_sub_epi32(slot, c));
+            const __m256i need = _mm256_cmpeq_epi32(_mm256_srli_epi32(x, 16), zero);
+            const int m = _mm256_movemask_ps(_mm256_castsi256_ps(need));
+            const __m256i w32 = _mm256_cvtepu16_epi32(_mm_loadu_si128((const __m128i *)(words + 2 * w)));
+            const __m256i wl = _mm256_permutevar8x32_epi32(
+                w32, _mm256_loadu_si256((const __m256i *)WORD_PERM[m]));
+            x = _mm256_blendv_epi8(x, _mm256_or_si256(_mm256_slli_epi32(x, 16), wl), need);
+            _mm256_storeu_si256((__m256i *)(st32 + lane), x);
+            w += __builtin_popcount((unsigned)m);
+            /* a value above qmax (or negative: above it as uint32) */
+            badv = _mm256_or_si256(badv, _mm256_xor_si256(_mm256_cmpeq_epi32(_mm256_max_epu32(v, vq), vq),
+                                                          _mm256_set1_epi32(-1)));
+            if (fout) {
+                const __m256d d0 = _mm256_cvtepi32_pd(_mm256_castsi256_si128(v));
+                const __m256d d1 = _mm256_cvtepi32_pd(_mm256_extracti128_si256(v, 1));
+                _mm256_storeu_pd(fout + j, _mm256_add_pd(_mm256_mul_pd(vstep, d0), vl0));
+                _mm256_storeu_pd(fout + j + 4, _mm256_add_pd(_mm256_mul_pd(vstep, d1), vl0));
+            } else {
+                _mm_storeu_si128((__m128i *)(uout + j),
+                                 _mm_packus_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256(v, 1)));
+            }
+            lane += 8;
+            if (lane == lanes) lane = 0;
+            j += 8;
+        } else {
+            uint64_t x = st32[lane];
+            const uint64_t slot = x & mask;
+            const int64_t ki = lut[slot];
+            const uint32_t ent = fc[ki];
+            x = (uint64_t)((ent & 0xFFFF) + 1) * (x >> n) + slot - (ent >> 16);
+            if (x < 65536u) x = (x << 16) | rd_u16(words + 2 * w++);
+            st32[lane] = (uint32_t)x;
+            lane = lane + 1 == lanes ? 0 : lane + 1;
+            const uint32_t value = (uint32_t)val[ki];
+            bad_q |= value > qmax;
+            if (fout) {
+                const double prod = step * (double)(int32_t)value;
+                fout[j] = prod + l0;
+            } else {
+                uout[j] = (uint16_t)value;
+            }
+            j++;
+        }
+    }
+    bad_q |= !_mm256_testz_si256(badv, badv);
+    s->lane = lane;
+    s->w = w;
+    bo->bad_q |= (int)bad_q;
+}
+#else
+int rans_simd(int on)
+{
+    (void)on;
+    return 0;
+}
+#endif
+
 /* Tables without a LUT (rans_tables(with_lut=False)): model m's LUT is made from its (cum,
  * freq) entries into one 2^16-slot buffer when a block needs it, and kept while the next
  * blocks use the same model.  A set's whole LUT is 2 bytes per slot of every model (100 MB
  * for a 1.2 M-Gaussian file's kept SH set): fresh pages and a pass over them per decode,
  * where one model's slots stay in the cache. */
 typedef struct {
-    uint16_t *buf;
+    uint16_t *buf;          /* 2^16 + 2 slots: the AVX2 loop's 4-byte gathers read one past */
     int64_t model;          /* whose LUT buf holds, -1 none */
+    uint32_t *st32;         /* the lane states as uint32 for the AVX2 loop ([lanes], or NULL) */
+    int st32_live;          /* st32 holds the states (s->st is stale) */
 } LazyLut;
+
+/* The lane states back to s->st where the AVX2 loop left them in st32 (before any other loop
+ * and at the end of a channel set: converting per block was a tenth of the loop's time). */
+static void states_home(LazyLut *z, RState *s)
+{
+    if (!z->st32_live) return;
+    for (int64_t i = 0; i < s->lanes; i++) s->st[i] = (int64_t)z->st32[i];
+    z->st32_live = 0;
+}
 
 static const uint16_t *lazy_lut(const RTab *t, LazyLut *z, int64_t m, unsigned n, Err *e)
 {
@@ -493,6 +628,15 @@ static int decode_one_block(const RTab *t, LazyLut *z, RState *s, const RBlocks 
             if (f > s->nwords - s->w) f = s->nwords - s->w;
             if (f < FAST_MIN_RUN && f < len - done) break;
             if (f <= 0) break;
+#if GSZ_RANS_AVX2
+            if (z->st32)
+                decode_block_avx2(lut, fc, val, n, s, z->st32, &z->st32_live, f,
+                                  bl->steps ? bl->fout + at + done : NULL,
+                                  bl->steps ? NULL : bl->uout + at + done,
+                                  bl->steps ? bl->steps[g] : 0.0, bl->steps ? bl->lo[g] : 0.0,
+                                  bl->qmax[g], &bo);
+            else
+#endif
             if (bl->steps)
                 decode_block_deq_fast(lut, fc, val, n, s, f, bl->fout + at + done, bl->steps[g],
                                       bl->lo[g], bl->qmax[g], &bo);
@@ -502,6 +646,7 @@ static int decode_one_block(const RTab *t, LazyLut *z, RState *s, const RBlocks 
         }
     }
     const int64_t rest = len - done;
+    if (rest) states_home(z, s);
     if (rest && bl->steps)
         decode_block_deq(lut, fc, val, t->nsym - sb, n, s, rest, bl->fout + at + done, bl->steps[g],
                          bl->lo[g], bl->qmax[g], &bo);
@@ -518,9 +663,17 @@ static int decode_one_block(const RTab *t, LazyLut *z, RState *s, const RBlocks 
 int rans_decode_blocks_run(const RTab *t, RState *s, const RBlocks *bl, Err *e)
 {
     const int64_t base = bl->L / bl->B, extra = bl->L % bl->B;
-    LazyLut z = {NULL, -1};
-    if (!t->lut && !(z.buf = malloc(((size_t)1 << MAX_PREC_BITS) * sizeof *z.buf)))
+    LazyLut z = {NULL, -1, NULL, 0};
+    if (!t->lut && !(z.buf = malloc((((size_t)1 << MAX_PREC_BITS) + 2) * sizeof *z.buf)))
         return fail_nomem(e);
+#if GSZ_RANS_AVX2
+    if (z.buf && rans_avx2 > 0 && s->lanes >= 8 && (bl->steps || bl->uout)) {
+        if (!(z.st32 = malloc((size_t)s->lanes * sizeof *z.st32))) {
+            free(z.buf);
+            return fail_nomem(e);
+        }
+    }
+#endif
     int rc = 0;
     for (int64_t c = 0; c < bl->C && !rc; c++) {
         int64_t i = 0;
@@ -532,6 +685,8 @@ int rans_decode_blocks_run(const RTab *t, RState *s, const RBlocks *bl, Err *e)
             if (decode_one_block(t, &z, s, bl, c, b, i - len, len, e) < 0) { rc = -1; break; }
         }
     }
+    states_home(&z, s);
     free(z.buf);
+    free(z.st32);
     return rc;
 }
