@@ -109,8 +109,9 @@ static inline uint32_t luma_chroma_row(float *v, int64_t D)
 }
 
 /* Kept vectors per cache-friendly step of the transposed copy: the [D, P] channel set is read
- * column by column, so one step reads D runs of SH_TILE values and writes SH_TILE rows. */
-#define SH_TILE 256
+ * column by column, so one step reads D runs of SH_TILE values into SH_TILE rows of a tile
+ * that stays in the L1 cache (128 rows of 45 floats: 23 KB). */
+#define SH_TILE 128
 /* most SH importance classes (gsz.decoder.sh.MAX_SH_CLASSES) */
 #define SH_MAX_CLASSES 16
 
@@ -127,7 +128,14 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
     /* per codeword: has a non-finite component (the finiteness of the output is collected as
      * it is written: no second pass over the largest output field) */
     uint8_t *rbad = malloc((size_t)(K ? K : 1));
-    if (!rows || !at || !rbad) { free(rows); free(at); free(rbad); return fail_nomem(e); }
+    /* one tile of kept rows, made in the cache and copied to its output rows whole: the rows
+     * lie anywhere in the output, and writing them a component at a time touched each row's
+     * page D times per tile (a TLB miss and a cache miss per store) */
+    float *tile = malloc((size_t)SH_TILE * (size_t)(D ? D : 1) * sizeof *tile);
+    if (!rows || !at || !rbad || !tile) {
+        free(rows); free(at); free(rbad); free(tile);
+        return fail_nomem(e);
+    }
     for (int64_t j = 0; j < K; j++) {
         uint32_t bad = 0;
         for (int64_t d = 0; d < D; d++) {
@@ -191,15 +199,19 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
                 for (int64_t d = 0; d < D; d++) {
                     const uint16_t *src = kept + d * P;
                     const double st = steps[d * B + b], l0 = lo[d * B + b];
+                    float *dst = tile + d - t0 * D;
                     for (int64_t t = t0; t < t1; t++) {
                         const double prod = st * (double)src[t];
                         const float f = (float)(prod + l0);
                         bad |= !f32_finite(f);
-                        out[at[t] * D + d] = f;
+                        dst[t * D] = f;
                     }
                 }
-                if (colour)        /* the tile's rows are still in cache */
-                    for (int64_t t = t0; t < t1; t++) bad |= luma_chroma_row(out + at[t] * D, D);
+                for (int64_t t = t0; t < t1; t++) {
+                    float *row = tile + (t - t0) * D;
+                    if (colour) bad |= luma_chroma_row(row, D);
+                    memcpy(out + at[t] * D, row, (size_t)D * sizeof *out);
+                }
             }
             s0 = s1;
         }
@@ -207,6 +219,7 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
     free(rows);
     free(at);
     free(rbad);
+    free(tile);
     *finite = !bad;
     return rc;
 }
