@@ -109,11 +109,73 @@ static inline uint32_t luma_chroma_row(float *v, int64_t D)
 }
 
 /* Kept vectors per cache-friendly step of the transposed copy: the [D, P] channel set is read
- * column by column, so one step reads D runs of SH_TILE values into SH_TILE rows of a tile
- * that stays in the L1 cache (128 rows of 45 floats: 23 KB). */
+ * column by column into a component-major tile of D x SH_TILE floats (23 KB for 45
+ * components, L1-resident), whose full-length loops the compiler vectorises; each tile row is
+ * then written to its output row whole (the rows lie anywhere in the output: a component at a
+ * time touched each row's page D times per tile). */
 #define SH_TILE 128
 /* most SH importance classes (gsz.decoder.sh.MAX_SH_CLASSES) */
 #define SH_MAX_CLASSES 16
+
+/* col[0..n) = float(step * k + l0) of the symbols src[0..n), bit for bit as the NumPy path (the
+ * product rounded, then the sum: -ffp-contract=off); returns 1 when one is not finite.  n =
+ * SH_TILE (a constant trip count) is the vectorised case. */
+static inline uint32_t dequant_col(const uint16_t *restrict src, double st, double l0,
+                                   float *restrict col, int64_t n)
+{
+    uint32_t bad = 0;
+    for (int64_t t = 0; t < n; t++) {
+        const double prod = st * (double)src[t];
+        const float f = (float)(prod + l0);
+        col[t] = f;
+        bad |= !f32_finite(f);
+    }
+    return bad;
+}
+
+/* luma_chroma_row on a component-major tile: triplet j's (a, b, c) are columns 3j..3j+2 of
+ * n rows (stride SH_TILE) */
+static inline uint32_t luma_chroma_cols(float *restrict a, float *restrict b, float *restrict c,
+                                        int64_t n)
+{
+    uint32_t bad = 0;
+    for (int64_t t = 0; t < n; t++) {
+        const double x = (double)a[t] * LC_S3, y = (double)b[t] * LC_S2, z = (double)c[t] * LC_S6;
+        const float r = (float)((x + y) + z), g = (float)((x - y) + z), bl = (float)(x - 2.0 * z);
+        a[t] = r;
+        b[t] = g;
+        c[t] = bl;
+        bad |= !f32_finite(r) | !f32_finite(g) | !f32_finite(bl);
+    }
+    return bad;
+}
+
+/* Stored kept vectors [t0, t1) of block b (t1 - t0 <= SH_TILE): dequantised into the tile,
+ * colour-transformed, written to their output rows at[t]. */
+static uint32_t kept_tile(const uint16_t *kept, int64_t P, const double *steps, const double *lo,
+                          int64_t B, int64_t b, int64_t D, int colour, const int64_t *at,
+                          int64_t t0, int64_t t1, float *tile, float *out)
+{
+    uint32_t bad = 0;
+    const int64_t n = t1 - t0;
+    for (int64_t d = 0; d < D; d++) {
+        const uint16_t *src = kept + d * P + t0;
+        const double st = steps[d * B + b], l0 = lo[d * B + b];
+        float *col = tile + d * SH_TILE;
+        bad |= n == SH_TILE ? dequant_col(src, st, l0, col, SH_TILE) : dequant_col(src, st, l0, col, n);
+    }
+    if (colour)
+        for (int64_t j = 0; j + 2 < D; j += 3) {
+            float *a = tile + j * SH_TILE;
+            bad |= n == SH_TILE ? luma_chroma_cols(a, a + SH_TILE, a + 2 * SH_TILE, SH_TILE)
+                                : luma_chroma_cols(a, a + SH_TILE, a + 2 * SH_TILE, n);
+        }
+    for (int64_t t = 0; t < n; t++) {
+        float *row = out + at[t0 + t] * D;
+        for (int64_t d = 0; d < D; d++) row[d] = tile[d * SH_TILE + t];
+    }
+    return bad;
+}
 
 int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *steps,
                     const double *lo, int64_t B, const int64_t *classes, int64_t P,
@@ -128,9 +190,6 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
     /* per codeword: has a non-finite component (the finiteness of the output is collected as
      * it is written: no second pass over the largest output field) */
     uint8_t *rbad = malloc((size_t)(K ? K : 1));
-    /* one tile of kept rows, made in the cache and copied to its output rows whole: the rows
-     * lie anywhere in the output, and writing them a component at a time touched each row's
-     * page D times per tile (a TLB miss and a cache miss per store) */
     float *tile = malloc((size_t)SH_TILE * (size_t)(D ? D : 1) * sizeof *tile);
     if (!rows || !at || !rbad || !tile) {
         free(rows); free(at); free(rbad); free(tile);
@@ -196,22 +255,7 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
             const int64_t s1 = s0 + base + (b < extra);
             for (int64_t t0 = s0; t0 < s1; t0 += SH_TILE) {
                 const int64_t t1 = t0 + SH_TILE < s1 ? t0 + SH_TILE : s1;
-                for (int64_t d = 0; d < D; d++) {
-                    const uint16_t *src = kept + d * P;
-                    const double st = steps[d * B + b], l0 = lo[d * B + b];
-                    float *dst = tile + d - t0 * D;
-                    for (int64_t t = t0; t < t1; t++) {
-                        const double prod = st * (double)src[t];
-                        const float f = (float)(prod + l0);
-                        bad |= !f32_finite(f);
-                        dst[t * D] = f;
-                    }
-                }
-                for (int64_t t = t0; t < t1; t++) {
-                    float *row = tile + (t - t0) * D;
-                    if (colour) bad |= luma_chroma_row(row, D);
-                    memcpy(out + at[t] * D, row, (size_t)D * sizeof *out);
-                }
+                bad |= kept_tile(kept, P, steps, lo, B, b, D, colour, at, t0, t1, tile, out);
             }
             s0 = s1;
         }
