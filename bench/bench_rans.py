@@ -3,6 +3,7 @@
     .venv/bin/python bench/bench_rans.py [--n 10000000] [--models 100] [--repeat 3]
     .venv/bin/python bench/bench_rans.py --scene ../shared/data/flowers_daffodils_sh2.ply --bits 8
     .venv/bin/python bench/bench_rans.py --channel-sets [--repeat 3]
+    .venv/bin/python bench/bench_rans.py --block-loop [--repeat 5]
 
 Data: N symbols in -128..127, M equal blocks, each a rounded Laplace with its own scale
 (U(0.5, 20)), as in platform-notes.md section 5.  Reports encode/decode Msym/s (best of
@@ -18,6 +19,11 @@ houseplant and flowers (``prepare_stage(cloud, ones, 0.8)``, layer 0: RAHT AC [7
 Reports best-of---repeat wall and process-CPU time of the whole call, of its quantisation part
 alone (``quantize_groups`` + ``dequantize_groups``, torch with one thread), the difference
 (entropy coding), the output size and a hash of the bytes (to compare implementations: the output is normative).
+
+With --block-loop: the native decoder's channel-set loop (``RansDecoder.decode_blocks``, uint16
+symbols, as for a kept SH set) on 45 channels x 200 k symbols in 8 blocks, one model per
+(channel, block) (rounded Laplace around 128, scale 12; the precisions fit_model_set picks), 4096 lanes; ns a
+symbol of the scalar loop and of the AVX2 loop (``_native.rans_simd``), best of --repeat.
 """
 from __future__ import annotations
 
@@ -92,6 +98,43 @@ def channel_set_bench(repeat: int, scenes=("houseplant_sh0", "flowers_daffodils_
                       f"{hashlib.sha256(out).hexdigest()[:16]}", flush=True)
 
 
+def block_loop_bench(repeat: int, C: int = 45, L: int = 200_000, B: int = 8) -> None:
+    from gsz.decoder import native
+    if not native.native_available():
+        print("the native decoder is not built: nothing to time")
+        return
+    mod = native.module()
+    rng = np.random.default_rng(0)
+    m = C * B
+    tab = np.arange(m, dtype=np.int64)
+    block = np.sort(np.concatenate([np.arange(L % B), np.repeat(np.arange(B), L // B)]))
+    mids = tab[(np.arange(C)[:, None] * B + block[None, :]).ravel()]
+    sym = np.clip(np.round(rng.laplace(128, 12, mids.size)), 0, 255).astype(np.int64)
+    models = fit_model_set(sym, mids, m)
+    payload = encode_symbols(sym, mids, models, lanes=4096)
+    qmax = np.full(m, 255, np.int64)
+    out = np.zeros(C * L, np.uint16)                 # touched once: the loops, not page faults
+    print(f"{C} channels x {L:,} symbols, {B} blocks, precisions "
+          f"{sorted(set(models.prec.tolist()))}, 4096 lanes")
+    for simd in (False, True):
+        old = mod.rans_simd(simd)
+        try:
+            if simd and not mod.rans_simd():
+                print("AVX2 loop: not available on this CPU or build")
+                continue
+
+            def run():
+                dec = RansDecoder(payload, sym.size, models, use_native=True)
+                dec.decode_blocks(tab, C, L, B, out, qmax=qmax)
+                dec.finish()
+            _, t, c = timed(run, repeat)
+            assert np.array_equal(out, sym)
+            print(f"{'AVX2' if simd else 'scalar':6s} loop  {t * 1e3:7.1f} ms  "
+                  f"{t / sym.size * 1e9:5.2f} ns/symbol wall ({c / sym.size * 1e9:.2f} CPU)")
+        finally:
+            mod.rans_simd(old)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=10_000_000)
@@ -102,7 +145,12 @@ def main(argv=None):
     ap.add_argument("--bits", type=int, default=8, help="quantisation bits with --scene")
     ap.add_argument("--channel-sets", action="store_true",
                     help="time write_channel_set on real channel sets instead")
+    ap.add_argument("--block-loop", action="store_true",
+                    help="time the native channel-set loop, scalar against AVX2, instead")
     args = ap.parse_args(argv)
+    if args.block_loop:
+        block_loop_bench(args.repeat)
+        return
     if args.channel_sets:
         channel_set_bench(args.repeat)
         return
