@@ -89,22 +89,32 @@ int all_finite_run(const uint32_t *p, int64_t n)
     return !bad;
 }
 
-/* SHXF transform 1 (GSZ.md §8.2): the stored (a, b, c) triplets of a row of D = 3K floats back
- * to (R, G, B) in place, bit for bit as gsz.decoder.sh.luma_chroma_to_rgb (float64, no FMA:
- * setup.py builds with -ffp-contract=off); returns 1 when a result is not finite */
+/* SHXF transform 1 (GSZ.md §8.2): stored (a, b, c) triplets back to (R, G, B) in place, bit for
+ * bit as gsz.decoder.sh.luma_chroma_to_rgb (float64, no FMA: setup.py builds with
+ * -ffp-contract=off); returns 1 when a result is not finite.  Here n triplets whose a, b and c
+ * are the columns a, b, c (a component-major tile: stride SH_TILE between them). */
 static const double LC_S3 = 0x1.279a74590331dp-1, LC_S2 = 0x1.6a09e667f3bccp-1, LC_S6 = 0x1.a20bd700c2c3fp-2;
 
+static inline uint32_t luma_chroma_cols(float *restrict a, float *restrict b, float *restrict c,
+                                        int64_t n)
+{
+    uint32_t bad = 0;
+    for (int64_t t = 0; t < n; t++) {
+        const double x = (double)a[t] * LC_S3, y = (double)b[t] * LC_S2, z = (double)c[t] * LC_S6;
+        const float r = (float)((x + y) + z), g = (float)((x - y) + z), bl = (float)(x - 2.0 * z);
+        a[t] = r;
+        b[t] = g;
+        c[t] = bl;
+        bad |= !f32_finite(r) | !f32_finite(g) | !f32_finite(bl);
+    }
+    return bad;
+}
+
+/* The same on one row of D = 3K floats (a codeword): its triplets one at a time. */
 static inline uint32_t luma_chroma_row(float *v, int64_t D)
 {
     uint32_t bad = 0;
-    for (int64_t j = 0; j + 2 < D; j += 3) {
-        const double a = (double)v[j] * LC_S3, b = (double)v[j + 1] * LC_S2, c = (double)v[j + 2] * LC_S6;
-        const float r = (float)((a + b) + c), g = (float)((a - b) + c), bl = (float)(a - 2.0 * c);
-        v[j] = r;
-        v[j + 1] = g;
-        v[j + 2] = bl;
-        bad |= !f32_finite(r) | !f32_finite(g) | !f32_finite(bl);
-    }
+    for (int64_t j = 0; j + 2 < D; j += 3) bad |= luma_chroma_cols(v + j, v + j + 1, v + j + 2, 1);
     return bad;
 }
 
@@ -129,23 +139,6 @@ static inline uint32_t dequant_col(const uint16_t *restrict src, double st, doub
         const float f = (float)(prod + l0);
         col[t] = f;
         bad |= !f32_finite(f);
-    }
-    return bad;
-}
-
-/* luma_chroma_row on a component-major tile: triplet j's (a, b, c) are columns 3j..3j+2 of
- * n rows (stride SH_TILE) */
-static inline uint32_t luma_chroma_cols(float *restrict a, float *restrict b, float *restrict c,
-                                        int64_t n)
-{
-    uint32_t bad = 0;
-    for (int64_t t = 0; t < n; t++) {
-        const double x = (double)a[t] * LC_S3, y = (double)b[t] * LC_S2, z = (double)c[t] * LC_S6;
-        const float r = (float)((x + y) + z), g = (float)((x - y) + z), bl = (float)(x - 2.0 * z);
-        a[t] = r;
-        b[t] = g;
-        c[t] = bl;
-        bad |= !f32_finite(r) | !f32_finite(g) | !f32_finite(bl);
     }
     return bad;
 }

@@ -512,10 +512,7 @@ static int rtab_load(RTabViews *t, PyObject *tables)
         return -1;
     /* v[0]: the LUT, or None (tables made without it) -- an empty view then */
     const int has_lut = o[0] != Py_None;
-    if (!has_lut) {
-        memset(&t->v[0], 0, sizeof t->v[0]);
-        t->v[0].buf = NULL;
-    }
+    if (!has_lut) memset(&t->v[0], 0, sizeof t->v[0]);
     for (t->nv = has_lut ? 0 : 1; t->nv < 6; t->nv++)
         if (getbuf(o[t->nv], &t->v[t->nv], 1, 'x', 0, "rANS tables") < 0) {
             rtab_release(t);

@@ -374,6 +374,40 @@ decode_block_raw(const uint16_t *lut, const uint32_t *fc, const int32_t *val, in
 /* the shortest run decode_one_block hands to the fast loop (below it: the checked loop) */
 #define FAST_MIN_RUN 256
 
+/* One step of the fast loops (ENTROPY.md 4.3) on state x with a model's LUT and (cum, freq)
+ * entries, renormalised from the word at *w with no bounds check (the caller's run has a word
+ * left for every symbol it decodes); returns the new state and the present value's index in
+ * *ki.  x or (x << 16 | next word) by masks: no branch (taken about every other symbol,
+ * unpredictably) and no shift by a variable count (cl is the precision's). */
+static inline __attribute__((always_inline)) uint64_t
+fast_step(uint64_t x, const uint16_t *restrict lut, const uint32_t *restrict fc, uint64_t mask,
+          unsigned n, const uint8_t *restrict words, int64_t *w, int64_t *ki)
+{
+    const uint64_t slot = x & mask;
+    *ki = lut[slot];
+    const uint32_t ent = fc[*ki];
+    x = (uint64_t)((ent & 0xFFFF) + 1) * (x >> n) + slot - (ent >> 16);
+    const uint64_t need = x < 65536u, take = 0 - need;
+    x = (((x << 16) | rd_u16(words + 2 * *w)) & take) | (x & ~take);
+    *w += (int64_t)need;
+    return x;
+}
+
+/* A fast loop's symbol value out: float64 lo + step * k (two roundings) or the uint16 symbol k;
+ * returns 1 when k lies outside 0..qmax (a negative value wraps above qmax). */
+static inline __attribute__((always_inline)) uint32_t
+fast_out(int32_t v, uint32_t qmax, int64_t j, double *restrict fout, uint16_t *restrict uout,
+         double step, double l0, int deq)
+{
+    if (deq == DEQ_FLOAT) {
+        const double prod = step * (double)v;
+        fout[j] = prod + l0;
+    } else {
+        uout[j] = (uint16_t)v;
+    }
+    return (uint32_t)v > qmax;
+}
+
 /* decode_block_body for a block with at least `len` words left (a symbol reads at most one):
  * no clamp of the word position and no overrun flag, and the LUT's entries index the model's
  * present values by construction (rans_tables_fill), so only the symbols' range is checked.
@@ -392,26 +426,10 @@ decode_block_fast_body(const uint16_t *restrict lut, const uint32_t *restrict fc
     const uint32_t qmax = (uint32_t)qm;
     uint32_t bad_q = 0;
     for (int64_t j = 0; j < len; j++) {
-        uint64_t x = (uint64_t)st[lane];
-        const uint64_t slot = x & mask;
-        const int64_t ki = lut[slot];
-        const uint32_t ent = fc[ki];
-        x = (uint64_t)((ent & 0xFFFF) + 1) * (x >> n) + slot - (ent >> 16);
-        /* x or (x << 16 | next word) by masks: no branch (taken about every other symbol,
-         * unpredictably) and no shift by a variable count (cl is the precision's) */
-        const uint64_t need = x < 65536u, take = 0 - need;
-        x = (((x << 16) | rd_u16(words + 2 * w)) & take) | (x & ~take);
-        w += (int64_t)need;
-        st[lane] = (int64_t)x;
+        int64_t ki;
+        st[lane] = (int64_t)fast_step((uint64_t)st[lane], lut, fc, mask, n, words, &w, &ki);
         lane = lane + 1 == lanes ? 0 : lane + 1;
-        const uint32_t value = (uint32_t)val[ki];     /* a negative value wraps above qmax */
-        bad_q |= value > qmax;
-        if (deq == DEQ_FLOAT) {
-            const double prod = step * (double)(int32_t)value;
-            fout[j] = prod + l0;
-        } else {
-            uout[j] = (uint16_t)value;
-        }
+        bad_q |= fast_out(val[ki], qmax, j, fout, uout, step, l0, deq);
     }
     s->lane = lane;
     s->w = w;
@@ -518,22 +536,10 @@ decode_block_avx2(const uint16_t *lut, const uint32_t *fc, const int32_t *val, u
             if (lane == lanes) lane = 0;
             j += 8;
         } else {
-            uint64_t x = st32[lane];
-            const uint64_t slot = x & mask;
-            const int64_t ki = lut[slot];
-            const uint32_t ent = fc[ki];
-            x = (uint64_t)((ent & 0xFFFF) + 1) * (x >> n) + slot - (ent >> 16);
-            if (x < 65536u) x = (x << 16) | rd_u16(words + 2 * w++);
-            st32[lane] = (uint32_t)x;
+            int64_t ki;
+            st32[lane] = (uint32_t)fast_step(st32[lane], lut, fc, mask, n, words, &w, &ki);
             lane = lane + 1 == lanes ? 0 : lane + 1;
-            const uint32_t value = (uint32_t)val[ki];
-            bad_q |= value > qmax;
-            if (fout) {
-                const double prod = step * (double)(int32_t)value;
-                fout[j] = prod + l0;
-            } else {
-                uout[j] = (uint16_t)value;
-            }
+            bad_q |= fast_out(val[ki], qmax, j, fout, uout, step, l0, fout ? DEQ_FLOAT : DEQ_SYM16);
             j++;
         }
     }
