@@ -14,6 +14,7 @@ import numpy as np
 from ..decoder import native
 from ..decoder.errors import CloudValidationError
 from ..decoder.morton import MAX_DEPTH, morton_decode, morton_encode
+from ..decoder.threads import thread_map
 from ..decoder.octree import (FLAG_PLANE, SCHEME_ADAPTIVE_BITWISE, SCHEME_DIRECT, bank_model_set,
                               bank_precision, octree_tables, pack_direct_bits, walk_octree)
 from .rans import encode_symbols, varint_bytes
@@ -213,7 +214,11 @@ def choose_direct_level(codes: np.ndarray, depth: int) -> int | None:
 
 def _choose(codes: np.ndarray, depth: int) -> tuple:
     """(direct level or None, payload) per choose_direct_level."""
-    tried = [(d, _payload(codes, depth, d)) for d in direct_candidates(codes, depth)]
+    cands = direct_candidates(codes, depth)
+    # side by side on the cores: each candidate's traversal and coder release the GIL, and a
+    # stage's larger tile would otherwise code its two or three candidates alone while the
+    # other tiles are done (the 1.2 M bench: 845 k + 354 k voxels)
+    tried = list(zip(cands, thread_map(lambda i: _payload(codes, depth, cands[i]), len(cands))))
     smallest = min(len(p) for _, p in tried)
     tolerance = DIRECT_TOLERANCE if codes.size > SCHEME0_TRIED_BELOW else 0.0
     return next((d, p) for d, p in tried if len(p) <= smallest * (1 + tolerance))

@@ -16,6 +16,8 @@ from collections import OrderedDict
 import numpy as np
 
 from ...decoder.pages import small_pages
+from ...decoder.threads import thread_map
+from ..executor import SIDE_BY_SIDE_MAX_GAUSSIANS
 from ..pipeline import (EncodeOptionsError, EncodeResult, Stage, attribute_chunks, compute_train_importance,
                         prepare_stage, raht_classes_for, sh_chunk, sh_set_blocks, voxelize_stage, write_file)
 from ..progress import Progress
@@ -329,9 +331,18 @@ class BudgetSearch:
         if self.codebooks:
             with self.progress.stage("sh-model", f"tau {stage.reserve}: kept-vector statistics"):
                 base = ShStageStats(stage, self.sopts.blocks)
-        for cb in self.codebooks:
-            with self.progress.stage("sh-model", f"tau {stage.reserve}, codebook {len(cb)}"):
-                models.append(ShModel(stage, cb, self.sopts.blocks, base, self.assigner(stage, cb)))
+        if not self.codebooks:
+            return models
+        sizes = ", ".join(str(len(cb)) for cb in self.codebooks)
+        with self.progress.stage("sh-model", f"tau {stage.reserve}, codebooks {sizes}"):
+            # the assignments one after the other (the assigner's cache is shared), then the
+            # models side by side where a stage's parts are (each reads only the stage and its
+            # own codebook and index; their [M] arrays at once would raise a 6 M search's peak)
+            index = [self.assigner(stage, cb) for cb in self.codebooks]
+            make = (lambda i: ShModel(stage, self.codebooks[i], self.sopts.blocks, base, index[i]))
+            n = len(self.codebooks)
+            models = (thread_map(make, n) if stage.num_points <= SIDE_BY_SIDE_MAX_GAUSSIANS
+                      else [make(i) for i in range(n)])
         return models
 
     def try_tau(self, tau, d=None, fl=None, min_keep: int = 0) -> None:
