@@ -14,7 +14,6 @@ import numpy as np
 from ..decoder import native
 from ..decoder.errors import CloudValidationError
 from ..decoder.morton import MAX_DEPTH, morton_decode, morton_encode
-from ..decoder.threads import thread_map
 from ..decoder.octree import (FLAG_PLANE, SCHEME_ADAPTIVE_BITWISE, SCHEME_DIRECT, bank_model_set,
                               bank_precision, octree_tables, pack_direct_bits, walk_octree)
 from .rans import encode_symbols, varint_bytes
@@ -117,8 +116,10 @@ def _validated_codes(ijk: np.ndarray, depth: int) -> np.ndarray:
     return codes
 
 
-def _symbols(codes: np.ndarray, depth: int, direct_from: int | None):
-    """(coded bits int64 [S], bank model ids int64 [S], raw section bytes) of sorted codes."""
+def _symbols(codes: np.ndarray, depth: int, direct_from: int | None, narrow: bool = False):
+    """(coded bits int64 [S], bank model ids int64 [S], raw section bytes) of sorted codes;
+    ``narrow``: uint8 where the C traversal makes them (as the C coder takes them: two int64
+    copies are ~16 bytes a symbol, 80 MB for a tile of 845 k voxels)."""
     if direct_from is not None and not 1 <= direct_from < depth:
         raise ValueError(f"direct level {direct_from} outside 1..{depth - 1}")
     if direct_from is not None and codes.size:
@@ -129,6 +130,9 @@ def _symbols(codes: np.ndarray, depth: int, direct_from: int | None):
         occ = occupancy_levels(codes, depth) if codes.size else []
     if native.enabled() and codes.size <= native.module().MAX_POINTS:
         bits, mods = _native_symbols(codes, occ, int(depth), direct_from, tree)
+        del tree, occ
+        if narrow:
+            return bits, mods, raw
         return bits.astype(np.int64), mods.astype(np.int64), raw
     syms, mods = [], []
 
@@ -214,11 +218,7 @@ def choose_direct_level(codes: np.ndarray, depth: int) -> int | None:
 
 def _choose(codes: np.ndarray, depth: int) -> tuple:
     """(direct level or None, payload) per choose_direct_level."""
-    cands = direct_candidates(codes, depth)
-    # side by side on the cores: each candidate's traversal and coder release the GIL, and a
-    # stage's larger tile would otherwise code its two or three candidates alone while the
-    # other tiles are done (the 1.2 M bench: 845 k + 354 k voxels)
-    tried = list(zip(cands, thread_map(lambda i: _payload(codes, depth, cands[i]), len(cands))))
+    tried = [(d, _payload(codes, depth, d)) for d in direct_candidates(codes, depth)]
     smallest = min(len(p) for _, p in tried)
     tolerance = DIRECT_TOLERANCE if codes.size > SCHEME0_TRIED_BELOW else 0.0
     return next((d, p) for d, p in tried if len(p) <= smallest * (1 + tolerance))
@@ -244,12 +244,12 @@ def encode_octree(ijk: np.ndarray, depth: int, direct_from: int | str | None = "
 
 
 def _payload(codes: np.ndarray, depth: int, direct_from: int | None) -> bytes:
-    syms, mods, raw = _symbols(codes, depth, direct_from)
+    syms, mods, raw = _symbols(codes, depth, direct_from, narrow=True)
     n = int(syms.size)
     if native.enabled():
         # binary rANS in C: the bytes encode_symbols writes for the bank (ENTROPY.md 6)
         tables = octree_tables(bank_precision(n))
-        body = native.module().bank_encode(syms.astype(np.uint8), mods.astype(np.uint8),
+        body = native.module().bank_encode(np.ascontiguousarray(syms, np.uint8), np.ascontiguousarray(mods, np.uint8),
                                            tables[5], tables[6], choose_lanes(n))
     else:
         body = encode_symbols(syms, mods, bank_model_set(n), lanes=choose_lanes(n))
