@@ -49,6 +49,8 @@ def main(argv=None) -> int:
     p.add_argument("scene", type=Path)
     p.add_argument("--noise", action="store_true", help="bench_codec's noise first (the RD bench's noised variant)")
     p.add_argument("--bits", default="10,20,40,60,90,130,180", help="budgets, bits a vector")
+    p.add_argument("--sample", type=int, default=0,
+                   help="evenly spaced Gaussians only (the size of a per-file decision's sample)")
     p.add_argument("--out", type=Path, help="append the result as a JSON line")
     a = p.parse_args(argv)
     from gsz.encoder.bit_allocation import allocate
@@ -59,6 +61,8 @@ def main(argv=None) -> int:
         from bench_codec import add_noise
         cloud = add_noise(cloud)
     sh = np.asarray(cloud.sh_rest, np.float64)
+    if a.sample and a.sample < sh.shape[0]:
+        sh = sh[np.linspace(0, sh.shape[0] - 1, a.sample).astype(np.int64)]
     n, k, _ = sh.shape
     if k == 0:
         raise SystemExit(f"{a.scene}: no SH rest")
@@ -83,14 +87,15 @@ def main(argv=None) -> int:
     for snr in res["luma-chroma"]:
         kb = np.interp(snr, res["klt"], np.log(budgets), left=np.nan, right=np.nan)
         need.append(float(np.exp(kb)))
-    print(f"{a.scene.name}{' noised' if a.noise else ''}: {n:,} Gaussians, D {3 * k}, {blocks} blocks")
+    print(f"{a.scene.name}{' noised' if a.noise else ''}: {n:,} Gaussians{' (sample)' if a.sample else ''}, "
+          f"D {3 * k}, {blocks} blocks")
     print("| bits/vector | luma/chroma SNR dB | KLT SNR dB | gain dB | KLT bits for luma/chroma's SNR |")
     print("|---|---|---|---|---|")
     for b, s0, s1, nb in zip(budgets, res["luma-chroma"], res["klt"], need):
         print(f"| {b:g} | {s0:.2f} | {s1:.2f} | {s1 - s0:+.2f} | {nb:.1f} ({nb / b:.2f}x) |")
     if a.out:
         with open(a.out, "a") as f:
-            f.write(json.dumps({"scene": a.scene.stem, "noise": a.noise, "gaussians": n, "dims": 3 * k,
+            f.write(json.dumps({"scene": a.scene.stem, "noise": a.noise, "gaussians": n, "sample": bool(a.sample), "dims": 3 * k,
                                 "bits_per_vector": budgets, **res, "klt_bits_for_same_snr": need}) + "\n")
     return 0
 
