@@ -249,8 +249,8 @@ def _payload(codes: np.ndarray, depth: int, direct_from: int | None) -> bytes:
     if native.enabled():
         # binary rANS in C: the bytes encode_symbols writes for the bank (ENTROPY.md 6)
         tables = octree_tables(bank_precision(n))
-        body = native.module().bank_encode(np.ascontiguousarray(syms, np.uint8), np.ascontiguousarray(mods, np.uint8),
-                                           tables[5], tables[6], choose_lanes(n))
+        u8 = (lambda a: np.ascontiguousarray(a, np.uint8))
+        body = native.module().bank_encode(u8(syms), u8(mods), tables[5], tables[6], choose_lanes(n))
     else:
         body = encode_symbols(syms, mods, bank_model_set(n), lanes=choose_lanes(n))
     if direct_from is None:

@@ -327,12 +327,10 @@ class BudgetSearch:
 
     def sh_models(self, stage: Stage) -> list:
         """One SH model per codebook of the stage (none without SH)."""
-        models = []
-        if self.codebooks:
-            with self.progress.stage("sh-model", f"tau {stage.reserve}: kept-vector statistics"):
-                base = ShStageStats(stage, self.sopts.blocks)
         if not self.codebooks:
-            return models
+            return []
+        with self.progress.stage("sh-model", f"tau {stage.reserve}: kept-vector statistics"):
+            base = ShStageStats(stage, self.sopts.blocks)
         sizes = ", ".join(str(len(cb)) for cb in self.codebooks)
         with self.progress.stage("sh-model", f"tau {stage.reserve}, codebooks {sizes}"):
             # the assignments one after the other (the assigner's cache is shared), then the
