@@ -32,6 +32,7 @@ import time
 
 import numpy as np
 
+from gsz.decoder.quant import split_lengths
 from gsz.decoder.rans import RansDecoder, read_model_set, read_varint
 from gsz.encoder.rans import encode_symbols, fit_model_set, write_model_set
 
@@ -107,7 +108,7 @@ def block_loop_bench(repeat: int, C: int = 45, L: int = 200_000, B: int = 8) -> 
     rng = np.random.default_rng(0)
     m = C * B
     tab = np.arange(m, dtype=np.int64)
-    block = np.sort(np.concatenate([np.arange(L % B), np.repeat(np.arange(B), L // B)]))
+    block = np.repeat(np.arange(B), split_lengths(L, B))     # the codec's blocks of a channel
     mids = tab[(np.arange(C)[:, None] * B + block[None, :]).ravel()]
     sym = np.clip(np.round(rng.laplace(128, 12, mids.size)), 0, 255).astype(np.int64)
     models = fit_model_set(sym, mids, m)

@@ -16,8 +16,7 @@ from collections import OrderedDict
 import numpy as np
 
 from ...decoder.pages import small_pages
-from ...decoder.threads import thread_map
-from ..executor import SIDE_BY_SIDE_MAX_GAUSSIANS
+from ..executor import in_order
 from ..pipeline import (EncodeOptionsError, EncodeResult, Stage, attribute_chunks, compute_train_importance,
                         prepare_stage, raht_classes_for, sh_chunk, sh_set_blocks, voxelize_stage, write_file)
 from ..progress import Progress
@@ -334,14 +333,12 @@ class BudgetSearch:
         sizes = ", ".join(str(len(cb)) for cb in self.codebooks)
         with self.progress.stage("sh-model", f"tau {stage.reserve}, codebooks {sizes}"):
             # the assignments one after the other (the assigner's cache is shared), then the
-            # models side by side where a stage's parts are (each reads only the stage and its
-            # own codebook and index; their [M] arrays at once would raise a 6 M search's peak)
+            # models by the parts' rule (in_order): side by side on threads where a stage's
+            # parts are, else one at a time (their [M] arrays at once would raise a 6 M peak);
+            # each reads only the stage and its own codebook and index
             index = [self.assigner(stage, cb) for cb in self.codebooks]
-            make = (lambda i: ShModel(stage, self.codebooks[i], self.sopts.blocks, base, index[i]))
-            n = len(self.codebooks)
-            models = (thread_map(make, n) if stage.num_points <= SIDE_BY_SIDE_MAX_GAUSSIANS
-                      else [make(i) for i in range(n)])
-        return models
+            return list(in_order(None, lambda i: ShModel(stage, self.codebooks[i], self.sopts.blocks, base, index[i]),
+                                 range(len(self.codebooks)), gaussians=stage.num_points))
 
     def try_tau(self, tau, d=None, fl=None, min_keep: int = 0) -> None:
         """Encode (tau, depth d, layer split fl), score it on the train views and add it to the
