@@ -22,8 +22,8 @@ MAGIC = b"\x89GSZ\r\n\x1a\n"
 VERSION_MAJOR = 1
 #: the newest minor version this decoder knows (1.2 added spatial tiles, 1.3 SH classes, 1.4
 #: direct-coded octree points, 1.5 RAHT leaf weights, 1.6 the SH colour transform, 1.7 its DC
-#: colour bit); an encoder writes the lowest minor whose features the file uses
-VERSION_MINOR = 7
+#: colour bit, 1.8 its SH KLT bit); an encoder writes the lowest minor whose features the file uses
+VERSION_MINOR = 8
 MINOR_LAYERS = 1
 MINOR_TILES = 2
 MINOR_SH_CLASSES = 3
@@ -31,6 +31,7 @@ MINOR_DIRECT = 4
 MINOR_RAHT_WEIGHTS = 5
 MINOR_SH_COLOUR = 6
 MINOR_DC_COLOUR = 7
+MINOR_SH_KLT = 8
 HEADER_SIZE = 64
 CHUNK_ENTRY_SIZE = 24
 

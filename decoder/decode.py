@@ -34,7 +34,7 @@ CHUNK_NAMES = {CHUNK_GEOM: "geometry (octree)", CHUNK_ATTR: "attributes (RAHT + 
                CHUNK_SHVQ: "SH (codebook + kept + indices)", CHUNK_META: "metadata (JSON)",
                CHUNK_TILE: "tile table", CHUNK_SHCL: "SH importance classes",
                CHUNK_RWGT: "RAHT leaf weights (importance classes)",
-               CHUNK_SHXF: "SH colour transform (luma/chroma)"}
+               CHUNK_SHXF: "SH colour transform (luma/chroma, KLT)"}
 
 
 def read_meta(container: Container) -> dict:

@@ -30,7 +30,7 @@ from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, 
 from .pages import small_pages
 from .raht import build_raht_tree
 from .rotation import quaternion_f32_from_trig
-from .sh import read_sh_checked, turn_dc
+from .sh import read_sh_checked, turn_dc, turn_sh_klt
 from .threads import cores
 
 
@@ -223,6 +223,7 @@ class LayerState:
     per_byte: int | None = None
     decoded_points: int = 0
     codebook: np.ndarray | None = None      # the tile's SH codebook [D, K_cb], once seen
+    sh_klt: np.ndarray | None = None        # the tile's SH KLT matrix int16 [D, D], once seen
 
 
 def check_tile_complete(state: LayerState, tile: int, tiled: bool) -> None:
@@ -371,9 +372,11 @@ def _decode_layer(chunks: dict, header, state: LayerState, overlap: bool, label:
         rwgt = _read_weights(chunks, m)
         cloud = _finish_layer(gh, codes, _read_attributes_and_sh(chunks, header, state, m, dest, rwgt),
                               header, state, dest, leaf_weights=leaf_weights_of(rwgt))
-    # the DC colour's SHXF transform (1.7), on the f32 values every path made alike
+    # the DC colour's SHXF transform (1.7) and the SH vectors' KLT (1.8), on the f32 values
+    # every path made alike
     if not turn_dc(chunks.get(CHUNK_SHXF), cloud.sh_dc, header.sh_degree):
         _check_finite({name: name != "sh_dc" for name in FIELDS})
+    state.sh_klt = turn_sh_klt(chunks.get(CHUNK_SHXF), cloud.sh_rest, header.sh_degree, state.sh_klt)
     state.decoded_points += m
     return cloud
 

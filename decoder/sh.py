@@ -34,11 +34,18 @@ coded in (GSZ.md §8.2)::
     u8   transforms         bit 0 (1.6): the SH vectors are luma/chroma: every stored (a, b, c)
                             triplet of one coefficient is turned back into (R, G, B) by
                             :func:`luma_chroma_to_rgb`; bit 1 (1.7): so is the DC colour, after
-                            the inverse RAHT (:func:`turn_dc`); other bits 0, not both 0
+                            the inverse RAHT (:func:`turn_dc`); bit 2 (1.8): the SH vectors are
+                            in the file's own axes (KLT, :func:`klt_to_rgb`), not with bit 0;
+                            other bits 0, not all 0
+    if bit 2:
+      u8  D                 0: the matrix of an earlier layer of the tile; else 3K
+      i16 klt[D][D]         (D > 0) row i: stored component i in RGB components, times 2^-14
 
 A view-dependent change in a real capture is mostly a change of brightness, so its three colour
 channels are strongly correlated; coded as luma and two chroma differences they take fewer bits
-(docs/design/sh-colour.md).
+(docs/design/sh-colour.md).  In a trained capture the components of one vector are correlated
+too (one luma coefficient with another): turned by their principal axes, the same SNR takes
+0.3-0.6x the bits (docs/design/sh-klt.md).
 """
 from __future__ import annotations
 
@@ -46,6 +53,7 @@ import numpy as np
 
 from .bytesio import Reader
 from .cloud import FRESH, OutputRows, sh_rest_count
+from .errors import GszFormatError
 from .groups import read_channel_set, read_channel_set_symbols
 from . import native
 from .rans import decode_stream_single
@@ -65,28 +73,114 @@ def class_order(classes: np.ndarray) -> np.ndarray:
 
 
 #: SHXF transform bits (GSZ.md §8.2): 1 = the SH vectors as luma/chroma (1.6), 2 = the DC
-#: colour as luma/chroma (1.7); 0 = no SHXF chunk (RGB)
+#: colour as luma/chroma (1.7), 4 = the SH vectors in the file's own axes (KLT, 1.8); 0 = no
+#: SHXF chunk (RGB)
 SH_COLOUR_RGB = 0
 SH_COLOUR_LUMA_CHROMA = 1
 SH_COLOUR_DC = 2
-SH_COLOUR_BITS = SH_COLOUR_LUMA_CHROMA | SH_COLOUR_DC
+SH_COLOUR_KLT = 4
+SH_COLOUR_BITS = SH_COLOUR_LUMA_CHROMA | SH_COLOUR_DC | SH_COLOUR_KLT
+#: the KLT matrix's entries are int16 times 2^-KLT_MATRIX_SHIFT
+KLT_MATRIX_SHIFT = 14
+#: stored values are taken as integers times 2^-KLT_VALUE_SHIFT before the matrix product
+KLT_VALUE_SHIFT = 24
+#: a stored value must be below this in magnitude: then every product and partial sum of the
+#: KLT inverse is an integer below 2^53 (2^32 * 2^15 * 45 < 2^53), exact in binary64
+KLT_MAX_ABS = 256.0
+#: rows per step of the KLT inverse (a [16384, 45] float64 block: 6 MB)
+_KLT_ROWS = 1 << 14
+
+
+class ShColour(int):
+    """An SHXF chunk's transform bits (an int: ``colour & SH_COLOUR_DC`` as before) with the
+    KLT matrix bit 2 needs: ``klt`` int16 [D, D] (row i: stored component i in RGB components,
+    times 2^-KLT_MATRIX_SHIFT), or None (no KLT, or a later layer's chunk that uses its tile's
+    matrix).  Bit operations give plain ints: a DC-only colour carries no matrix."""
+
+    klt: np.ndarray | None
+
+    def __new__(cls, bits: int, klt: np.ndarray | None = None):
+        obj = super().__new__(cls, int(bits))
+        obj.klt = None if klt is None else np.ascontiguousarray(klt, np.int16)
+        return obj
+
+    def __repr__(self) -> str:
+        return f"ShColour({int(self)}{'' if self.klt is None else f', klt {self.klt.shape[0]}x{self.klt.shape[1]}'})"
 #: the inverse's float64 constants 1/sqrt(3), 1/sqrt(2), 1/sqrt(6), exactly as the spec gives them
 _S3 = float.fromhex("0x1.279a74590331dp-1")
 _S2 = float.fromhex("0x1.6a09e667f3bccp-1")
 _S6 = float.fromhex("0x1.a20bd700c2c3fp-2")
 
 
-def read_sh_colour(data, sh_degree: int | None = None) -> int:
-    """Decode an SHXF chunk: its transform bits (SH_COLOUR_LUMA_CHROMA, SH_COLOUR_DC or both);
-    ``sh_degree`` 0: the SH vector bit is rejected (the part has none)."""
+def read_sh_colour(data, sh_degree: int | None = None) -> ShColour:
+    """Decode an SHXF chunk: its transform bits and, with bit 2 in the first layer that has it,
+    the KLT matrix.  ``sh_degree`` 0: the SH vector bits are rejected (the part has none);
+    given, a matrix's D must be that degree's 3K."""
     r = Reader(data, "SHXF chunk")
     t = r.u8()
     r.check(t != 0 and not t & ~SH_COLOUR_BITS,
-            f"unknown SH colour transform {t} (this decoder knows 1, 2 and 3)")
-    r.check(sh_degree != 0 or not t & SH_COLOUR_LUMA_CHROMA,
-            "SH vector transform (bit 0) in a file of SH degree 0")
+            f"unknown SH colour transform {t} (this decoder knows bits 0, 1 and 2)")
+    r.check(not (t & SH_COLOUR_LUMA_CHROMA and t & SH_COLOUR_KLT),
+            "SH vectors both luma/chroma (bit 0) and KLT (bit 2)")
+    r.check(sh_degree != 0 or not t & (SH_COLOUR_LUMA_CHROMA | SH_COLOUR_KLT),
+            "SH vector transform (bit 0 or 2) in a file of SH degree 0")
+    klt = None
+    if t & SH_COLOUR_KLT:
+        d = r.u8()
+        if d:
+            r.check(sh_degree is None or d == 3 * sh_rest_count(sh_degree),
+                    f"KLT matrix of size {d} for SH degree {sh_degree} (expected {3 * sh_rest_count(sh_degree or 0)})")
+            klt = r.array(np.int16, d * d).reshape(d, d)
     r.expect_end()
-    return t
+    return ShColour(t, klt)
+
+
+def klt_to_rgb(v: np.ndarray, klt: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """float32 [n, D] stored KLT vectors -> float32 [n, D] RGB vectors (GSZ.md §8.2, bit 2),
+    bit for bit: each stored value y as the integer rint(y * 2^24) (ties to even), times the
+    integer matrix ``klt`` [D, D], times 2^-38, rounded once to f32.  Every product and partial
+    sum is an integer below 2^53, so a BLAS matmul gives the exact value whatever its order or
+    fused multiply-adds.  ``out`` may be ``v``.  A stored value at or beyond KLT_MAX_ABS (or not
+    finite) raises GszFormatError."""
+    x = np.asarray(v, np.float32)
+    n, d = x.shape
+    if klt.shape != (d, d):
+        raise GszFormatError(f"KLT matrix {klt.shape[0]}x{klt.shape[1]} for SH vectors of length {d}")
+    out = np.empty(x.shape, np.float32) if out is None else out
+    m = klt.astype(np.float64)
+    scale = 2.0 ** -(KLT_VALUE_SHIFT + KLT_MATRIX_SHIFT)
+    for s in range(0, n, _KLT_ROWS):
+        t = x[s:s + _KLT_ROWS].astype(np.float64)
+        if not bool((np.abs(t) < KLT_MAX_ABS).all()):
+            raise GszFormatError(f"KLT-coded SH value outside +-{KLT_MAX_ABS:g} (corrupt parameters)")
+        t *= 2.0 ** KLT_VALUE_SHIFT
+        np.rint(t, out=t)
+        r = t @ m
+        r *= scale
+        out[s:s + _KLT_ROWS] = r
+    return out
+
+
+def turn_sh_klt(colour_chunk, sh_rest: np.ndarray, sh_degree: int, tile_klt: np.ndarray | None):
+    """A part's decoded SH rest float32 [M, K, 3] turned back to RGB in place when its SHXF
+    chunk (or None) sets the KLT bit (GSZ.md §8.2, 1.8).  ``tile_klt``: the matrix an earlier
+    layer of the tile carried, or None.  Returns the tile's matrix after this part (the one it
+    carried, the earlier one, or None)."""
+    if colour_chunk is None:
+        return tile_klt
+    colour = read_sh_colour(colour_chunk, sh_degree)
+    if not colour & SH_COLOUR_KLT:
+        return tile_klt
+    if colour.klt is not None:
+        if tile_klt is not None:
+            raise GszFormatError("SHXF chunk: a second KLT matrix in one tile (an earlier layer carried one)")
+        tile_klt = colour.klt
+    elif tile_klt is None:
+        raise GszFormatError("SHXF chunk: KLT bit but no matrix in this or an earlier layer of the tile")
+    flat = sh_rest.view()
+    flat.shape = (sh_rest.shape[0], -1)              # a view or an error, never a silent copy
+    klt_to_rgb(flat, tile_klt, out=flat)
+    return tile_klt
 
 
 def turn_dc(colour_chunk, sh_dc: np.ndarray, sh_degree: int) -> bool:

@@ -75,9 +75,11 @@ def build_parser() -> argparse.ArgumentParser:
                            f"bytes); 1: plain RAHT (default {d.raht_classes})")
     both.add_argument("--sh-colour", choices=SH_COLOUR_CHOICES, default=d.sh_colour,
                       help="colour space of the DC colour and SH rest: luma-chroma (format 1.7: "
-                           "correlated channels code in fewer bits), rgb, or auto: the DC as "
-                           "luma-chroma, the SH rest too unless they sit on a delivery format's "
-                           "coarse grid (default auto)")
+                           "correlated channels code in fewer bits), klt (format 1.8: the SH rest "
+                           "in its own principal axes, correlated coefficients too), rgb, or auto: "
+                           "the DC as luma-chroma, the SH rest in the KLT where it gains, else "
+                           "luma-chroma unless it sits on a delivery format's coarse grid "
+                           "(default auto)")
     both.add_argument("--seed", type=int, default=d.seed, help="RNG seed (VQ)")
     lay = p.add_argument_group("layers, tiles and workers")
     lay.add_argument("--layers", type=int, nargs="?", default=d.layers, const=STREAMING_LAYERS, metavar="L",

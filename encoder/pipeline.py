@@ -33,8 +33,8 @@ from ..decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_RWGT, CH
 from ..decoder.morton import morton_encode
 from ..decoder.raht import build_raht_tree
 from ..decoder.rotation import quaternion_to_euler
-from ..decoder.sh import (MAX_CODEBOOK, MAX_SH_CLASSES, SH_CLASSES_FROM_RWGT, SH_COLOUR_DC, SH_COLOUR_LUMA_CHROMA,
-                          class_order, luma_chroma_to_rgb)
+from ..decoder.sh import (MAX_CODEBOOK, MAX_SH_CLASSES, SH_CLASSES_FROM_RWGT, SH_COLOUR_DC, SH_COLOUR_KLT,
+                          ShColour, class_order, luma_chroma_to_rgb)
 from ..decoder.threads import for_ranges, thread_map
 from ..evaluation.cameras import DEFAULT_VIEW_WIDTH
 
@@ -44,7 +44,7 @@ from .geometry import write_geometry
 from .groups import QUANT_CHANNELS, write_channel_set
 from .importance import prune, top_k_mask
 from .progress import Progress
-from .sh_colour import SH_COLOUR_CHOICES, choose_sh_colour, coded_cloud, sh_colour_name
+from .sh_colour import SH_COLOUR_CHOICES, choose_sh_colour, coded_cloud, decoded_sh_rest, sh_colour_name
 from .voxelize import SourcedRows  # noqa: F401  (a Stage's SH rows; re-exported)
 
 
@@ -172,10 +172,12 @@ class SceneOptions:
                      "ray://HOST:PORT" (:mod:`gsz.encoder.executor`); the bytes do not depend on it
     workers          worker processes / local Ray CPUs (None: the machine's cores less one)
     sh_colour        colour space of the SH rest and DC colour: "luma-chroma" (an SHXF chunk
-                     per part, format 1.7: correlated channels code in fewer bits), "rgb", or
-                     "auto": the DC as luma/chroma, the SH rest too unless they sit on a
-                     delivery format's coarse grid (:mod:`gsz.encoder.sh_colour`,
-                     docs/design/sh-colour.md)
+                     per part, format 1.7: correlated channels code in fewer bits), "klt" (the
+                     SH rest in its own principal axes, format 1.8: correlated coefficients
+                     too), "rgb", or "auto": the DC as luma/chroma, the SH rest in the KLT
+                     where it gains, else luma/chroma unless it sits on a delivery format's
+                     coarse grid (:mod:`gsz.encoder.sh_colour`, docs/design/sh-colour.md,
+                     sh-klt.md)
     seed             RNG seed (VQ); the same input and options give byte-identical output
     """
 
@@ -591,7 +593,7 @@ def prepare_stage(cloud: GaussianCloud, importance: np.ndarray, reserve: float, 
     sh = SourcedRows.of_grid(cloud.sh_rest.reshape(len(cloud), -1), source, vox)
     return Stage(reserve=float(reserve), depth=d, layers=parts, sh=sh, importance=vox.importance,
                  sh_degree=cloud.sh_degree, input_gaussians=len(cloud), kept=len(kept), source=source,
-                 sh_colour=int(sh_colour) if cloud.sh_degree else int(sh_colour) & SH_COLOUR_DC,
+                 sh_colour=sh_colour if cloud.sh_degree else ShColour(int(sh_colour) & SH_COLOUR_DC),
                  executor=executor)
 
 
@@ -1170,8 +1172,8 @@ def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: 
     sh_rest in output order)."""
     positions = stage.positions()
     data, meta_len = write_file(stage, positions, attr, sh, meta, sh_classes)
-    if sh is not None and stage.sh_colour & SH_COLOUR_LUMA_CHROMA:
-        sh_rest = luma_chroma_to_rgb(sh_rest)           # what the decoder turns them into
+    if sh is not None:
+        sh_rest = decoded_sh_rest(sh_rest, stage.sh_colour)     # what the decoder turns them into
     if stage.sh_colour & SH_COLOUR_DC:
         decoded = dataclasses.replace(decoded, sh_dc=luma_chroma_to_rgb(decoded.sh_dc))
     return data, decoded_cloud(stage, positions, decoded, sh_rest if sh is not None else None), meta_len
@@ -1187,9 +1189,23 @@ def decoded_cloud(stage: Stage, positions: np.ndarray, decoded, sh_rest) -> Gaus
         sh_degree=stage.sh_degree)
 
 
-def sh_colour_chunk(transform: int) -> bytes:
-    """An SHXF chunk's payload (GSZ.md §8.2): the transform bits."""
-    return bytes([int(transform)])
+def sh_colour_chunk(transform: int, with_matrix: bool = True) -> bytes:
+    """An SHXF chunk's payload (GSZ.md §8.2): the transform bits; with the KLT bit, the matrix
+    (``transform.klt``) where ``with_matrix`` (a tile's first layer), else D = 0 (the tile's)."""
+    if not transform & SH_COLOUR_KLT:
+        return bytes([int(transform)])
+    klt = transform.klt if with_matrix else np.zeros((0, 0), np.int16)
+    return bytes([int(transform), klt.shape[0]]) + np.ascontiguousarray(klt, "<i2").tobytes()
+
+
+def sh_colour_payload_bytes(stage: Stage) -> int:
+    """Bytes of the stage's SHXF chunk payloads (:func:`sh_colour_chunk`: one per part, the KLT
+    matrix in each tile's first)."""
+    if not stage.sh_colour:
+        return 0
+    per_part = len(sh_colour_chunk(stage.sh_colour, False))
+    tiles = len({part.tile for part in stage.layers})
+    return per_part * len(stage.layers) + tiles * (len(sh_colour_chunk(stage.sh_colour)) - per_part)
 
 
 def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None, meta: dict,
@@ -1202,10 +1218,11 @@ def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None,
     sh_classes  per part the SHCL payload or None; any SHCL makes the file version 1.3, any
                 direct-coded geometry (OCTREE.md scheme 1) 1.4.  A stage coded in a colour
                 transform (``stage.sh_colour``) gets an SHXF chunk per part and version 1.6,
-                1.7 when it turns the DC colour."""
+                1.7 when it turns the DC colour, 1.8 with the SH KLT (its matrix in each
+                tile's first layer)."""
     import zstandard
     from ..decoder.container import (MINOR_DIRECT, MINOR_LAYERS, MINOR_RAHT_WEIGHTS, MINOR_SH_CLASSES,
-                                     MINOR_DC_COLOUR, MINOR_SH_COLOUR, MINOR_TILES, TILE_SHIFT,
+                                     MINOR_DC_COLOUR, MINOR_SH_COLOUR, MINOR_SH_KLT, MINOR_TILES, TILE_SHIFT,
                                      VERSION_MAJOR)
     from ..decoder.geometry import octree_scheme
     from ..decoder.octree import SCHEME_DIRECT
@@ -1224,6 +1241,7 @@ def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None,
             p = positions[sel]
             rows.append(TileInfo(tuple(p.min(0)), tuple(p.max(0)), len(sel)))
         chunks.append(Chunk(CHUNK_TILE, pack_tile_table(rows), CHUNK_REQUIRED))
+    matrix_tiles = set()
     for pi, part in enumerate(stage.layers):
         flags = CHUNK_REQUIRED | (part.layer << LAYER_SHIFT) | (part.tile << TILE_SHIFT)
         chunks.append(Chunk(CHUNK_GEOM, part.geometry, flags))
@@ -1231,7 +1249,8 @@ def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None,
             chunks.append(Chunk(CHUNK_RWGT, part.weights_chunk, flags))
         chunks.append(Chunk(CHUNK_ATTR, attr[pi], flags))
         if stage.sh_colour:
-            chunks.append(Chunk(CHUNK_SHXF, sh_colour_chunk(stage.sh_colour), flags))
+            chunks.append(Chunk(CHUNK_SHXF, sh_colour_chunk(stage.sh_colour, part.tile not in matrix_tiles), flags))
+            matrix_tiles.add(part.tile)              # parts go layer by layer: the first is layer 0
         if sh is not None:
             if sh_classes is not None and sh_classes[pi] is not None:
                 chunks.append(Chunk(CHUNK_SHCL, sh_classes[pi], flags))
@@ -1243,7 +1262,8 @@ def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None,
                         bbox_min=tuple(positions.min(0)),
                         bbox_max=tuple(positions.max(0)),
                         version=(VERSION_MAJOR,
-                                 MINOR_DC_COLOUR if stage.sh_colour & SH_COLOUR_DC
+                                 MINOR_SH_KLT if stage.sh_colour & SH_COLOUR_KLT
+                                 else MINOR_DC_COLOUR if stage.sh_colour & SH_COLOUR_DC
                                  else MINOR_SH_COLOUR if any(c.type == CHUNK_SHXF for c in chunks)
                                  else MINOR_RAHT_WEIGHTS if any(c.type == CHUNK_RWGT for c in chunks)
                                  else MINOR_DIRECT if any(c.type == CHUNK_GEOM and octree_scheme(c.data) == SCHEME_DIRECT
@@ -1297,7 +1317,7 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
         importance = compute_train_importance(cloud, opts, cameras=cameras, progress=progress)
     elif kept is not None:
         importance = importance[kept]
-    colour = choose_sh_colour(cloud, opts.sh_colour)
+    colour = choose_sh_colour(cloud, opts.sh_colour, tile_gaussians=opts.tile_gaussians)
     cloud = coded_cloud(cloud, colour, in_place=reuse_input)
     from .executor import make_executor
     executor = make_executor(opts.executor, opts.workers)

@@ -20,7 +20,7 @@ from ..executor import in_order
 from ..pipeline import (EncodeOptionsError, EncodeResult, Stage, attribute_chunks, compute_train_importance,
                         prepare_stage, raht_classes_for, sh_chunk, sh_set_blocks, voxelize_stage, write_file)
 from ..progress import Progress
-from ...decoder.sh import SH_COLOUR_DC
+from ...decoder.sh import SH_COLOUR_DC, ShColour
 from ..sh_colour import choose_sh_colour, coded_cloud
 from .candidate import Candidate, best_of
 from .codebooks import Codebooks
@@ -161,10 +161,10 @@ class BudgetSearch:
         # ``sh_colour``: the SHXF bits ``cloud`` is coded in already (the search without SH rest
         # another search starts), else None: chosen and applied here
         if sh_colour is None:
-            self.sh_colour = choose_sh_colour(cloud, sopts.sh_colour)
+            self.sh_colour = choose_sh_colour(cloud, sopts.sh_colour, self.target, sopts.tile_gaussians)
             cloud = coded_cloud(cloud, self.sh_colour, in_place=reuse_input)
         else:
-            self.sh_colour = int(sh_colour)
+            self.sh_colour = sh_colour
         self.sopts, self.cloud, self.geometry_pool = sopts, cloud, geometry_pool
         self.executor = executor
         self.progress = progress or Progress(quiet=True)
@@ -507,7 +507,7 @@ class BudgetSearch:
         self.progress.log(f"no SH vector kept exact: trying the file without SH rest at tau {best.reserve}")
         self.forget_stages()             # the search without SH makes its own
         flat = BudgetSearch(self.cloud.with_sh_degree(0), self.target, self.sopts, self.progress,
-                            self.geometry_pool, self.executor, sh_colour=self.sh_colour & SH_COLOUR_DC)
+                            self.geometry_pool, self.executor, sh_colour=ShColour(self.sh_colour & SH_COLOUR_DC))
         flat.importance, flat.depth, flat.judge = self.importance, best.depth, self.judge
         flat.anchor = self.anchor
         i = self.taus.index(best.reserve)

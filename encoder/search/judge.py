@@ -10,6 +10,7 @@ from ...decoder.cloud import MADE_ROWS_STEP, MadeRows
 from ...decoder.pages import trim_heap
 from ...decoder.threads import for_ranges
 from ...evaluation.cameras import load_cameras
+from ...decoder.sh import SH_COLOUR_KLT
 from ..sh_colour import coded_weights, rgb_view
 from .options import SearchOptions
 from .sensitivity import channel_weights
@@ -136,8 +137,10 @@ class Judge:
     def rendered(self, cloud):
         """``cloud`` as rendered: a row-made SH rest (a candidate's decoded SH) made whole once
         for all its views (:func:`rows_once`), then seen in RGB (:func:`rgb_view`: the
-        renderer turns the colours, the field is not copied)."""
-        return rgb_view(rows_once(cloud), self.sh_colour)
+        renderer turns luma/chroma colours, the field is not copied; KLT rows are made by the
+        decoder's inverse, once for all views where small enough)."""
+        view = rgb_view(rows_once(cloud), self.sh_colour)
+        return rows_once(view) if self.sh_colour & SH_COLOUR_KLT else view
 
     def score(self, cloud, best_views=None) -> tuple[float, list, int]:
         """:func:`train_psnr` on this search's views."""

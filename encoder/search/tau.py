@@ -7,7 +7,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from ..pipeline import SH_CLASS_MIN_SIZE, SH_CLASSES, Stage
+from ..pipeline import SH_CLASS_MIN_SIZE, SH_CLASSES, Stage, sh_colour_payload_bytes
 from .calibration import Calibrated, calibrate, solve, solve_max, with_kept
 from .candidate import Encoded
 from .options import SH_BITS, SearchOptions
@@ -39,7 +39,7 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
         loss, rate, shapes = attribute_tables(stage, sopts.blocks, weights)
     meta_guess = 400
     base_fixed = (container_overhead(num_chunks(stage)) + stage.geometry_bytes + meta_guess
-                  + (2 + 8 * 7 + (1 if stage.sh_colour else 0)) * len(stage.layers)
+                  + (2 + 8 * 7) * len(stage.layers) + sh_colour_payload_bytes(stage)
                   + group_meta_bytes(shapes))
     args = (stage, target, sopts, progress, loss, rate, shapes, base_fixed)
     if not sh_models:

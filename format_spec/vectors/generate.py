@@ -81,6 +81,11 @@ VECTORS = [
      dict(reserve=1.0, bits=10, sh_colour="auto")),
     ("sh1_jug_2k_dcxf", "measuring_jug_sh3_12k.ply", 2000, 1,
      dict(reserve=1.0, bits=10, codebook=32, keep=600, sh_colour="luma-chroma")),
+    # format 1.8: the SH vectors in their principal axes (SHXF bit 2, with the DC's bit 1), two
+    # layers: the matrix in layer 0's chunk, layer 1's names it with D = 0; kept vectors and
+    # codewords alike turned by the integer inverse
+    ("sh3_jug_2k_klt", "measuring_jug_sh3_12k.ply", 2000, 3,
+     dict(reserve=1.0, bits=10, codebook=32, keep=600, layers=2, first_layer=0.3, sh_colour="klt")),
 ]
 #: vectors whose scales and opacities get seeded Gaussian noise of this sigma before encoding
 NOISED = {"sh0_plant_3000_laplace": 0.05}

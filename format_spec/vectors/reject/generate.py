@@ -465,13 +465,24 @@ def with_shxf(base: bytes, payload: bytes, *, flags: int = 1) -> bytes:
 
 
 def _shxf_vectors(sh1: bytes, add) -> None:
-    """SHXF (GSZ.md §8.2): the valid chunk is the one byte 1, 2 or 3 (luma/chroma SH vectors,
-    DC colour or both; the base's SH vectors are all 0, so any transform decodes them)."""
+    """SHXF (GSZ.md §8.2): a valid chunk is the one byte 1, 2 or 3 (luma/chroma SH vectors,
+    DC colour or both; the base's SH vectors are all 0, so any transform decodes them), or bit 2
+    (KLT) with its matrix in the tile's first layer."""
     ok = bytes([1])
-    add("shxf_transform_0", with_shxf(sh1, b"\x00"), "GSZ.md §8.2 transform bits 1, 2 or 3",
+    add("shxf_transform_0", with_shxf(sh1, b"\x00"), "GSZ.md §8.2 transform bits 0, 1 and 2",
         "unknown SH colour transform 0")
-    add("shxf_transform_4", with_shxf(sh1, b"\x04"), "GSZ.md §8.2 transform bits 1, 2 or 3",
-        "unknown SH colour transform 4")
+    add("shxf_transform_8", with_shxf(sh1, b"\x08"), "GSZ.md §8.2 transform bits 0, 1 and 2",
+        "unknown SH colour transform 8")
+    add("shxf_klt_and_luma_chroma", with_shxf(sh1, b"\x05\x00"), "GSZ.md §8.2 not both bits 0 and 2",
+        "SH vectors both luma/chroma (bit 0) and KLT (bit 2)")
+    add("shxf_klt_truncated", with_shxf(sh1, b"\x04"), "GSZ.md §8.2 D after the KLT bit",
+        "SHXF chunk: truncated")
+    add("shxf_klt_matrix_truncated", with_shxf(sh1, b"\x04\x09" + bytes(2 * 80)), "GSZ.md §8.2 D x D int16",
+        "SHXF chunk: truncated")
+    add("shxf_klt_wrong_size", with_shxf(sh1, b"\x04\x03" + bytes(2 * 9)), "GSZ.md §8.2 D = 3K",
+        "KLT matrix of size 3 for SH degree 1 (expected 9)")
+    add("shxf_klt_no_matrix", with_shxf(sh1, b"\x04\x00"), "GSZ.md §8.2 the tile's first KLT part carries the matrix",
+        "KLT bit but no matrix in this or an earlier layer of the tile")
     add("shxf_empty", with_shxf(sh1, b""), "GSZ.md §8.2 one byte (no transform id)", "SHXF chunk: truncated")
     add("shxf_trailing_byte", with_shxf(sh1, ok + b"\x00"), "GSZ.md §8.2 nothing after",
         "SHXF chunk: 1 unexpected trailing bytes")
@@ -481,7 +492,14 @@ def _shxf_vectors(sh1: bytes, add) -> None:
     h, chunks = split(with_header(with_shxf(sh1, ok), "<B", 24, 0))
     add("shxf_in_sh0_file", join(h, [c for c in chunks if c[0] != b"SHVQ"]),
         "GSZ.md §8.2 the SH vector bit when sh_degree = 0",
-        "SH vector transform (bit 0) in a file of SH degree 0")
+        "SH vector transform (bit 0 or 2) in a file of SH degree 0")
+    # a two-layer KLT file whose layer 1 carries a matrix again
+    h, chunks = split((VECTORS / "sh3_jug_2k_klt.gsz").read_bytes())
+    xf = [c for c in chunks if c[0] == b"SHXF"]
+    assert len(xf) == 2 and xf[0][2][1] == 45 and xf[1][2] == b"\x06\x00", "the source vector's SHXF chunks moved"
+    xf[1][2] = xf[0][2]
+    add("shxf_klt_second_matrix", join(h, chunks), "GSZ.md §8.2 one matrix a tile",
+        "a second KLT matrix in one tile")
 
 
 def _direct_vectors(add) -> None:
