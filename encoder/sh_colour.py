@@ -21,6 +21,7 @@ import dataclasses
 import numpy as np
 
 from ..decoder.cloud import ColourRows, GaussianCloud, MadeRows
+from ..decoder.errors import GszUsageError
 from ..decoder.sh import (KLT_MATRIX_SHIFT, KLT_MAX_ABS, SH_COLOUR_DC, SH_COLOUR_KLT, SH_COLOUR_LUMA_CHROMA,
                           SH_COLOUR_RGB, ShColour, klt_to_rgb, luma_chroma_to_rgb)
 
@@ -81,8 +82,7 @@ def choose_sh_colour(cloud: GaussianCloud, mode: str = "auto", budget: int | Non
     and with "auto" not on a coarse grid) SH_COLOUR_KLT where "klt" forces it or
     :func:`klt_pays` at ``budget`` bytes (None: a fixed configuration, judged against one byte a
     component) with a matrix per tile of at most ``tile_gaussians`` (None or 0: one tile), else
-    SH_COLOUR_LUMA_CHROMA; ``mode`` one of
-    SH_COLOUR_CHOICES."""
+    SH_COLOUR_LUMA_CHROMA; ``mode`` one of SH_COLOUR_CHOICES."""
     if mode not in SH_COLOUR_CHOICES:
         raise ValueError(f"sh_colour must be one of {', '.join(SH_COLOUR_CHOICES)}, got {mode!r}")
     if mode == "rgb":
@@ -92,8 +92,9 @@ def choose_sh_colour(cloud: GaussianCloud, mode: str = "auto", budget: int | Non
     if mode == "klt":
         klt = klt_matrix(cloud.sh_rest)
         if not klt_in_range(cloud.sh_rest, klt):
-            raise ValueError(f"--sh-colour klt: SH rest values too large for the KLT's exact inverse "
-                             f"(coded values must stay below {_KLT_SAFE_ABS:g})")
+            raise GszUsageError(f"--sh-colour klt: the SH rest values (largest magnitude "
+                                f"{_max_abs(cloud.sh_rest):g}) are too large for the KLT's exact inverse "
+                                f"(its coded values must stay below {_KLT_SAFE_ABS:g}); use --sh-colour auto")
         return ShColour(SH_COLOUR_DC | SH_COLOUR_KLT, klt)
     if mode == "luma-chroma":
         return ShColour(SH_COLOUR_DC | SH_COLOUR_LUMA_CHROMA)
@@ -145,10 +146,15 @@ def klt_in_range(sh_rest, klt: np.ndarray) -> bool:
     """Whether every stored value of ``sh_rest`` turned by ``klt`` stays below _KLT_SAFE_ABS
     (half the decoder's limit: decoded values lie within their groups' ranges)."""
     bound = np.abs(_klt_forward(klt)).sum(axis=0).max()       # |y_j| <= max|x| * sum_i |F_ij|
+    return _max_abs(sh_rest) * bound < _KLT_SAFE_ABS
+
+
+def _max_abs(sh_rest) -> float:
+    """The largest |value| of a float32 field, _ROWS rows a step (no whole-field temporary)."""
     top = 0.0
     for s in range(0, sh_rest.shape[0], _ROWS):
         top = max(top, float(np.abs(np.asarray(sh_rest[s:s + _ROWS], np.float32)).max(initial=0.0)))
-    return top * bound < _KLT_SAFE_ABS
+    return top
 
 
 def klt_gain_db(sh_rest, klt: np.ndarray) -> float:

@@ -10,7 +10,7 @@ import pytest
 
 from gsz.decoder import decode, native
 from gsz.decoder.container import read_container
-from gsz.decoder.errors import GszFormatError
+from gsz.decoder.errors import GszFormatError, GszUsageError
 from gsz.decoder.layout import CHUNK_SHXF
 from gsz.decoder.sh import SH_COLOUR_DC, SH_COLOUR_KLT, SH_COLOUR_LUMA_CHROMA, klt_to_rgb
 from gsz.encoder.pipeline import EncodeOptions, encode
@@ -115,7 +115,7 @@ def test_auto_takes_the_klt_for_correlated_sh_and_keeps_luma_chroma_otherwise():
 def test_forcing_the_klt_on_huge_sh_values_is_a_clear_error():
     c = _correlated(500)
     c = dataclasses.replace(c, sh_rest=c.sh_rest * 400)
-    with pytest.raises(ValueError, match="too large for the KLT"):
+    with pytest.raises(GszUsageError, match="too large for the KLT"):
         choose_sh_colour(c, "klt")
     assert choose_sh_colour(c, "auto", budget=10 ** 9) == SH_COLOUR_DC | SH_COLOUR_LUMA_CHROMA
 
@@ -175,3 +175,4 @@ def test_auto_takes_the_klt_on_a_trained_capture():
     cloud = gsz.read_ply(TINY)
     assert klt_gain_db(cloud.sh_rest, klt_matrix(cloud.sh_rest)) > 3.0
     assert choose_sh_colour(cloud, "auto", budget=420_922) == SH_COLOUR_DC | SH_COLOUR_KLT
+
