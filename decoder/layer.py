@@ -30,7 +30,7 @@ from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, 
 from .pages import small_pages
 from .raht import build_raht_tree
 from .rotation import quaternion_f32_from_trig
-from .sh import read_sh_checked, turn_dc, turn_sh_klt
+from .sh import part_klt, read_sh_checked, turn_dc
 from .threads import cores
 
 
@@ -279,10 +279,11 @@ def _read_sh(chunks: dict, header, state: LayerState, m: int, dest: OutputRows, 
     """(sh_rest, the codebook, all finite? or None when not known) of a part: its SHVQ chunk,
     or nothing at SH degree 0."""
     if header.sh_degree > 0:
+        klt, state.sh_klt = part_klt(chunks.get(CHUNK_SHXF), header.sh_degree, state.sh_klt)
         return read_sh_checked(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook,
                                chunks.get(CHUNK_SHCL), dest,
                                voxel_classes=None if rwgt is None else rwgt.classes,
-                               colour_chunk=chunks.get(CHUNK_SHXF))
+                               colour_chunk=chunks.get(CHUNK_SHXF), klt=klt)
     return np.zeros((m, 0, 3), np.float32), state.codebook, True
 
 
@@ -372,11 +373,9 @@ def _decode_layer(chunks: dict, header, state: LayerState, overlap: bool, label:
         rwgt = _read_weights(chunks, m)
         cloud = _finish_layer(gh, codes, _read_attributes_and_sh(chunks, header, state, m, dest, rwgt),
                               header, state, dest, leaf_weights=leaf_weights_of(rwgt))
-    # the DC colour's SHXF transform (1.7) and the SH vectors' KLT (1.8), on the f32 values
-    # every path made alike
+    # the DC colour's SHXF transform (1.7), on the f32 values every path made alike
     if not turn_dc(chunks.get(CHUNK_SHXF), cloud.sh_dc, header.sh_degree):
         _check_finite({name: name != "sh_dc" for name in FIELDS})
-    state.sh_klt = turn_sh_klt(chunks.get(CHUNK_SHXF), cloud.sh_rest, header.sh_degree, state.sh_klt)
     state.decoded_points += m
     return cloud
 

@@ -161,26 +161,23 @@ def klt_to_rgb(v: np.ndarray, klt: np.ndarray, out: np.ndarray | None = None) ->
     return out
 
 
-def turn_sh_klt(colour_chunk, sh_rest: np.ndarray, sh_degree: int, tile_klt: np.ndarray | None):
-    """A part's decoded SH rest float32 [M, K, 3] turned back to RGB in place when its SHXF
-    chunk (or None) sets the KLT bit (GSZ.md §8.2, 1.8).  ``tile_klt``: the matrix an earlier
-    layer of the tile carried, or None.  Returns the tile's matrix after this part (the one it
-    carried, the earlier one, or None)."""
+def part_klt(colour_chunk, sh_degree: int, tile_klt: np.ndarray | None) -> tuple:
+    """(the KLT matrix int16 [D, D] a part's SH vectors are turned by, or None; the tile's
+    matrix after this part) from its SHXF chunk (or None) and ``tile_klt``, the matrix an earlier
+    layer of the tile carried (GSZ.md §8.2, 1.8: the tile's first KLT part carries it, no later
+    part may)."""
     if colour_chunk is None:
-        return tile_klt
+        return None, tile_klt
     colour = read_sh_colour(colour_chunk, sh_degree)
     if not colour & SH_COLOUR_KLT:
-        return tile_klt
+        return None, tile_klt
     if colour.klt is not None:
         if tile_klt is not None:
             raise GszFormatError("SHXF chunk: a second KLT matrix in one tile (an earlier layer carried one)")
-        tile_klt = colour.klt
-    elif tile_klt is None:
+        return colour.klt, colour.klt
+    if tile_klt is None:
         raise GszFormatError("SHXF chunk: KLT bit but no matrix in this or an earlier layer of the tile")
-    flat = sh_rest.view()
-    flat.shape = (sh_rest.shape[0], -1)              # a view or an error, never a silent copy
-    klt_to_rgb(flat, tile_klt, out=flat)
-    return tile_klt
+    return tile_klt, tile_klt
 
 
 def turn_dc(colour_chunk, sh_dc: np.ndarray, sh_degree: int) -> bool:
@@ -255,16 +252,17 @@ def read_sh_classes(data, num_kept: int, voxel_classes=None):
 
 
 def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None,
-            classes_chunk=None, dest: OutputRows = FRESH, voxel_classes=None, colour_chunk=None):
+            classes_chunk=None, dest: OutputRows = FRESH, voxel_classes=None, colour_chunk=None,
+            klt: np.ndarray | None = None):
     """Decode one layer's SHVQ chunk: (sh_rest, codebook) of :func:`read_sh_checked`."""
     sh_rest, codebook, _ = read_sh_checked(data, num_points, sh_degree, codebook, classes_chunk, dest,
-                                           voxel_classes, colour_chunk)
+                                           voxel_classes, colour_chunk, klt)
     return sh_rest, codebook
 
 
 def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None,
                     classes_chunk=None, dest: OutputRows = FRESH, voxel_classes=None,
-                    colour_chunk=None):
+                    colour_chunk=None, klt: np.ndarray | None = None):
     """Decode one layer's SHVQ chunk.
 
     codebook    the [D, K_cb] float64 codebook an earlier layer carried, or None
@@ -272,6 +270,9 @@ def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray 
     dest        where sh_rest goes (fresh by default)
     voxel_classes  the part's RWGT classes int [M] (point order), or None
     colour_chunk   the part's SHXF chunk, or None (vectors stored as RGB)
+    klt         the part's KLT matrix int16 [D, D] (:func:`part_klt`: its own or its tile's), or
+                None: the vectors are turned by it (kept vectors, and the codewords where
+                indices use them), a stored value beyond KLT_MAX_ABS rejected
     returns     (sh_rest float32 [M, K, 3], codebook [D, K_cb] float64 or None, finite): the
                 codebook of this layer when it carries one, else the one passed in; finite:
                 whether every sh_rest value is finite when the native path assembled them
@@ -300,7 +301,7 @@ def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray 
     colour = SH_COLOUR_RGB if colour_chunk is None else read_sh_colour(colour_chunk) & SH_COLOUR_LUMA_CHROMA
     if native.enabled():
         sh_rest, finite = _assemble_native(r, m, k, d, p, kcb, codebook, classes, dest, voxel_classes,
-                                           colour)
+                                           colour, klt)
         return sh_rest, codebook, finite
     kept = None
     if p:
@@ -333,6 +334,8 @@ def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray 
             if colour:             # on the stored planes: contiguous runs, the block in cache
                 luma_chroma_planes_to_rgb(kept[:, j0:j1])
             block = np.ascontiguousarray(kept[:, j0:j1].T, dtype=np.float32)
+            if klt is not None:
+                klt_to_rgb(block, klt, out=block)
             items[dest[j0:j1]] = block.view(item)[:, 0]
     if coded is not None:
         if colour:       # a codeword turned to RGB once: the same values as every use of it
@@ -341,6 +344,8 @@ def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray 
             rows = np.ascontiguousarray(cb32.T)
         else:
             rows = np.ascontiguousarray(codebook.T, dtype=np.float32)
+            if klt is not None:         # so too the KLT: each codeword once
+                klt_to_rgb(rows, klt, out=rows)
         items[coded] = rows.view(item)[:, 0].take(idx)
     return out.reshape(m, k, 3), codebook, None
 
@@ -350,7 +355,8 @@ _KEPT_BLOCK = 8192
 
 
 def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebook, classes,
-                     dest: OutputRows = FRESH, voxel_classes=None, colour: int = SH_COLOUR_RGB):
+                     dest: OutputRows = FRESH, voxel_classes=None, colour: int = SH_COLOUR_RGB,
+                     klt: np.ndarray | None = None):
     """read_sh's kept vectors, flags and indices, assembled in one C pass (same checks): the
     kept set stays uint16 symbols until that pass dequantises them into the float32 rows."""
     flags = None
@@ -370,5 +376,5 @@ def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebo
     out = dest.empty("sh_rest", (m, d))
     finite = native.module().sh_assemble(flags, kept, steps, lo, idx, np.ascontiguousarray(cb, dtype=np.float64),
                                          out, None if classes is None else np.ascontiguousarray(classes, np.int64),
-                                         colour)
+                                         colour, None if klt is None else klt.astype(np.float64))
     return out.reshape(m, k, 3), bool(finite)

@@ -176,3 +176,29 @@ def test_auto_takes_the_klt_on_a_trained_capture():
     assert klt_gain_db(cloud.sh_rest, klt_matrix(cloud.sh_rest)) > 3.0
     assert choose_sh_colour(cloud, "auto", budget=420_922) == SH_COLOUR_DC | SH_COLOUR_KLT
 
+
+
+@pytest.mark.skipif(not native.enabled(), reason="native accelerator not built")
+def test_native_assembly_turns_kept_vectors_and_codewords_as_the_reference_does():
+    # the C row loop's KLT (kept tiles and codewords) against klt_to_rgb on the same stored values
+    rng = np.random.default_rng(9)
+    d, m, k = 24, 700, 5
+    flags = (rng.random(m) < 0.6).astype(np.int64)
+    p = int(flags.sum())
+    kept = rng.integers(0, 1024, (d, p)).astype(np.uint16)
+    steps, lo = rng.uniform(1e-4, 3e-3, (d, 1)), rng.uniform(-1.5, -0.5, (d, 1))
+    cb = rng.normal(0, 0.4, (d, k))
+    idx = rng.integers(0, k, m - p).astype(np.int64)
+    klt = rng.integers(-(1 << 14), 1 << 14, (d, d)).astype(np.int16)
+    out = np.empty((m, d), np.float32)
+    assert native.module().sh_assemble(flags, kept, steps, lo, idx, cb, out, None, 0, klt.astype(np.float64))
+    want = np.empty((m, d), np.float32)
+    stored = (steps * kept.astype(np.float64) + lo).astype(np.float32).T
+    want[flags == 1] = klt_to_rgb(stored, klt)
+    want[flags == 0] = klt_to_rgb(cb.T.astype(np.float32), klt)[idx]
+    assert out.tobytes() == want.tobytes()
+    # a stored value beyond the exact range: the same error as the reference's
+    with pytest.raises(GszFormatError, match=r"KLT-coded SH value outside \+-256"):
+        native.module().sh_assemble(flags, kept, steps, lo + 300.0, idx, cb, out, None, 0, klt.astype(np.float64))
+    with pytest.raises(GszFormatError, match=r"KLT-coded SH value outside \+-256"):
+        native.module().sh_assemble(flags, kept, steps, lo, idx, cb * 1e3, out, None, 0, klt.astype(np.float64))

@@ -1,5 +1,6 @@
 /* gsz.decoder._native: float32 assembly of the decoded fields -- attribute planes, quaternions
  * from half-angle trig, voxel centres, SH rest vectors -- with the finiteness checks. */
+#include <math.h>
 #include <string.h>
 #include <stdlib.h>
 #include "stages.h"
@@ -118,6 +119,39 @@ static inline uint32_t luma_chroma_row(float *v, int64_t D)
     return bad;
 }
 
+/* SHXF bit 2 (GSZ.md §8.2, 1.8): stored vectors in the file's own axes back to RGB, bit for bit
+ * as gsz.decoder.sh.klt_to_rgb: a stored value y as the integer rint(y * 2^24) (ties to even:
+ * adding and taking away 1.5 * 2^52 rounds a double below 2^51 to an integer in the default
+ * rounding mode), the product with the integer matrix m (float64 [D, D], row d: stored
+ * component d's share of each RGB component) summed in doubles -- every product and partial
+ * sum an integer below 2^53, so exact in any order, with or without fused multiply-adds --
+ * times 2^-38, rounded once to f32.  A stored value at or beyond 256 (or not finite) makes the
+ * part invalid: the functions return 1 and write nothing they were not already writing. */
+#define KLT_MAX_ABS 256.0
+#define KLT_RANGE_MESSAGE "KLT-coded SH value outside +-256 (corrupt parameters)"
+static const double KLT_IN = 0x1p24, KLT_OUT = 0x1p-38, KLT_ROUND = 0x1.8p52;
+
+static inline double klt_int(float v, uint32_t *far)
+{
+    const double x = (double)v;
+    *far |= !(x < KLT_MAX_ABS && x > -KLT_MAX_ABS);
+    return (x * KLT_IN + KLT_ROUND) - KLT_ROUND;
+}
+
+/* One row of D floats (a codeword) in place; y: D doubles of scratch. */
+static uint32_t klt_row(float *v, int64_t D, const double *m, double *y)
+{
+    uint32_t far = 0;
+    for (int64_t d = 0; d < D; d++) y[d] = klt_int(v[d], &far);
+    if (far) return 1;
+    for (int64_t j = 0; j < D; j++) {
+        double acc = 0.0;
+        for (int64_t d = 0; d < D; d++) acc += y[d] * m[d * D + j];
+        v[j] = (float)(acc * KLT_OUT);
+    }
+    return 0;
+}
+
 /* Kept vectors per cache-friendly step of the transposed copy: the [D, P] channel set is read
  * column by column into a component-major tile of D x SH_TILE floats (23 KB for 45
  * components, L1-resident), whose full-length loops the compiler vectorises; each tile row is
@@ -143,11 +177,72 @@ static inline uint32_t dequant_col(const uint16_t *restrict src, double st, doub
     return bad;
 }
 
+/* The tile's product: column j of the tile = (sum over d of y[d] * m[d][j]) * 2^-38.  Exact
+ * integer sums, so the AVX2/FMA build of the same loops (chosen at run time where the CPU has
+ * it: 4 doubles a step and fused multiply-adds, ~3x the SSE2 baseline) gives the same bits. */
+#define KLT_PRODUCT_BODY                                                                       \
+    {                                                                                          \
+        double acc[SH_TILE];                                                                   \
+        for (int64_t j = 0; j < D; j++) {                                                      \
+            for (int64_t t = 0; t < SH_TILE; t++) acc[t] = 0.0;                                \
+            for (int64_t d = 0; d < D; d++) {                                                  \
+                const double mj = m[d * D + j];                                                \
+                const double *yd = y + d * SH_TILE;                                            \
+                for (int64_t t = 0; t < SH_TILE; t++) acc[t] += yd[t] * mj;                    \
+            }                                                                                  \
+            float *col = tile + j * SH_TILE;                                                   \
+            for (int64_t t = 0; t < SH_TILE; t++) col[t] = (float)(acc[t] * KLT_OUT);          \
+        }                                                                                      \
+    }
+typedef void (*klt_product_fn)(float *restrict, int64_t, const double *restrict, const double *restrict);
+static void klt_product_base(float *restrict tile, int64_t D, const double *restrict m,
+                             const double *restrict y) KLT_PRODUCT_BODY
+#if defined(__GNUC__) && defined(__x86_64__)
+__attribute__((target("avx2,fma")))
+static void klt_product_avx2(float *restrict tile, int64_t D, const double *restrict m,
+                             const double *restrict y) KLT_PRODUCT_BODY
+#endif
+
+static klt_product_fn klt_product(void)
+{
+#if defined(__GNUC__) && defined(__x86_64__)
+    if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) return klt_product_avx2;
+#endif
+    return klt_product_base;
+}
+
+/* Whether any of n floats is at or beyond the KLT's range (or not finite). */
+static inline uint32_t klt_far(const float *c, int64_t n)
+{
+    uint32_t far = 0;
+    for (int64_t t = 0; t < n; t++) far |= !(fabs((double)c[t]) < KLT_MAX_ABS);
+    return far;
+}
+
+/* The KLT of a component-major tile's first n vectors in place (klt_row's arithmetic, run over
+ * all SH_TILE columns -- a constant trip count the compiler vectorises; the columns past n are
+ * scratch, earlier tiles' values or zeros); y: D x SH_TILE doubles of scratch. */
+static uint32_t klt_tile(float *restrict tile, int64_t n, int64_t D, const double *restrict m,
+                         double *restrict y)
+{
+    uint32_t far = 0;
+    for (int64_t d = 0; d < D; d++) {
+        const float *c = tile + d * SH_TILE;
+        double *yd = y + d * SH_TILE;
+        far |= n == SH_TILE ? klt_far(c, SH_TILE) : klt_far(c, n);
+        for (int64_t t = 0; t < SH_TILE; t++) yd[t] = ((double)c[t] * KLT_IN + KLT_ROUND) - KLT_ROUND;
+    }
+    if (far) return 1;
+    klt_product()(tile, D, m, y);
+    return 0;
+}
+
 /* Stored kept vectors [t0, t1) of block b (t1 - t0 <= SH_TILE): dequantised into the tile,
- * colour-transformed, written to their output rows at[t]. */
+ * colour-transformed (luma/chroma, or the KLT m when not NULL: a value out of its range sets
+ * *far and leaves the tile unwritten), written to their output rows at[t]. */
 static uint32_t kept_tile(const uint16_t *kept, int64_t P, const double *steps, const double *lo,
-                          int64_t B, int64_t b, int64_t D, int colour, const int64_t *at,
-                          int64_t t0, int64_t t1, float *tile, float *out)
+                          int64_t B, int64_t b, int64_t D, int colour, const double *m, double *y,
+                          uint32_t *far, const int64_t *at, int64_t t0, int64_t t1, float *tile, float *out)
 {
     uint32_t bad = 0;
     const int64_t n = t1 - t0;
@@ -163,6 +258,10 @@ static uint32_t kept_tile(const uint16_t *kept, int64_t P, const double *steps, 
             bad |= n == SH_TILE ? luma_chroma_cols(a, a + SH_TILE, a + 2 * SH_TILE, SH_TILE)
                                 : luma_chroma_cols(a, a + SH_TILE, a + 2 * SH_TILE, n);
         }
+    if (m && klt_tile(tile, n, D, m, y)) {
+        *far = 1;
+        return bad;
+    }
     for (int64_t t = 0; t < n; t++) {
         float *row = out + at[t0 + t] * D;
         for (int64_t d = 0; d < D; d++) row[d] = tile[d * SH_TILE + t];
@@ -173,7 +272,7 @@ static uint32_t kept_tile(const uint16_t *kept, int64_t P, const double *steps, 
 int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *steps,
                     const double *lo, int64_t B, const int64_t *classes, int64_t P,
                     const int64_t *idx, int64_t nidx, const double *cb, int64_t K, int64_t M,
-                    int64_t D, int colour, float *out, int *finite, Err *e)
+                    int64_t D, int colour, const double *klt, float *out, int *finite, Err *e)
 {
     /* the codebook as rows (a codeword is one contiguous copy) and the output row of every kept
      * vector; the [D, P] kept symbols are then dequantised tile by tile (reading them row by row,
@@ -183,11 +282,14 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
     /* per codeword: has a non-finite component (the finiteness of the output is collected as
      * it is written: no second pass over the largest output field) */
     uint8_t *rbad = malloc((size_t)(K ? K : 1));
-    float *tile = malloc((size_t)SH_TILE * (size_t)(D ? D : 1) * sizeof *tile);
-    if (!rows || !at || !rbad || !tile) {
-        free(rows); free(at); free(rbad); free(tile);
+    /* zeroed: the KLT reads a partial tile's scratch columns too */
+    float *tile = calloc((size_t)SH_TILE * (size_t)(D ? D : 1), sizeof *tile);
+    double *ky = klt ? malloc((size_t)SH_TILE * (size_t)(D ? D : 1) * sizeof *ky) : NULL;
+    if (!rows || !at || !rbad || !tile || (klt && !ky)) {
+        free(rows); free(at); free(rbad); free(tile); free(ky);
         return fail_nomem(e);
     }
+    uint32_t far = 0;       /* a KLT-coded value out of range (GSZ.md §8.2): the part is invalid */
     for (int64_t j = 0; j < K; j++) {
         uint32_t bad = 0;
         for (int64_t d = 0; d < D; d++) {
@@ -196,6 +298,8 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
             bad |= !f32_finite(f);
         }
         if (colour) bad |= luma_chroma_row(rows + j * D, D);   /* once per codeword */
+        /* the KLT once per codeword, where indices use the codebook (as the NumPy path) */
+        if (klt && nidx) far |= klt_row(rows + j * D, D, klt, ky);
         rbad[j] = (uint8_t)bad;
     }
     uint32_t bad = 0;
@@ -219,6 +323,7 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
         }
     }
     if (!rc && (kp != P || ip != nidx)) rc = fail(e, "SHVQ chunk: kept flags do not match the kept count");
+    if (!rc && far) rc = fail(e, KLT_RANGE_MESSAGE);        /* a codeword's, after the stream checks */
     if (!rc && classes) {
         /* SHCL (GSZ.md §8.1): the vectors are stored class by class, Morton order within a class
          * (gsz.decoder.sh.class_order, a stable sort), so the kept vector of point-order rank r
@@ -248,15 +353,19 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
             const int64_t s1 = s0 + base + (b < extra);
             for (int64_t t0 = s0; t0 < s1; t0 += SH_TILE) {
                 const int64_t t1 = t0 + SH_TILE < s1 ? t0 + SH_TILE : s1;
-                bad |= kept_tile(kept, P, steps, lo, B, b, D, colour, at, t0, t1, tile, out);
+                bad |= kept_tile(kept, P, steps, lo, B, b, D, colour, klt, ky, &far, at, t0, t1, tile, out);
+                if (far) break;
             }
             s0 = s1;
+            if (far) break;
         }
+        if (far) rc = fail(e, KLT_RANGE_MESSAGE);
     }
     free(rows);
     free(at);
     free(rbad);
     free(tile);
+    free(ky);
     *finite = !bad;
     return rc;
 }
