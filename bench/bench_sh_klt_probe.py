@@ -30,14 +30,13 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 def tables(x: np.ndarray, blocks: int):
     """(loss [D*B, 17], rate [D*B, 17]) of x [D, N]: width 0 (the group's mean) then 1..16 bits."""
-    from gsz.encoder.groups import group_means
+    from gsz.encoder.groups import constant_sse
     from gsz.encoder.rate import rate_matrix
-    from gsz.encoder.search.sh_model import _constant_sse
     from gsz.kernels.quantize import quantize_all_bits
     x = np.ascontiguousarray(x, np.float32)
     loss = quantize_all_bits(x, blocks)[3]
     rate = rate_matrix(x, blocks, (1, 16))
-    const = _constant_sse(x, blocks, group_means)
+    const = constant_sse(x, blocks)
     d, b = loss.shape[:2]
     loss = np.concatenate([const[:, :, None], loss], axis=2).reshape(d * b, 17)
     rate = np.concatenate([np.zeros((d, b, 1)), rate], axis=2).reshape(d * b, 17)

@@ -220,8 +220,8 @@ def page_rd(rd: dict, json_dir: Path) -> str:
                    + ", ".join(f"{r:g}" for r in sorted(meta["ratios"], reverse=True))
                    + " and at the SOG file's bytes, against the PlayCanvas peers (splat-transform, SOG with "
                    + code(" ".join(meta.get("sog_flags", []))) + ").", _rd_sources(rd, "peers"))
-    lines += [f"Scoring for every codec: gsz-eval's protocol, {meta['views']} default test views of the "
-              f"original at {meta['width']} px, 8-bit renders, PSNR against the original's renders.  "
+    lines += [f"Scoring for every codec: gsz-eval's protocol ({meta['views']} default test views at "
+              f"{meta['width']} px, 8-bit renders, PSNR against the original's).  "
               "Every row (bytes, SSIM, timings): `bench/out/rd.csv`.", ""]
     by = {}
     for t in rd.get("targets", []):
@@ -267,8 +267,8 @@ def page_rd(rd: dict, json_dir: Path) -> str:
             r = g.get(b)
             cells.append(f2(r["psnr"]) if r else "–")
             if r and r.get("note"):
-                notes.append(f"* {k[0]} {k[1]} {b}: {n(r['bytes'])} B for a {n(r['target'])} B budget "
-                             f"({pct((r['bytes'] - r['target']) / r['target'])}).  Report note: {r['note']}")
+                notes.append(f"* {k[0]} {k[1]} {b}: {n(r['bytes'])} B for a {n(r['target'])} B budget; "
+                             f"the report: {r['note']}")
         for p in peers:
             r = g.get(("peer", p))
             cells.append(f"{mb(r['bytes'])} / {f2(r['psnr'])}" if r else "–")
@@ -542,7 +542,7 @@ def page_scale(sets: list) -> str:
                    [[f"`{Path(s['scene']).stem}`, {r['variant']}", f"{ratio(s, r):g}×", r.get("tiles", "–"),
                      f"{n(r['bytes'])} ({r['of_target_pct']:.2f} %)", f"{r['reserve']} / {r['depth']}",
                      f2(r["train_psnr"]), test_db(r), f1(r["wall_s"]), f1(r["cpu_s"]), n(r["peak_rss_mb"]),
-                     code(r["sha256"])]
+                     code(r["sha256"][:8])]
                     for s in single_ratio for r in s["rows"]])
     if multi:
         lines += ["## Single tile vs tiles at several budgets", ""]
@@ -594,7 +594,7 @@ def page_golden(gold: dict) -> str:
                    "(timings excluded); they depend on the CPU's float sums (renderer), so compare on one machine.",
                    [dict(json="golden.json")])
     lines += table(["configuration", "bytes", "file sha256", "report hash"],
-                   [[k, n(v["bytes"]), code(v["sha256"]), code(v["report"])] for k, v in gold.items()])
+                   [[k, n(v["bytes"]), code(v["sha256"][:8]), code(v["report"][:8])] for k, v in gold.items()])
     lines += ["Check: `.venv/bin/python bench/golden.py --check bench/out/golden.json` (`--quick`: committed "
               "samples only).", ""]
     return "\n".join(lines)

@@ -164,7 +164,7 @@ def klt_gain_db(sh_rest, klt: np.ndarray) -> float:
     Dense, correlated components (a trained scene) gain; sparse or gridded ones (most values
     one level, which width-0 groups code nearly free) lose: a rotation mixes them."""
     from .bit_allocation import InfeasibleBudgetError, allocate
-    from .search.sh_model import vector_tables
+    from .groups import vector_tables
     from ..decoder.groups import blocks_for
     x = _sample(sh_rest)
     n, d = x.shape

@@ -11,6 +11,7 @@ import numpy as np
 from ...decoder.cloud import MadeRows
 from ...decoder.groups import blocks_for
 
+from ..groups import vector_tables
 from ..pipeline import ROW_CHUNK, ShPayloads, Stage, sh_set_blocks, tile_assignment
 from .options import SH_BITS
 
@@ -263,22 +264,6 @@ class ShSource:
     num_points: int
 
 
-def _constant_sse(x: np.ndarray, blocks: int, group_means) -> np.ndarray:
-    """[C, B] SSE of each group against its (float32) mean, the constant group's error."""
-    from ...decoder.quant import split_lengths
-    lens = split_lengths(x.shape[1], blocks)
-    mean = np.repeat(group_means(x, blocks).astype(np.float64), lens, axis=1)
-    d = x.astype(np.float64) - mean
-    starts = np.concatenate([[0], np.cumsum(lens)[:-1]])
-    out = np.add.reduceat(d * d, starts, axis=1) if x.shape[1] else np.zeros((x.shape[0], blocks))
-    out[:, lens == 0] = 0.0
-    return out
-
-
-#: SH components per step of kept_tables
-KEPT_TABLE_ROWS = 6
-
-
 def kept_tables(plan: ShPlan, weight: float, min_bits: int = SH_BITS) -> list:
     """Per layer with kept exact SH vectors: (layer, loss [D, B, 16] = SSE times the SH
     channel weight, rate [D, B, 16] with +inf below ``min_bits``) of their groups
@@ -287,30 +272,9 @@ def kept_tables(plan: ShPlan, weight: float, min_bits: int = SH_BITS) -> list:
     for li, (sel, kb) in enumerate(plan.payloads.kept_sets):
         if sel.size:
             bw = plan.payloads.block_weights[li]
-            loss, rate = vector_tables(plan.payloads.kept_vectors(li), blocks_for(sel.size, kb), min_bits)
+            loss, rate = vector_tables(plan.payloads.kept_vectors(li), blocks_for(sel.size, kb), int(min_bits))
             loss *= weight
             if bw is not None:          # blocks are importance classes: weigh their SSE by it
                 loss *= bw[None, :, None]
             out.append((li, loss, rate))
     return out
-
-
-def vector_tables(x: np.ndarray, blocks: int, min_bits: int = SH_BITS) -> tuple:
-    """(loss [D, B, 16] SSE, rate [D, B, 16] bits with +inf below ``min_bits``) of the groups
-    (one component, one of ``blocks`` blocks) of vectors ``x`` float32 [D, n] coded group-wise
-    at 1..16 bits.  With ``min_bits`` = 1, column 0 is the constant group (width 0,
-    :func:`constant_groups`), not 1 bit: a 1-bit code of values around zero reconstructs them
-    at its extremes."""
-    from ..groups import group_means
-    from ...kernels.quantize import quantize_all_bits
-    from ..rate import rate_matrix
-    # a few components at a time: every group is one (component, block), so the values are the
-    # same, without [D, P] float64 temporaries per width (1.7 GB at 720 k vectors)
-    rows = range(0, x.shape[0], KEPT_TABLE_ROWS)
-    loss = np.concatenate([quantize_all_bits(x[r:r + KEPT_TABLE_ROWS], blocks)[3] for r in rows])
-    rate = np.concatenate([rate_matrix(x[r:r + KEPT_TABLE_ROWS], blocks, (int(min_bits), 16)) for r in rows])
-    if min_bits <= 1:
-        loss[:, :, 0] = np.concatenate([_constant_sse(x[r:r + KEPT_TABLE_ROWS], blocks, group_means)
-                                        for r in rows])
-        rate[:, :, 0] = 0.0
-    return loss, rate
