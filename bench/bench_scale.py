@@ -61,6 +61,9 @@ def run_variant(name: str, scene: Path, ratio: float, args, out_dir: Path) -> di
     extra = {"single": ["--tile-gaussians", "0"],
              "tiled": ["--tile-gaussians", str(args.tile_gaussians)],
              "ray": ["--tile-gaussians", str(args.tile_gaussians), "--executor", "ray"]}[name]
+    if args.sh_colour:
+        extra += ["--sh-colour", args.sh_colour]
+        out = out.with_name(f"{out.stem}_{args.sh_colour}.gsz")
     cmd = [str(BIN / "gsz-encode"), str(scene), "-o", str(out), "--ratio", f"{ratio:g}", "--json", "-w", *extra]
     print(f"[{name}] {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
     p, t = timed(cmd)
@@ -68,7 +71,7 @@ def run_variant(name: str, scene: Path, ratio: float, args, out_dir: Path) -> di
         raise SystemExit(f"{name}: gsz-encode failed:\n{p.stderr[-2000:]}")
     r = json.loads(p.stdout)
     data = out.read_bytes()
-    row = {"variant": name, "ratio": ratio, **t, "bytes": r["bytes"], "target": r.get("target_bytes"),
+    row = {"variant": name, "ratio": ratio, "sh_colour": r.get("sh_colour"), **t, "bytes": r["bytes"], "target": r.get("target_bytes"),
            "of_target_pct": round(100 * r["bytes"] / r["target_bytes"], 2) if r.get("target_bytes") else None,
            "reserve": r.get("reserve"), "depth": r.get("depth"), "train_psnr": r.get("train_psnr"),
            "voxels": r.get("voxels"),
@@ -96,6 +99,7 @@ def main(argv=None) -> int:
     p.add_argument("--variants", default="single,tiled")
     p.add_argument("--tile-gaussians", type=int, default=300_000)
     p.add_argument("--eval", action="store_true")
+    p.add_argument("--sh-colour", default=None, help="gsz-encode's --sh-colour (default: its own, auto)")
     p.add_argument("--out", type=Path, default=ROOT / "bench" / "out" / "scale.json")
     a = p.parse_args(argv)
     out_dir = ROOT / "bench" / ".cache" / "scale"

@@ -2,13 +2,17 @@
 object scenes, each normalised to a unit box, placed side by side on a grid.
 
     .venv/bin/python bench/big_scene.py --gaussians 1.2M --sh 3 [--noise] -o bench/.cache/big_1.2M_sh3.ply
+    .venv/bin/python bench/big_scene.py --gaussians 1.2M --objects tiny_graphdeco_iter7000_sh3 --noise -o ...
 
 SH degree 3: copies of measuring_jug (SH 3), flowers_daffodils (SH 2, band 3 zero), the showroom
 crop (SH 0, bands 1-3 zero) and tiny_graphdeco (SH 3); degree 2: flowers, the jug cut to
 degree 2, the showroom crop.  Copies cycle through the list until the count is reached (the last
 copy is cut to the exact count, keeping its most opaque Gaussians).  ``--noise`` moves every
 copy off the delivery grid with bench_codec's noise (a different seed per copy), so copies are
-not bit-identical either.  Deterministic: the same arguments give the same file.
+not bit-identical either.  ``--objects`` names the copies' scenes instead: the trained tiny
+scene alone (noised, so that copies differ) stands in for a real-size trained capture, whose SH
+rest the delivery-format scenes above do not resemble (docs/design/sh-klt.md).  Deterministic:
+the same arguments give the same file.
 """
 from __future__ import annotations
 
@@ -50,11 +54,12 @@ def normalised(cloud, degree: int):
                          opacities=cloud.opacities, sh_dc=cloud.sh_dc, sh_rest=rest, sh_degree=degree)
 
 
-def build(n: int, degree: int, noise: bool, progress=print):
-    """A GaussianCloud of exactly ``n`` Gaussians (see the module docstring)."""
+def build(n: int, degree: int, noise: bool, progress=print, names: list | None = None):
+    """A GaussianCloud of exactly ``n`` Gaussians (see the module docstring); ``names``: the
+    shared scenes to copy (default OBJECTS[degree])."""
     from gsz.decoder.cloud import GaussianCloud
     from gsz.decoder.ply import read_ply
-    objects = [normalised(read_ply(SHARED / f"{name}.ply"), degree) for name in OBJECTS[degree]]
+    objects = [normalised(read_ply(SHARED / f"{name}.ply"), degree) for name in names or OBJECTS[degree]]
     parts, total, i = [], 0, 0
     while total < n:
         obj = objects[i % len(objects)]
@@ -83,13 +88,19 @@ def main(argv=None) -> int:
     ap.add_argument("--gaussians", default="1.2M", help="count, e.g. 1.2M, 3M, 6M, 800k")
     ap.add_argument("--sh", type=int, default=3, choices=[2, 3])
     ap.add_argument("--noise", action="store_true")
+    ap.add_argument("--objects", default=None, help="comma list of shared scene stems to copy (default: the list above)")
     ap.add_argument("-o", "--output", required=True)
     a = ap.parse_args(argv)
     if not SHARED.exists():
         print(f"SKIP: {SHARED} not present")
         return 0
     from gsz.decoder.ply import write_ply
-    cloud = build(parse_count(a.gaussians), a.sh, a.noise)
+    names = a.objects.split(",") if a.objects else None
+    for name in names or []:
+        if not (SHARED / f"{name}.ply").exists():
+            print(f"big_scene: no shared scene {name!r} in {SHARED}", file=sys.stderr)
+            return 2
+    cloud = build(parse_count(a.gaussians), a.sh, a.noise, names=names)
     Path(a.output).parent.mkdir(parents=True, exist_ok=True)
     write_ply(cloud, a.output)
     print(f"wrote {a.output}: {Path(a.output).stat().st_size:,} bytes")
