@@ -1317,8 +1317,9 @@ def encode(cloud: GaussianCloud, options: EncodeOptions | None = None, *, camera
         importance = compute_train_importance(cloud, opts, cameras=cameras, progress=progress)
     elif kept is not None:
         importance = importance[kept]
-    colour = choose_sh_colour(cloud, opts.sh_colour, tile_gaussians=opts.tile_gaussians)
-    cloud = coded_cloud(cloud, colour, in_place=reuse_input)
+    with progress.stage("sh-colour", "colour space of the SH rest and DC"):
+        colour = choose_sh_colour(cloud, opts.sh_colour, tile_gaussians=opts.tile_gaussians)
+        cloud = coded_cloud(cloud, colour, in_place=reuse_input)
     from .executor import make_executor
     executor = make_executor(opts.executor, opts.workers)
     try:

@@ -161,8 +161,9 @@ class BudgetSearch:
         # ``sh_colour``: the SHXF bits ``cloud`` is coded in already (the search without SH rest
         # another search starts), else None: chosen and applied here
         if sh_colour is None:
-            self.sh_colour = choose_sh_colour(cloud, sopts.sh_colour, self.target, sopts.tile_gaussians)
-            cloud = coded_cloud(cloud, self.sh_colour, in_place=reuse_input)
+            with (progress or Progress(quiet=True)).stage("sh-colour", "colour space of the SH rest and DC"):
+                self.sh_colour = choose_sh_colour(cloud, sopts.sh_colour, self.target, sopts.tile_gaussians)
+                cloud = coded_cloud(cloud, self.sh_colour, in_place=reuse_input)
         else:
             self.sh_colour = sh_colour
         self.sopts, self.cloud, self.geometry_pool = sopts, cloud, geometry_pool
