@@ -105,7 +105,10 @@ class ShColour(int):
         return obj
 
     def __repr__(self) -> str:
-        return f"ShColour({int(self)}{'' if self.klt is None else f', klt {self.klt.shape[0]}x{self.klt.shape[1]}'})"
+        klt = "" if self.klt is None else f", klt {self.klt.shape[0]}x{self.klt.shape[1]}"
+        return f"ShColour({int(self)}{klt})"
+
+
 #: the inverse's float64 constants 1/sqrt(3), 1/sqrt(2), 1/sqrt(6), exactly as the spec gives them
 _S3 = float.fromhex("0x1.279a74590331dp-1")
 _S2 = float.fromhex("0x1.6a09e667f3bccp-1")

@@ -1249,8 +1249,10 @@ def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None,
             chunks.append(Chunk(CHUNK_RWGT, part.weights_chunk, flags))
         chunks.append(Chunk(CHUNK_ATTR, attr[pi], flags))
         if stage.sh_colour:
-            chunks.append(Chunk(CHUNK_SHXF, sh_colour_chunk(stage.sh_colour, part.tile not in matrix_tiles), flags))
-            matrix_tiles.add(part.tile)              # parts go layer by layer: the first is layer 0
+            # parts go layer by layer: a tile's first is its layer 0, which carries the matrix
+            payload = sh_colour_chunk(stage.sh_colour, with_matrix=part.tile not in matrix_tiles)
+            chunks.append(Chunk(CHUNK_SHXF, payload, flags))
+            matrix_tiles.add(part.tile)
         if sh is not None:
             if sh_classes is not None and sh_classes[pi] is not None:
                 chunks.append(Chunk(CHUNK_SHCL, sh_classes[pi], flags))
