@@ -138,6 +138,14 @@ def test_round_trip_on_both_decoder_paths_with_one_matrix_a_tile(n, layers, tile
     assert ref.equals(res.cloud)                 # the encoder's reconstruction is the decoder's
     if native.enabled():
         assert decode(res.data).equals(ref)
+    if tiles:       # a tile decoded alone finds its matrix in its own layer 0
+        last = tiles_in_file - 1
+        alone = decode(res.data, tiles=[last])
+        key = lambda c: np.lexsort(c.positions.T)
+        rows = np.isin(ref.positions.view("V12").ravel(), alone.positions.view("V12").ravel())
+        sub = ref.subset(np.flatnonzero(rows))
+        assert len(sub) == len(alone) > 0
+        np.testing.assert_array_equal(sub.sh_rest[key(sub)], alone.sh_rest[key(alone)])
     # the decoded SH are RGB again: the file renders at least like the luma/chroma one
     lc = encode(cloud, EncodeOptions(**FAST, keep=700, layers=layers, tile_gaussians=tiles, sh_colour="luma-chroma"))
     assert _psnr(cloud, ref) > _psnr(cloud, decode(lc.data)) - 0.2

@@ -31,6 +31,12 @@ def sh3_layered():
 
 
 @pytest.fixture(scope="module")
+def sh3_klt_layered():
+    # the SH KLT (format 1.8): the matrix in layer 0's SHXF chunk, later layers use it
+    return encoded("sh3", 2500, bits=10, layers=3, sh_colour="klt")
+
+
+@pytest.fixture(scope="module")
 def sh0_layered():
     return encoded("sh0", 4000, bits=10, layers=4, first_layer=0.15)
 
@@ -49,7 +55,7 @@ def feed_in_pieces(data, size):
     return dec, updates
 
 
-@pytest.mark.parametrize("which", ["sh3_layered", "sh0_layered"])
+@pytest.mark.parametrize("which", ["sh3_layered", "sh0_layered", "sh3_klt_layered"])
 def test_layers_stream_in_order_and_match_single_shot(which, request):
     res = request.getfixturevalue(which)
     data = res.data
