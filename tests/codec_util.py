@@ -43,3 +43,32 @@ def lowest_version(data: bytes) -> str:
     if any(ch.type == b"GEOM" and octree_scheme(ch.data) == 1 for ch in c.chunks):
         return "1.4"
     return "1.3" if b"SHCL" in types else "1.2" if b"TILE" in types else "1.1"
+
+
+def sh3_off_grid(n: int = 3000, sigma: float = 0.002):
+    """The jug sample moved off its SPZ grid as the RD bench's noised variants are (``sigma`` on
+    the SH rest): what a trained capture's SH look like to the colour detectors."""
+    import dataclasses
+    c = sample("sh3", n)
+    rng = np.random.default_rng(11)
+    return dataclasses.replace(c, sh_rest=(c.sh_rest + rng.normal(0, sigma, c.sh_rest.shape)).astype(np.float32))
+
+
+def render_psnr(ref, cloud) -> float:
+    """gsz-eval's PSNR of ``cloud`` against ``ref`` on 3 default test views at 320 px."""
+    from gsz.evaluation.cameras import load_cameras
+    from gsz.evaluation.evaluate import evaluate
+    return evaluate(ref, cloud, load_cameras(None, ref, n_test=3, width=320).test)["psnr"]
+
+
+def decoded_on_both_paths(res):
+    """The NumPy decode of an encode result's file, asserted equal to the encoder's
+    reconstruction and, where the native accelerator is built, to the native decode."""
+    from gsz.decoder import decode, native
+    with native.numpy_only():
+        ref = decode(res.data)
+    assert ref.equals(res.cloud)                 # the encoder's reconstruction is the decoder's
+    if native.enabled():
+        assert decode(res.data).equals(ref)
+    return ref
+
