@@ -55,9 +55,7 @@ def on_coarse_grid(sh_rest: np.ndarray) -> bool:
     """Whether the SH rest [N, K, 3] sits on a delivery format's coarse grid: the median of the
     3K components' distinct-value counts, over at most DISTINCT_SAMPLE evenly spaced Gaussians,
     is at most GRID_DISTINCT_MAX."""
-    n = sh_rest.shape[0]
-    step = max(1, -(-n // DISTINCT_SAMPLE))
-    sample = np.asarray(sh_rest[::step], np.float32).reshape(-1, sh_rest.shape[1] * 3)
+    sample = _sample(sh_rest)           # float64 of float32 values: the same distinct counts
     if sample.shape[0] == 0 or sample.shape[1] == 0:
         return False
     s = np.sort(sample, axis=0)
@@ -116,10 +114,11 @@ def klt_matrix_bytes(d: int) -> int:
 
 
 def _sample(sh_rest) -> np.ndarray:
-    """float64 [n, D]: at most DISTINCT_SAMPLE evenly spaced Gaussians' SH rest vectors."""
+    """float64 [n, D]: at most DISTINCT_SAMPLE evenly spaced Gaussians' SH rest vectors (the
+    sample every per-file colour decision looks at)."""
     step = max(1, -(-sh_rest.shape[0] // DISTINCT_SAMPLE))
     x = np.asarray(sh_rest[::step], np.float64)
-    return x.reshape(len(x), -1)
+    return x.reshape(len(x), int(np.prod(sh_rest.shape[1:])))
 
 
 def klt_matrix(sh_rest) -> np.ndarray:

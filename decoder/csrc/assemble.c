@@ -131,11 +131,24 @@ static inline uint32_t luma_chroma_row(float *v, int64_t D)
 #define KLT_RANGE_MESSAGE "KLT-coded SH value outside +-256 (corrupt parameters)"
 static const double KLT_IN = 0x1p24, KLT_OUT = 0x1p-38, KLT_ROUND = 0x1.8p52;
 
+/* rint(v * 2^24), ties to even (|v| < 256: below 2^51) */
+static inline double klt_round(float v)
+{
+    return ((double)v * KLT_IN + KLT_ROUND) - KLT_ROUND;
+}
+
+/* Whether any of n floats is at or beyond the KLT's range (or not finite). */
+static inline uint32_t klt_far(const float *c, int64_t n)
+{
+    uint32_t far = 0;
+    for (int64_t t = 0; t < n; t++) far |= !(fabs((double)c[t]) < KLT_MAX_ABS);
+    return far;
+}
+
 static inline double klt_int(float v, uint32_t *far)
 {
-    const double x = (double)v;
-    *far |= !(x < KLT_MAX_ABS && x > -KLT_MAX_ABS);
-    return (x * KLT_IN + KLT_ROUND) - KLT_ROUND;
+    *far |= klt_far(&v, 1);
+    return klt_round(v);
 }
 
 /* One row of D floats (a codeword) in place; y: D doubles of scratch. */
@@ -211,14 +224,6 @@ static klt_product_fn klt_product(void)
     return klt_product_base;
 }
 
-/* Whether any of n floats is at or beyond the KLT's range (or not finite). */
-static inline uint32_t klt_far(const float *c, int64_t n)
-{
-    uint32_t far = 0;
-    for (int64_t t = 0; t < n; t++) far |= !(fabs((double)c[t]) < KLT_MAX_ABS);
-    return far;
-}
-
 /* The KLT of a component-major tile's first n vectors in place (klt_row's arithmetic, run over
  * all SH_TILE columns -- a constant trip count the compiler vectorises; the columns past n are
  * scratch, earlier tiles' values or zeros); y: D x SH_TILE doubles of scratch. */
@@ -230,7 +235,7 @@ static uint32_t klt_tile(float *restrict tile, int64_t n, int64_t D, const doubl
         const float *c = tile + d * SH_TILE;
         double *yd = y + d * SH_TILE;
         far |= n == SH_TILE ? klt_far(c, SH_TILE) : klt_far(c, n);
-        for (int64_t t = 0; t < SH_TILE; t++) yd[t] = ((double)c[t] * KLT_IN + KLT_ROUND) - KLT_ROUND;
+        for (int64_t t = 0; t < SH_TILE; t++) yd[t] = klt_round(c[t]);
     }
     if (far) return 1;
     klt_product()(tile, D, m, y);
