@@ -703,7 +703,13 @@ def build(json_dir: Path = JSON_DIR) -> dict:
     lines += table(["page", "topic", "from"], [[f"[{nm}]({nm})", t, ", ".join(code(j) for j in js)]
                                               for nm, t, js in sorted(index)])
     if left:
-        lines += ["JSON with no page: " + ", ".join(code(x) for x in left) + ".", ""]
+        # several files of one probe (its name's first word) as one glob
+        heads: dict = {}
+        for x in left:
+            heads.setdefault(x.split("_")[0], []).append(x)
+        names = [code(f"{h}_*.json") + f" ({len(xs)})" if len(xs) > 1 else code(xs[0])
+                 for h, xs in heads.items()]
+        lines += ["JSON with no page: " + ", ".join(names) + ".", ""]
     pages["README.md"] = "\n".join(lines)
     return {k: v.rstrip("\n") + "\n" for k, v in pages.items()}
 
