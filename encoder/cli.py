@@ -184,8 +184,15 @@ def _run_search(a, prog) -> EncodeReport:
         r.target_bytes, r.written.gsz_target_bytes = target, payload_target
     _write_report(a, r, result.data)
     prog.log(f"{100 * r.bytes / target:.2f} % of the {r.written.target} target; reserve {r.reserve}, "
-             f"codebook {r.codebook_size}, keep {r.sh_keep}, train PSNR {r.search.train_psnr:.2f} dB")
+             f"codebook {r.codebook_size}{_codebook_width(r)}, keep {r.sh_keep}, train PSNR {r.search.train_psnr:.2f} dB")
     return r
+
+
+def _codebook_width(r) -> str:
+    """The log's "at N bits" where the search coded the SH codebook below SH_BITS."""
+    from .search import SH_BITS
+    bits = (r.bits or {}).get("sh_codebook")
+    return f" at {bits} bits" if bits and bits != SH_BITS else ""
 
 
 def _write_report(a, r: EncodeReport, data: bytes) -> None:

@@ -890,13 +890,14 @@ class ShPayloads:
     search assigns once per stage and codebook), else computed here.
     The ``keep`` most important Gaussians keep their exact vectors (quantised group-wise,
     ``sh_bits`` by default); every other Gaussian takes its nearest codeword (codebook at
-    ``sh_bits``).  Each tile's codebook (compacted to the codewords its layers use) goes with
+    ``cb_bits``, default ``sh_bits``).  Each tile's codebook (compacted to the codewords its layers use) goes with
     its first layer that has codeword indices (layer 0 when none has), so a layer whose
     Gaussians all keep their exact vectors does not wait for it; the tile's other layers refer
     to it."""
 
     def __init__(self, stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks: int,
-                 cb_blocks: int | None = None, index: np.ndarray | None = None, classes: int = 1):
+                 cb_blocks: int | None = None, index: np.ndarray | None = None, classes: int = 1,
+                 cb_bits: int | None = None):
         from .rans import encode_stream
         from .vq import assign, compact
 
@@ -916,7 +917,9 @@ class ShPayloads:
         #: per tile: (voxels taking a codeword, the tile's reconstructed codebook [K_t, D]
         #: float32, each voxel's row in it): an [M, D] array per plan would be 216 MB at 1.2 M
         self._codewords = []
-        self.stats = {"kept": keep, "codebook_size": 0, "codebook_bytes": 0, "kept_bytes": 0, "index_bytes": 0}
+        cb_bits = self.sh_bits if cb_bits is None else int(cb_bits)
+        self.stats = {"kept": keep, "codebook_size": 0, "codebook_bytes": 0, "kept_bytes": 0, "index_bytes": 0,
+                      "codebook_bits": cb_bits}
         #: per part: (kept voxel indices in coding order, blocks of their channel set)
         self.kept_sets = [None] * len(stage.layers)
         self._heads, self._tails = [None] * len(stage.layers), [None] * len(stage.layers)
@@ -938,7 +941,7 @@ class ShPayloads:
             else:
                 cb = np.zeros((1, d), np.float32)
             cb_bytes, cb_rec = write_channel_set(
-                cb.T, sh_bits, sh_set_blocks(cb.shape[0], blocks) if cb_blocks is None else cb_blocks)
+                cb.T, cb_bits, sh_set_blocks(cb.shape[0], blocks) if cb_blocks is None else cb_blocks)
             self._codewords.append((r, np.ascontiguousarray(cb_rec.T, np.float32),
                                     idx_all[r].astype(np.int32)))
             self.stats["codebook_size"] += int(cb.shape[0])

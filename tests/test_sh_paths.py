@@ -168,3 +168,69 @@ def test_decoded_rows_are_the_coded_sh_bit_for_bit(keep, classes, widths):
     assert got.shape == want.shape
     assert np.array_equal(np.asarray(got), want)
     assert np.array_equal(got[1000:1100], want[1000:1100])
+
+
+def _codebook_model(n=3000, k=64):
+    import numpy as np
+
+    from gsz.encoder.pipeline import prepare_stage
+    from gsz.encoder.search.sh_model import ShModel, ShStageStats
+    from gsz.encoder.vq import assign, train_codebook
+    c = sample("sh3", n)
+    st = prepare_stage(c, np.random.default_rng(0).random(len(c)), 1.0)
+    x = np.asarray(st.sh, np.float32)
+    cb = train_codebook(x, None, k, seed=0)
+    return st, x, ShModel(st, cb, 16, ShStageStats(st, 16), assign(x, cb))
+
+
+def test_a_coarser_codebook_costs_fewer_bytes_and_its_error_estimate_tracks_the_decoded_words():
+    """with_codebook_bits: the codebook's bytes fall with its width, the estimated error of the
+    vectors rises by (WORD_ERROR_FACTOR times) what decoding the coarser words really adds."""
+    import numpy as np
+
+    from gsz.encoder.search.sh_model import WORD_ERROR_FACTOR, row_sse
+    st, x, m8 = _codebook_model()
+    assert m8.cb_bits == 8
+    prev = m8
+    for bits in (6, 5, 3):
+        m = m8.with_codebook_bits(bits)
+        assert m.cb_bits == bits and m8.cb_bits == 8           # a copy; the model itself unchanged
+        assert m.codebook_bytes < prev.codebook_bytes
+        assert m.cum_vq[-1] > prev.cum_vq[-1]
+        words, _ = m8._coded_codebook(bits)
+        exact = float(row_sse(x, lambda s, e: words[m8._compact_index[s:e]]).sum())
+        added = (m.cum_vq[-1] - m8.cum_vq[-1]) / WORD_ERROR_FACTOR
+        assert added == pytest.approx(exact - m8.cum_vq[-1], rel=0.25)
+        # the estimate of a keep-count: fewer bytes, no less error (the kept vectors are unchanged)
+        for keep in (0, 300):
+            (b, l), (b8, l8) = m.estimate(keep), m8.estimate(keep)
+            assert b < b8 and l >= l8
+        prev = m
+    assert np.all(np.diff(m.cum_vq) >= -1e-9)
+
+
+@pytest.mark.usefixtures("each_decoder_path")
+@pytest.mark.parametrize("bits", [5, 3])
+def test_a_codebook_below_8_bits_decodes_to_its_coded_words(bits):
+    """ShModel.encode at a coarser codebook writes the codebook at that width; the file's SH
+    are the plan's reconstruction bit for bit (C kernel and NumPy rows alike)."""
+    import numpy as np
+    st, _, m8 = _codebook_model()
+    plan = m8.with_codebook_bits(bits).encode(100)
+    assert plan.stats["codebook_bits"] == bits
+    coarse = plan.payloads.decoded_rows(None)
+    fine = m8.encode(100).payloads.decoded_rows(None)
+    assert np.array_equal(np.asarray(plan.payloads.payloads(None)[1]), np.asarray(coarse))
+    assert plan.payloads.stats["codebook_bytes"] < m8.encode(100).payloads.stats["codebook_bytes"]
+    assert not np.array_equal(np.asarray(coarse), np.asarray(fine))
+
+
+def test_the_search_reports_its_codebook_width_and_refuses_bad_ones():
+    from gsz.encoder.search import SearchOptions, encode_to_budget
+    from gsz.encoder.pipeline import EncodeOptionsError
+    res = _search(120_000)
+    assert res.report.bits["sh_codebook"] in SearchOptions().codebook_bits
+    fixed = _search(120_000, codebook_bits=(8,))
+    assert fixed.report.bits["sh_codebook"] == 8
+    with pytest.raises(EncodeOptionsError, match="codebook_bits"):
+        encode_to_budget(sample("sh3"), 120_000, options=SearchOptions(**FAST_SEARCH, codebook_bits=(0,)))

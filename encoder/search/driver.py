@@ -151,6 +151,8 @@ class BudgetSearch:
         def bad(msg):
             raise EncodeOptionsError(msg)
         sopts.check_scene_options(bad)
+        if not sopts.codebook_bits or not all(1 <= int(b) <= 16 for b in sopts.codebook_bits):
+            bad(f"codebook_bits must be widths in 1..16, got {sopts.codebook_bits!r}")
         self.target = int(target_bytes)
         if self.target <= 0:
             raise BudgetError(self.target, 1)

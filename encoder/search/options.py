@@ -10,7 +10,13 @@ from ..pipeline import MANY_BLOCKS, SceneOptions
 
 #: bit-width of the SH codebook and the kept exact SH vectors (the paper's setting), except where
 #: a budget above the 8-bit quality ceiling lets the kept vectors' groups join the allocation
+#: (and the codebook's: SearchOptions.codebook_bits)
 SH_BITS = 8
+
+#: Widths a component the search may code the SH codebook at: at low rates a coarser codebook
+#: buys more words (trained tiny at 27x: 262 words at 5 bits against 65 at 8, +1.5 dB;
+#: docs/design/codebook-bits.md)
+CODEBOOK_BITS = (SH_BITS, 6, 5)
 
 
 class BudgetError(GszError, ValueError):
@@ -61,6 +67,8 @@ class SearchOptions(SceneOptions):
                     (pruned + voxelised) cloud and skip the tau when that bound is no better
                     than the best candidate's train PSNR
     overlap         train the SH codebooks on a worker thread during the set-up
+    codebook_bits   widths a component the SH codebook may be coded at; the estimate that
+                    picks the codebook size and keep-count picks among them too
     """
 
     reserves: tuple = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)
@@ -82,3 +90,4 @@ class SearchOptions(SceneOptions):
     layer0_share: float = 0.1
     screen: bool = True
     overlap: bool = True
+    codebook_bits: tuple = CODEBOOK_BITS

@@ -2,6 +2,7 @@
 codebook and the count of most important vectors kept exact, and the exact payloads of a choice."""
 from __future__ import annotations
 
+import copy
 import math
 import weakref
 from dataclasses import dataclass
@@ -178,41 +179,65 @@ class Assigner:
         return out
 
 
+#: A codeword's coding error is shared by every vector of the word, which render it alike
+#: (docs/design/error-coherence.md: such errors render worse than i.i.d. ones of equal SSE)
+WORD_ERROR_FACTOR = 2.0
+
+
 class ShModel:
     """Estimated SH bytes and SSE as functions of the keep-count P (one VQ assignment, cumulative
     sums over importance order), and exact encoding of the chosen P."""
 
     def __init__(self, stage: Stage, codebook: np.ndarray, blocks: int, base: ShStageStats,
                  index: np.ndarray):
-        from ...decoder.quant import dequantize_groups, split_lengths
-        from ...kernels.quantize import quantize_groups
-
-        from ..rate import rate_matrix
-        from ..vq import compact
-        from ..vq import assign
+        from ..vq import assign, compact
         self.stage, self.blocks = stage, blocks
         # a tiled stage's tiles carry their share of the codewords each (ShPayloads does the same)
         index = tile_assignment(stage, codebook, index, assign)
         self.raw_codebook, self.index = codebook, index
-        x = stage.sh
-        m, d = x.shape
+        m, d = stage.sh.shape
         cb, idx = compact(codebook, index)
-        self.codebook = cb
-        b = blocks_for(cb.shape[0], sh_set_blocks(cb.shape[0], blocks))
-        self.cb_blocks = b
-        sym, mn, mx = quantize_groups(cb.T, b, np.full((d, b), SH_BITS))
-        cb_q = dequantize_groups(sym, mn, mx, np.full((d, b), SH_BITS), split_lengths(cb.shape[0], b)).T
-        err_vq = row_sse(x, lambda s, e: cb_q[idx[s:e]])
+        self.codebook, self._compact_index = cb, idx
+        self.cb_blocks = blocks_for(cb.shape[0], sh_set_blocks(cb.shape[0], blocks))
         self.order = base.order
-        self.cum_vq = np.concatenate([[0.0], np.cumsum(err_vq[base.order])])
         self.base = base
         counts = np.bincount(idx, minlength=cb.shape[0]).astype(np.float64)
         p = counts[counts > 0] / m
         self.index_bits = float(-(p * np.log2(p)).sum())
-        self.codebook_bytes = sum(
-            float(rate_matrix(c.T, bt, (SH_BITS, SH_BITS))[:, :, SH_BITS - 1].sum()) / 8 + 9 * d * bt + 32
-            for c, bt in self._tile_codebooks(cb, idx, blocks))
         self.m, self.d = m, d
+        self.cb_bits = SH_BITS
+        cb_q, self._word_sse = self._coded_codebook(SH_BITS)
+        err_vq = row_sse(stage.sh, lambda s, e: cb_q[idx[s:e]])
+        self.cum_vq = np.concatenate([[0.0], np.cumsum(err_vq[self.order])])
+        self.codebook_bytes = self._codebook_bytes(SH_BITS)
+
+    def _coded_codebook(self, bits: int) -> tuple[np.ndarray, np.ndarray]:
+        """(the codebook as decoded at ``bits`` a component [K, D], each word's squared error)."""
+        from ...decoder.quant import dequantize_groups, split_lengths
+        from ...kernels.quantize import quantize_groups
+        cb, b, d = self.codebook, self.cb_blocks, self.d
+        sym, mn, mx = quantize_groups(cb.T, b, np.full((d, b), bits))
+        cb_q = dequantize_groups(sym, mn, mx, np.full((d, b), bits), split_lengths(cb.shape[0], b)).T
+        return cb_q, ((cb_q.astype(np.float64) - cb) ** 2).sum(axis=1)
+
+    def _codebook_bytes(self, bits: int) -> float:
+        from ..rate import rate_matrix
+        return sum(float(rate_matrix(c.T, bt, (bits, bits))[:, :, bits - 1].sum()) / 8 + 9 * self.d * bt + 32
+                   for c, bt in self._tile_codebooks(self.codebook, self._compact_index, self.blocks))
+
+    def with_codebook_bits(self, bits: int) -> "ShModel":
+        """This model with its codebook coded at ``bits`` a component instead (the assignment
+        shared): at low rates a cheaper codebook buys a larger one.  A vector's error changes
+        by its word's change of squared error (the cross term with the vector's own residual
+        dropped: the residuals of a word's vectors sum to ~0, the word being their centroid),
+        so no pass over the [M, D] vectors."""
+        other = copy.copy(self)
+        _, word_sse = self._coded_codebook(bits)
+        delta = (word_sse - self._word_sse)[self._compact_index]
+        other.cum_vq = self.cum_vq + WORD_ERROR_FACTOR * np.concatenate([[0.0], np.cumsum(delta[self.order])])
+        other.cb_bits, other._word_sse = int(bits), word_sse
+        other.codebook_bytes = self._codebook_bytes(bits)
+        return other
 
     def _tile_codebooks(self, cb: np.ndarray, idx: np.ndarray, blocks: int):
         """(codebook [K_t, D], blocks) that each tile carries (the compacted one without tiles)."""
@@ -250,7 +275,8 @@ class ShModel:
         # the compacted codebook's row order is the raw one's, so the raw codebook with the
         # stage's assignment gives exactly what sh_chunk would compute itself
         payloads = ShPayloads(self.stage, self.raw_codebook, keep, SH_BITS, self.blocks,
-                              cb_blocks=self.cb_blocks, index=self.index, classes=classes)
+                              cb_blocks=self.cb_blocks, index=self.index, classes=classes,
+                              cb_bits=self.cb_bits)
         chunk, _, stats = payloads.payloads(decoded=False) if code else (None, None, dict(payloads.stats))
         nb, loss = self.estimate(keep)
         return ShPlan(keep, chunk, stats, nb, loss, payloads)

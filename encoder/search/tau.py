@@ -48,7 +48,8 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
             yield _finish(stage, res, res.left_over(target, sopts.tolerance), "vq", log)
         return
     with progress.stage("sh-plan", "codebook size and keep-count vs bit allocation"):
-        sh_model, keep, vq_total = choose_sh(sh_models, loss, rate, target - base_fixed, weights, min_keep)
+        sh_model, keep, vq_total = choose_sh(sh_models, loss, rate, target - base_fixed, weights, min_keep,
+                                             sopts.codebook_bits)
     sh_models = None        # the other codebooks' models go (16 bytes a voxel each)
     m, w_sh, keep_estimate = sh_model.m, 1.0 if weights is None else weights["sh"], keep
     # the codebook path is skipped (after it lost) only where the estimate keeps most vectors
@@ -150,6 +151,7 @@ def _finish(stage: Stage, res: Calibrated, saturated: bool, path: str, log: list
     enc.sh_keep = None if plan is None else int(plan.keep)
     enc.sh_path = None if plan is None else path
     enc.codebook_size = 0 if plan is None else int(plan.stats["codebook_size"])
+    enc.codebook_bits = int(plan.stats["codebook_bits"]) if enc.codebook_size else None
     enc.depth, enc.num_points = stage.depth, stage.num_points
     enc.layer0_points, enc.geometry_bytes = stage.layer0_points, stage.geometry_bytes
     return enc
@@ -190,10 +192,12 @@ def scalar_sh(plan_kept: tuple, loss, rate, room: float, vq_total: float | None)
     return plan_kept if vq_total is None or total < vq_total else None
 
 
-def choose_sh(sh_models: list, loss, rate, room: float, weights, min_keep: int) -> tuple[ShModel, int, float | None]:
-    """(codebook model, keep-count, estimated total loss) whose estimated SH loss plus the loss
-    of the attribute allocation in the bytes the SH leave (``room`` minus the SH estimate) is
-    smallest (total None when no estimate fits)."""
+def choose_sh(sh_models: list, loss, rate, room: float, weights, min_keep: int,
+              codebook_bits=(SH_BITS,)) -> tuple[ShModel, int, float | None]:
+    """(codebook model with its codebook at one of ``codebook_bits``, keep-count, estimated
+    total loss) whose estimated SH loss plus the loss of the attribute allocation in the bytes
+    the SH leave (``room`` minus the SH estimate) is smallest (total None when no estimate
+    fits)."""
     from ..bit_allocation import InfeasibleBudgetError
     best = None
     w_sh = 1.0 if weights is None else weights["sh"]
@@ -210,7 +214,8 @@ def choose_sh(sh_models: list, loss, rate, room: float, weights, min_keep: int) 
             if best is None or total < best[0]:
                 best = (total, model, keep)
     for model in sh_models:
-        consider(model, model.keeps(min_keep))
+        for bits in codebook_bits:
+            consider(model if bits == model.cb_bits else model.with_codebook_bits(bits), model.keeps(min_keep))
     # the largest regular keep-count won: the budget may afford still more exact vectors
     if best is not None and best[2] == max(best[1].keeps(min_keep)) and best[2] < best[1].m:
         model = best[1]
