@@ -42,7 +42,7 @@ def search_report(search, chosen: Candidate) -> EncodeReport:
         bits={"raht": enc.raht_bits.tolist(), "scales": enc.scale_bits.tolist(),
               "raht_channels": list(RAHT_CHANNELS), "scale_channels": list(DIRECT_CHANNELS),
               "sh": SH_BITS if sh else None,
-              # the SH codebook's width a component (tau.CODEBOOK_BITS), None without a codebook
+              # the SH codebook's width a component (SearchOptions.codebook_bits), None without a codebook
               "sh_codebook": enc.codebook_bits if sh else None,
               # per part: the kept SH vectors' group widths [D][B_l] where they were allocated
               # (sh_path "scalar" or "classes": one block per importance class, 0 = a constant
