@@ -205,7 +205,7 @@ class ShModel:
         p = counts[counts > 0] / m
         self.index_bits = float(-(p * np.log2(p)).sum())
         self.m, self.d = m, d
-        self.cb_bits = SH_BITS
+        self.cb_bits, self._tile_words = SH_BITS, None
         cb_q, self._word_sse = self._coded_codebook(SH_BITS)
         err_vq = row_sse(stage.sh, lambda s, e: cb_q[idx[s:e]])
         self.cum_vq = np.concatenate([[0.0], np.cumsum(err_vq[self.order])])
@@ -222,8 +222,10 @@ class ShModel:
 
     def _codebook_bytes(self, bits: int) -> float:
         from ..rate import rate_matrix
+        if self._tile_words is None:          # once: every width codes the same words per tile
+            self._tile_words = list(self._tile_codebooks(self.codebook, self._compact_index, self.blocks))
         return sum(float(rate_matrix(c.T, bt, (bits, bits))[:, :, bits - 1].sum()) / 8 + 9 * self.d * bt + 32
-                   for c, bt in self._tile_codebooks(self.codebook, self._compact_index, self.blocks))
+                   for c, bt in self._tile_words)
 
     def with_codebook_bits(self, bits: int) -> "ShModel":
         """This model with its codebook coded at ``bits`` a component instead (the assignment
