@@ -184,7 +184,8 @@ def _run_search(a, prog) -> EncodeReport:
         r.target_bytes, r.written.gsz_target_bytes = target, payload_target
     _write_report(a, r, result.data)
     prog.log(f"{100 * r.bytes / target:.2f} % of the {r.written.target} target; reserve {r.reserve}, "
-             f"codebook {r.codebook_size}{_codebook_width(r)}, keep {r.sh_keep}, train PSNR {r.search.train_psnr:.2f} dB")
+             f"codebook {r.codebook_size}{_codebook_width(r)}, keep {r.sh_keep}, "
+             f"train PSNR {r.search.train_psnr:.2f} dB")
     return r
 
 

@@ -890,10 +890,10 @@ class ShPayloads:
     search assigns once per stage and codebook), else computed here.
     The ``keep`` most important Gaussians keep their exact vectors (quantised group-wise,
     ``sh_bits`` by default); every other Gaussian takes its nearest codeword (codebook at
-    ``cb_bits``, default ``sh_bits``).  Each tile's codebook (compacted to the codewords its layers use) goes with
-    its first layer that has codeword indices (layer 0 when none has), so a layer whose
-    Gaussians all keep their exact vectors does not wait for it; the tile's other layers refer
-    to it."""
+    ``cb_bits``, default ``sh_bits``).  Each tile's codebook (compacted to the codewords its
+    layers use) goes with its first layer that has codeword indices (layer 0 when none has), so
+    a layer whose Gaussians all keep their exact vectors does not wait for it; the tile's other
+    layers refer to it."""
 
     def __init__(self, stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks: int,
                  cb_blocks: int | None = None, index: np.ndarray | None = None, classes: int = 1,

@@ -39,7 +39,7 @@ class Encoded:
     attributes_saturated: bool = False   # every attribute group at its best width, bytes left
     sh_keep: int | None = None    # exact SH vectors kept; None without SH
     codebook_size: int = 0
-    codebook_bits: int | None = None  # the codebook's width a component (SearchOptions.codebook_bits); None without one
+    codebook_bits: int | None = None  # the codebook's width a component (SearchOptions.codebook_bits)
     sh_path: str | None = None    # "vq" (codebook + kept vectors at 8 bits), "classes" (the same, kept vectors in
     #                               importance classes, widths allocated) or "scalar"; None without SH
     depth: int = 0

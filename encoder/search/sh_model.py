@@ -236,7 +236,8 @@ class ShModel:
         other = copy.copy(self)
         _, word_sse = self._coded_codebook(bits)
         delta = (word_sse - self._word_sse)[self._compact_index]
-        other.cum_vq = self.cum_vq + WORD_ERROR_FACTOR * np.concatenate([[0.0], np.cumsum(delta[self.order])])
+        other.cum_vq = self.cum_vq + WORD_ERROR_FACTOR * np.concatenate([[0.0],
+                                                                         np.cumsum(delta[self.order])])
         other.cb_bits, other._word_sse = int(bits), word_sse
         other.codebook_bytes = self._codebook_bytes(bits)
         return other
