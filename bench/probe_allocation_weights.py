@@ -138,7 +138,7 @@ def main(argv=None) -> int:
         r = res.report
         print(f"{path.stem}{' noised' if a.noise else ''} {int(s):,} B -> {len(res.data):,} B: test PSNR "
               f"{ev['psnr']:.2f} dB (train {r.search.train_psnr:.2f}); tau {r.reserve}, depth {r.depth}, "
-              f"codebook {r.codebook_size}, kept {r.sh_keep}; {dt:.0f} s", flush=True)
+              f"codebook {r.codebook_size} at {(r.bits or {}).get('sh_codebook')} bits, kept {r.sh_keep}; {dt:.0f} s", flush=True)
     return 0
 
 
