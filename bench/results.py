@@ -50,7 +50,7 @@ NOTES = {
                                       machine=VM + ", idle", when="2026-12-02 02:54-03:04 UTC"),
     "stream.json": dict(command=".venv/bin/python bench/bench_stream.py", commit="71b11a3",
                         machine=VM + ", a test run beside it for ~3 min", when="2026-12-02 05:15-05:29 UTC"),
-    "golden.json": dict(command="golden.py's usage: `.venv/bin/python bench/golden.py --write bench/out/golden.json`",
+    "golden.json": dict(command="golden.py's usage: `bench/golden.py --write bench/out/golden.json`",
                         commit="the file's git log"),
 }
 
@@ -94,7 +94,9 @@ def cell(name: str, key: str, recorded) -> str:
     'not recorded'."""
     if recorded:
         # a command's --out path says nothing about the run (the JSON is named beside it)
-        return code(re.sub(r" --out \S+", "", recorded)) if key == "command" else str(recorded)
+        # ... nor does the interpreter (every command runs with the checkout's .venv/bin/python)
+        return code(re.sub(r" --out \S+", "", re.sub(r"^\.venv/bin/python ", "", recorded))) \
+            if key == "command" else str(recorded)
     noted = NOTES.get(name, {}).get(key)
     if not noted:
         return NA
@@ -281,7 +283,7 @@ def page_rd(rd: dict, json_dir: Path) -> str:
     if pngs:
         lines += ["## Plots (bytes, log scale → PSNR; `bench/rd.py` writes them)", ""]
         lines += [image(p, "RD " + p.stem[len("rdpeers_"):]) for p in pngs] + [""]
-    lines += ["Reproduce: `.venv/bin/python bench/rd.py` (peers are installed into bench/.peers on first use; "
+    lines += ["Reproduce: `bench/rd.py` (peers are installed into bench/.peers on first use; "
               "~2 h on 2 cores), `--skip-peers` for gsz's rows alone.", ""]
     return "\n".join(lines)
 
@@ -354,8 +356,8 @@ def page_search(rd: dict, scaling, above) -> str:
                  f2(r["psnr"]), r["depth"], n(r["sh_keep"]), f1(r["search_seconds"])] for r in above]
         lines += table(["variant", "budget", "target B", "bytes", "test dB", "depth", "kept SH", "search s"], rows)
         lines += ["Before the SH spend (2c45cc2): [docs/design/sh-spend.md](../design/sh-spend.md).", ""]
-    lines += ["Reproduce: `.venv/bin/python bench/rd.py --skip-peers` (every point; `--report` prints the "
-              "tables), `.venv/bin/python bench/bench_search.py --scaling` and "
+    lines += ["Reproduce: `bench/rd.py --skip-peers` (every point; `--report` prints the "
+              "tables), `bench/bench_search.py --scaling` and "
               "`--scenes measuring_jug_sh3 --ratios 4,6 --noise`.", ""]
     return "\n".join(lines)
 
@@ -383,7 +385,7 @@ def page_eval_views(sets: list) -> str:
               "itself used to compare candidates and for the importance pass.", ""]
     lines += table(["compare / importance px", "point", "candidates"] + [c.replace("train ", "") for c in cols]
                    + ["best test dB"], out)
-    lines += ["Reproduce: `.venv/bin/python bench/bench_eval_views.py [--search-width W] [--importance-width W] "
+    lines += ["Reproduce: `bench/bench_eval_views.py [--search-width W] [--importance-width W] "
               "[--points scene:variant:ratio,...]`.", ""]
     return "\n".join(lines)
 
@@ -403,7 +405,7 @@ def page_loss_proxy(sets: list) -> str:
                          f2(r["psnr_unweighted_optimum"]), f"{f2(r['psnr_random_best'])} / {f2(r['psnr_random_median'])}"])
     lines += table(["scene", "budget", "τ", "allocations", "attribute B", "Spearman unweighted", "weighted",
                     "dB weighted opt.", "dB unweighted opt.", "dB random best / median"], rows)
-    lines += ["Reproduce: `.venv/bin/python bench/bench_loss_proxy.py --scenes houseplant_sh0,measuring_jug_sh3 "
+    lines += ["Reproduce: `bench/bench_loss_proxy.py --scenes houseplant_sh0,measuring_jug_sh3 "
               "--count 12` (`--ratio 60` for the 60× row).", ""]
     return "\n".join(lines)
 
@@ -451,8 +453,8 @@ def page_codec(codec, dm, dm_noised) -> str:
         lines += table(["scene", "gsz-encode flags", "Gaussians (depth), grid", "grid", "noised"],
                        [[r["scene"], code(" ".join(r["flags"])), f"{n(r['gaussians'])} ({r['depth']})",
                          res(r if dm else None), res(noised.get(r["scene"]))] for r in base])
-    lines += ["Reproduce: `.venv/bin/python bench/bench_codec.py --noise --bits 8,10,12 --blocks 1,80`, "
-              "`.venv/bin/python bench/done_means_codec.py [--noised]`.  Why one block from 10 bits up: "
+    lines += ["Reproduce: `bench/bench_codec.py --noise --bits 8,10,12 --blocks 1,80`, "
+              "`bench/done_means_codec.py [--noised]`.  Why one block from 10 bits up: "
               "[docs/design/default-blocks.md](../design/default-blocks.md).", ""]
     return "\n".join(lines)
 
@@ -514,7 +516,7 @@ def page_stream(rows: list, json_dir: Path) -> str:
     pngs = [p for p in pngs if p.exists()]
     if pngs:
         lines += ["## Bytes received → test PSNR", ""] + [image(p, p.stem) for p in pngs] + [""]
-    lines += ["Reproduce: `.venv/bin/python bench/bench_stream.py` (defaults `--ratio 12 --layers 3 --first-layer "
+    lines += ["Reproduce: `bench/bench_stream.py` (defaults `--ratio 12 --layers 3 --first-layer "
               "0.1`).  Why one layer by default and 3 for `--layers`: [docs/design/layers.md](../design/layers.md).", ""]
     return "\n".join(lines)
 
@@ -562,7 +564,7 @@ def page_scale(sets: list) -> str:
                             + (f" / {n(r['stage_peak_mb']['stages'][st]['peak_mb'])}"
                                if st in r.get("stage_peak_mb", {}).get("stages", {}) else "") for _, r in cols]
                     for st in stages])
-    lines += ["Scenes: `.venv/bin/python bench/big_scene.py --gaussians 1.2M --sh 3 -o bench/.cache/big_1.2M_sh3.ply` "
+    lines += ["Scenes: `bench/big_scene.py --gaussians 1.2M --sh 3 -o bench/.cache/big_1.2M_sh3.ply` "
               "(3M likewise).  Why and where tiles: [docs/design/tiles.md](../design/tiles.md).", ""]
     return "\n".join(lines)
 
@@ -595,7 +597,7 @@ def page_golden(gold: dict) -> str:
                    [dict(json="golden.json")])
     lines += table(["configuration", "bytes", "file sha256", "report hash"],
                    [[k, n(v["bytes"]), code(v["sha256"][:8]), code(v["report"][:8])] for k, v in gold.items()])
-    lines += ["Check: `.venv/bin/python bench/golden.py --check bench/out/golden.json` (`--quick`: committed "
+    lines += ["Check: `bench/golden.py --check bench/out/golden.json` (`--quick`: committed "
               "samples only).", ""]
     return "\n".join(lines)
 
@@ -695,7 +697,8 @@ def build(json_dir: Path = JSON_DIR) -> dict:
     left = sorted(p.name for p in json_dir.glob("*.json") if p.name not in used)
     lines = ["# Current results", "",
              "One page per topic, generated from the benchmark JSON in `bench/out/` (each page names the "
-             "command, commit and machine of its JSON).  Regenerate all of them with", "",
+             "command, run with `.venv/bin/python`, commit and machine of its JSON).  Regenerate all of "
+             "them with", "",
              f"    {REGEN}", "",
              f"and check that the committed pages are current with `{REGEN} --check` (a test does).  "
              "A re-run benchmark rewrites its JSON; then regenerate.  Decisions, evidence: "
