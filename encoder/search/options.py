@@ -67,8 +67,9 @@ class SearchOptions(SceneOptions):
                     (pruned + voxelised) cloud and skip the tau when that bound is no better
                     than the best candidate's train PSNR
     overlap         train the SH codebooks on a worker thread during the set-up
-    codebook_bits   widths a component the SH codebook may be coded at; the estimate that
-                    picks the codebook size and keep-count picks among them too
+    codebook_bits   coarser widths a component the SH codebook may be coded at: the estimate
+                    that picks the codebook size and keep-count weighs them beside SH_BITS
+                    (always weighed) and takes one only where it gains CODEBOOK_BITS_MARGIN
     """
 
     reserves: tuple = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)

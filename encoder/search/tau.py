@@ -200,10 +200,10 @@ CODEBOOK_BITS_MARGIN = 0.05
 
 def choose_sh(sh_models: list, loss, rate, room: float, weights, min_keep: int,
               codebook_bits=(SH_BITS,)) -> tuple[ShModel, int, float | None]:
-    """(codebook model with its codebook at one of ``codebook_bits``, keep-count, estimated
-    total loss) whose estimated SH loss plus the loss of the attribute allocation in the bytes
-    the SH leave (``room`` minus the SH estimate) is smallest (total None when no estimate
-    fits)."""
+    """(codebook model, keep-count, estimated total loss) whose estimated SH loss plus the loss
+    of the attribute allocation in the bytes the SH leave (``room`` minus the SH estimate) is
+    smallest (total None when no estimate fits).  The models' own width (SH_BITS) is always
+    weighed; another of ``codebook_bits`` wins only by CODEBOOK_BITS_MARGIN."""
     from ..bit_allocation import InfeasibleBudgetError
     best = None
     w_sh = 1.0 if weights is None else weights["sh"]
