@@ -169,28 +169,36 @@ def _build_weighted(codes: np.ndarray, depth: int, leaf_w: np.ndarray) -> RahtTr
     """build_raht_tree with integer leaf weights: the same pairs, level by level; a node's weight
     is the exact sum of its leaves' (< 2^47, exact in int64 and float64)."""
     n = codes.shape[0]
+    # a node's weight lives at its slot (its first leaf's index): only the slots are compacted
+    # per level, in place like build_raht_tree's (fresh arrays per level cost page faults)
     slot = np.arange(n, dtype=np.int64)
     wt = leaf_w.copy()
     levels = []
+    one = np.uint64(1)
+    same = np.empty(max(n - 1, 0), dtype=bool)
+    keep = np.empty(n, dtype=bool)
     m = n
     for level in range(3 * depth):
         if m == 1:
             break
-        parent = codes[:m] >> np.uint64(1)
-        pos = np.flatnonzero(parent[:-1] == parent[1:])
+        parent = codes[:m]
+        np.right_shift(parent, one, out=parent)
+        eq = same[:m - 1]
+        np.equal(parent[:-1], parent[1:], out=eq)
+        pos = np.flatnonzero(eq)
         if pos.size:
-            sl, sr = slot[:m][pos], slot[:m][pos + 1]
-            wl, wr = wt[:m][pos], wt[:m][pos + 1]
+            slots = slot[:m]
+            sl, sr = slots.take(pos), slots.take(pos + 1)
+            wl, wr = wt.take(sl), wt.take(sr)
             levels.append(RahtLevel(level, sl, sr, wl.astype(np.float64), wr.astype(np.float64)))
-            wt[pos] = wl + wr
-            keep = np.ones(m, dtype=bool)
-            keep[pos + 1] = False
+            wl += wr
+            wt[sl] = wl
+            k = keep[:m]
+            k.fill(True)
+            k[pos + 1] = False
             m -= pos.size
-            codes[:m] = parent[keep]
-            slot[:m] = slot[:m + pos.size][keep]
-            wt[:m] = wt[:m + pos.size][keep]
-        else:
-            codes[:m] = parent
+            codes[:m] = parent[k]
+            slot[:m] = slots[k]
     if m != 1:
         raise GszFormatError("RAHT tree did not reduce to a single root")
     ac_slots = (np.concatenate([lv.right for lv in reversed(levels)]) if levels

@@ -1051,6 +1051,15 @@ def _decode_rows(out, mask, shift, base, lut_symbol, tables, words, states, lane
     count = out.size
     freq, slot_start, value = tables["freq"], tables["slot_start"], tables["value"]
     arr = [isinstance(v, np.ndarray) for v in (mask, shift, base)]
+    if not arr[1] and int(shift) == 0:
+        # precision-0 (SINGLE) models own one slot: the step keeps every state (x = 1 * x +
+        # slot - slot_start) and none falls below 2**16, so the symbols are just their values
+        # (SH coefficient groups of one value, all-set flag streams: ~10 % of a large file)
+        if arr[2]:
+            value.take(lut_symbol.take(base), out=out)
+        else:
+            out.fill(value[lut_symbol[int(base)]])
+        return wpos
     with_base = arr[2] or base != 0          # decode_runs' own LUTs start at slot 0
     # scalars as 0-d int64 arrays: a Python int operand costs a ufunc call ~0.6 us more
     mask, shift, base = (v if a else np.array(v, np.int64) for v, a in zip((mask, shift, base), arr))

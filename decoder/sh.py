@@ -329,9 +329,10 @@ def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray 
     if p:
         # the Gaussian of every stored column: kept Gaussians in Morton order, reordered by
         # class when the kept set is stored by class (class_order)
-        dest = np.flatnonzero(kept_mask) if idx.size else np.arange(m)
+        # (None: every Gaussian kept, in Morton order -- block j0:j1 goes to rows j0:j1)
+        dest = np.flatnonzero(kept_mask) if idx.size else None
         if classes is not None:
-            dest = dest[class_order(classes)]
+            dest = (np.arange(m) if dest is None else dest)[class_order(classes)]
         for j0 in range(0, p, _KEPT_BLOCK):
             j1 = min(p, j0 + _KEPT_BLOCK)
             if colour:             # on the stored planes: contiguous runs, the block in cache
@@ -339,7 +340,7 @@ def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray 
             block = np.ascontiguousarray(kept[:, j0:j1].T, dtype=np.float32)
             if klt is not None:
                 klt_to_rgb(block, klt, out=block)
-            items[dest[j0:j1]] = block.view(item)[:, 0]
+            items[slice(j0, j1) if dest is None else dest[j0:j1]] = block.view(item)[:, 0]
     if coded is not None:
         if colour:       # a codeword turned to RGB once: the same values as every use of it
             cb32 = codebook.astype(np.float32)
