@@ -154,6 +154,46 @@ def test_matches_exact_dp_on_nonmonotone_problems_with_forbidden_widths():
     assert np.mean(gaps < 1e-12) >= 0.6 and gaps.max() < 0.10, gaps
 
 
+def test_refill_step_is_the_argmin_over_every_move_against_the_current_pick():
+    # _Refills scans pick's sorted upgrades and recomputes only the changed rows: it must pick
+    # exactly what the argmin over the whole [G, Q] move matrix picks, ties included
+    from gsz.encoder.bit_allocation import _moves, _prepare, _Refills
+    rng = np.random.default_rng(3)
+    for trial in range(60):
+        g, q = int(rng.integers(2, 60)), 16
+        loss = rng.random((g, 1)) * np.exp2(-2.0 * np.arange(q)) * rng.uniform(0.5, 1.5, (g, q))
+        rate = np.cumsum(rng.uniform(0, 3, (g, q)), axis=1) * rng.integers(1, 50, (g, 1))
+        if trial % 2:
+            loss, rate = np.round(loss, 2), np.round(rate)         # many equal scores
+        loss[rng.random((g, q)) < 0.1] = np.inf
+        loss[:, 0] = np.where(np.isfinite(loss[:, 0]), loss[:, 0], 1.0)
+        loss, rate, _ = _prepare(loss, rate, None)
+        pick = rng.integers(0, q, g)
+        pick = np.where(np.isfinite(loss[np.arange(g), pick]), pick, 0)
+        dr, dl, fin = _moves(loss, rate, pick)
+        for per_bit in (False, True):
+            refill = _Refills(loss, rate, dr, dl, fin, per_bit)
+            new, changed = pick.copy(), [int(rng.integers(0, g))]
+            new[changed[0]] = int(rng.integers(0, q))
+            for _ in range(4):
+                room = float(rng.uniform(-5, 200))
+                up_dr, up_dl, ok = _moves(loss, rate, new)
+                ok &= (up_dr <= room) & (up_dl < 0)
+                ok[changed[0]] = False
+                score = np.where(ok, up_dl, np.inf)
+                if per_bit:
+                    score = np.divide(score, np.maximum(up_dr, 1e-9), out=score, where=ok)
+                k, k_dl, k_dr = refill.best(new, changed, room)
+                if not ok.any():
+                    assert k == -1
+                    break
+                assert k == int(np.argmin(score))
+                assert (k_dl, k_dr) == (up_dl.flat[k], up_dr.flat[k])
+                new[k // q] = k % q
+                if k // q not in changed:
+                    changed.append(k // q)
+
+
 def test_allowed_mask_and_bad_inputs():
     loss, rate, n = tables("sh3", 8)
     allowed = np.zeros_like(loss, bool)
