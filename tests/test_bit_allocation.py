@@ -1,6 +1,5 @@
 """Bit allocation (gsz.encoder.bit_allocation) on real loss / rate tables of the committed samples."""
 import functools
-import time
 
 import numpy as np
 import pytest
@@ -208,15 +207,18 @@ def test_allowed_mask_and_bad_inputs():
         allocate(loss, rate, 1e9, method="genetic")
 
 
-def test_fast_solver_speed_800_groups():
+def test_fast_solver_on_800_groups_spends_the_budget():
     rng = np.random.default_rng(0)
     n = rng.integers(4000, 6000, 800)[:, None].astype(np.float64)
     q = np.arange(1, 17)[None, :]
     loss = rng.lognormal(0, 1, (800, 1)) * n * 4.0 ** -q * rng.uniform(0.8, 1.2, (800, 16))
     rate = n * q * rng.uniform(0.3, 0.6, (800, 1))
     budget = 0.35 * float(rate.sum(axis=0)[-1])
-    allocate_fast(loss, rate, budget)
-    t = time.perf_counter()
+    # (its speed: bench/bench_bit_allocation.py) within budget, and the leftover smaller than
+    # any single upgrade that would still lower the loss
     p = allocate_fast(loss, rate, budget)
-    assert time.perf_counter() - t < 0.5          # ~10 ms on an idle machine
     assert total_rate(rate, p) <= budget
+    rows = np.arange(800)
+    left = budget - total_rate(rate, p)
+    up = (rate - rate[rows, p][:, None] <= left) & (loss < loss[rows, p][:, None])
+    assert not up.any()

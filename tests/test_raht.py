@@ -1,5 +1,4 @@
 """RAHT tree, forward and inverse: exactness, orthonormality, layout, speed, bad input."""
-import time
 
 import numpy as np
 import pytest
@@ -131,16 +130,13 @@ def test_bad_codes_are_rejected():
         raht_inverse(np.zeros(2), np.zeros((3, 2)), tree)
 
 
-def test_speed_500k_points():
+def test_round_trip_500k_points():
     rng = np.random.default_rng(11)
     ijk = rng.integers(0, 2 ** 20, (500_000, 3))
     ijk[:250_000] //= 4096  # half clustered: real trees have many merges at the fine levels
     codes = np.unique(morton_encode(ijk))
     x = rng.standard_normal((codes.size, 7))
-    t0 = time.perf_counter()
-    tree = build_raht_tree(codes, 20)
+    tree = build_raht_tree(codes, 20)          # (its speed: bench/bench_decode.py's finish stage)
     dc, ac = raht_forward(x, tree)
     y = raht_inverse(dc, ac, tree)
-    elapsed = time.perf_counter() - t0
     assert np.abs(y - x).max() < 1e-9
-    assert elapsed < 6.0, f"RAHT build+forward+inverse took {elapsed:.2f} s for {codes.size} points"
