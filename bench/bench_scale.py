@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/bench_scale.py --scene bench/.cache/big_1.2M_sh3.ply --ratio 12 \
         [--variants single,tiled,ray] [--tile-gaussians 300000] [--eval] [--out bench/out/scale.json]
+    .venv/bin/python bench/bench_scale.py --add-eval bench/out/scale_6M.json   # its test scores later
     .venv/bin/python bench/bench_scale.py --scene ... --ratios 18,12,8 --eval   # cost of tiling
 
 Generate the scenes with bench/big_scene.py (e.g. ``--gaussians 1.2M --sh 3 [--noise]``).
@@ -29,6 +30,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 BIN = Path(sys.executable).parent
+OUT_DIR = ROOT / "bench" / ".cache" / "scale"
 
 
 def timed(cmd: list, env=None) -> tuple[subprocess.CompletedProcess, dict]:
@@ -55,15 +57,14 @@ def decode_speed(path: Path, native: bool) -> float:
     return best
 
 
-def run_variant(name: str, scene: Path, ratio: float, args, out_dir: Path) -> dict:
+def run_variant(name: str, scene: Path, ratio: float, args) -> dict:
     # one ratio: the name the decode benchmark reads; several: each ratio's own file
-    out = out_dir / f"{scene.stem}_{name}{f'_{ratio:g}x' if args.ratios else ''}.gsz"
+    out = output_path(name, scene, ratio, bool(args.ratios), args.sh_colour)
     extra = {"single": ["--tile-gaussians", "0"],
              "tiled": ["--tile-gaussians", str(args.tile_gaussians)],
              "ray": ["--tile-gaussians", str(args.tile_gaussians), "--executor", "ray"]}[name]
     if args.sh_colour:
         extra += ["--sh-colour", args.sh_colour]
-        out = out.with_name(f"{out.stem}_{args.sh_colour}.gsz")
     cmd = [str(BIN / "gsz-encode"), str(scene), "-o", str(out), "--ratio", f"{ratio:g}", "--json", "-w", *extra]
     print(f"[{name}] {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
     p, t = timed(cmd)
@@ -83,16 +84,49 @@ def run_variant(name: str, scene: Path, ratio: float, args, out_dir: Path) -> di
     row["decode_native_gps"] = round(decode_speed(out, True))
     row["decode_numpy_gps"] = round(decode_speed(out, False))
     if args.eval:
-        e = subprocess.run([str(BIN / "gsz-eval"), str(scene), str(out), "--json"], capture_output=True, text=True)
-        if e.returncode == 0:
-            ev = json.loads(e.stdout)
-            row["test_psnr"], row["test_ssim"] = ev.get("psnr"), ev.get("ssim")
+        row.update(test_scores(scene, out))
     return row
+
+
+def output_path(name: str, scene: Path, ratio: float, per_ratio: bool, sh_colour: str | None) -> Path:
+    """Where run_variant writes a variant's file (``per_ratio``: the run named --ratios)."""
+    out = OUT_DIR / f"{scene.stem}_{name}{f'_{ratio:g}x' if per_ratio else ''}.gsz"
+    return out.with_name(f"{out.stem}_{sh_colour}.gsz") if sh_colour else out
+
+
+def test_scores(scene: Path, out: Path) -> dict:
+    """gsz-eval's test PSNR / SSIM of ``out`` against ``scene`` (empty when it fails)."""
+    e = subprocess.run([str(BIN / "gsz-eval"), str(scene), str(out), "--json"], capture_output=True, text=True)
+    if e.returncode != 0:
+        print(f"gsz-eval failed on {out}: {e.stderr.strip()[-500:]}", file=sys.stderr)
+        return {}
+    ev = json.loads(e.stdout)
+    return {"test_psnr": ev.get("psnr"), "test_ssim": ev.get("ssim")}
+
+
+def add_eval(path: Path) -> int:
+    """--add-eval: test scores for the rows of an earlier run's JSON, from its files (which must
+    still be that run's: same sha256); its command gains the step."""
+    res = json.loads(path.read_text())
+    scene, cmd = Path(res["scene"]), res.get("command", "")
+    for r in res["rows"]:
+        if r.get("test_psnr") is not None:
+            continue
+        out = output_path(r["variant"], scene, r.get("ratio", res["ratio"]), "--ratios" in cmd,
+                          r.get("sh_colour") if "--sh-colour" in cmd else None)
+        if not out.exists() or hashlib.sha256(out.read_bytes()).hexdigest()[:16] != r["sha256"]:
+            raise SystemExit(f"{out}: missing, or not the file of this run (sha256 {r['sha256']})")
+        print(f"[eval] {out}", file=sys.stderr, flush=True)
+        r.update(test_scores(scene, out))
+    name = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
+    res["command"] = f"{cmd} && bench/bench_scale.py --add-eval {name}"
+    path.write_text(json.dumps(res, indent=1) + "\n")
+    return 0
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--scene", required=True, type=Path)
+    p.add_argument("--scene", type=Path)
     p.add_argument("--ratio", type=float, default=12.0)
     p.add_argument("--ratios", default=None, help="comma-separated ratios, each run for every variant "
                    "(default: --ratio alone)")
@@ -101,12 +135,17 @@ def main(argv=None) -> int:
     p.add_argument("--eval", action="store_true")
     p.add_argument("--sh-colour", default=None, help="gsz-encode's --sh-colour (default: its own, auto)")
     p.add_argument("--out", type=Path, default=ROOT / "bench" / "out" / "scale.json")
+    p.add_argument("--add-eval", type=Path, metavar="JSON",
+                   help="add test scores to an earlier run's JSON from its files (nothing is encoded)")
     a = p.parse_args(argv)
-    out_dir = ROOT / "bench" / ".cache" / "scale"
-    out_dir.mkdir(parents=True, exist_ok=True)
+    if a.add_eval:
+        return add_eval(a.add_eval.resolve())
+    if a.scene is None:
+        p.error("--scene is required (or --add-eval JSON)")
+    OUT_DIR.mkdir(parents=True, exist_ok=True)
     uptime = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
     ratios = [float(x) for x in a.ratios.split(",")] if a.ratios else [a.ratio]
-    rows = [run_variant(v.strip(), a.scene, ratio, a, out_dir)
+    rows = [run_variant(v.strip(), a.scene, ratio, a)
             for ratio in ratios for v in a.variants.split(",") if v.strip()]
     commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip()

@@ -530,39 +530,40 @@ def page_scale(sets: list) -> str:
                          machine=f"{s['cores']} cores" if s.get("cores") else None, when=_uptimes(s))
                     for name, s in sets])
     ratio = (lambda s, r: r.get("ratio", s["ratio"]))
-    # a run at several ratios is there for its RD points (_tiling_cost): its rows go to a
-    # shorter table, its stages are not tabled below
+    # a run at several ratios is there for its RD points: its rows go to the cost-of-tiling
+    # table (_tiling_cost), its stages are not tabled below
     multi = [s for _, s in sets if len({ratio(s, r) for r in s["rows"]}) > 1]
     single_ratio = [s for _, s in sets if not any(s is m for m in multi)]
     # stages per column: the grid scenes' local runs (a Ray run's and a noised scene's stages
     # are like their local / grid twin's; their peaks are in the table above)
-    cols = [(f"{Path(s['scene']).stem} {r['variant']}", r) for s in single_ratio for r in s["rows"]
-            if r["variant"] != "ray" and "noised" not in Path(s["scene"]).stem]
+    cols = []
+    for s in single_ratio:
+        for r in s["rows"]:
+            label = f"{Path(s['scene']).stem} {r['variant']}"
+            # one column per scene and variant: the Ray run's local twin is the first run's file
+            if r["variant"] != "ray" and "noised" not in label and label not in dict(cols):
+                cols.append((label, r))
     test_db = (lambda r: "–" if r.get("test_psnr") is None else f"{r['test_psnr']:.2f} / {r['test_ssim']:.4f}")
+    # a local row of the Ray run repeats the first run's file (same sha256): its row once
+    shown, rows = set(), []
+    for s in single_ratio:
+        for r in s["rows"]:
+            key = (Path(s["scene"]).stem, r["variant"], r["sha256"])
+            if key not in shown:
+                shown.add(key)
+                rows.append([f"`{key[0]}`, {r['variant']}", f"{ratio(s, r):g}×", r.get("tiles", "–"),
+                             f"{n(r['bytes'])} ({r['of_target_pct']:.2f} %)", f"{r['reserve']} / {r['depth']}",
+                             f2(r["train_psnr"]), test_db(r), f1(r["wall_s"]), f1(r["cpu_s"]),
+                             n(r["peak_rss_mb"]), code(r["sha256"][:8])])
     lines += table(["scene, variant", "ratio", "tiles", "bytes (of target)", "τ / depth", "train dB",
-                    "test dB / SSIM", "wall s", "CPU s", "peak RSS MB", "sha256"],
-                   [[f"`{Path(s['scene']).stem}`, {r['variant']}", f"{ratio(s, r):g}×", r.get("tiles", "–"),
-                     f"{n(r['bytes'])} ({r['of_target_pct']:.2f} %)", f"{r['reserve']} / {r['depth']}",
-                     f2(r["train_psnr"]), test_db(r), f1(r["wall_s"]), f1(r["cpu_s"]), n(r["peak_rss_mb"]),
-                     code(r["sha256"][:8])]
-                    for s in single_ratio for r in s["rows"]])
-    if multi:
-        lines += ["## Single tile vs tiles at several budgets", ""]
-        lines += table(["scene", "ratio", "variant", "tiles", "bytes (of target)", "τ / depth", "train dB",
-                        "test dB / SSIM", "peak RSS MB"],
-                       [[f"`{Path(s['scene']).stem}`", f"{ratio(s, r):g}×", r["variant"], r.get("tiles", "–"),
-                         f"{n(r['bytes'])} ({r['of_target_pct']:.2f} %)", f"{r['reserve']} / {r['depth']}",
-                         f2(r["train_psnr"]), test_db(r), n(r["peak_rss_mb"])]
-                        for s in multi for r in s["rows"]])
+                    "test dB / SSIM", "wall s", "CPU s", "peak RSS MB", "sha256"], rows)
     lines += _tiling_cost(sets)
     stages = []
     for _, r in cols:
         stages += [k for k in r["stage_seconds"] if k not in stages]
-    lines += ["## Seconds / peak RSS (MB) per stage", ""]
+    lines += ["## Seconds per stage (each stage's peak RSS: the JSONs' `stage_peak_mb`)", ""]
     lines += table(["stage"] + [c for c, _ in cols],
-                   [[st] + [("–" if st not in r["stage_seconds"] else f1(r['stage_seconds'][st]))
-                            + (f" / {n(r['stage_peak_mb']['stages'][st]['peak_mb'])}"
-                               if st in r.get("stage_peak_mb", {}).get("stages", {}) else "") for _, r in cols]
+                   [[st] + [("–" if st not in r["stage_seconds"] else f1(r['stage_seconds'][st])) for _, r in cols]
                     for st in stages])
     lines += ["Scenes: `bench/big_scene.py --gaussians 1.2M --sh 3 -o bench/.cache/big_1.2M_sh3.ply` "
               "(3M likewise).  Why and where tiles: [docs/design/tiles.md](../design/tiles.md).", ""]
@@ -571,22 +572,29 @@ def page_scale(sets: list) -> str:
 
 def _tiling_cost(sets: list) -> list:
     """The cost of tiling read off the RD curves of sets that ran single and tiled at several
-    ratios with test PSNR: bytes the tiled curve needs for each single-tile point's test PSNR."""
+    ratios with test PSNR: each ratio's two points, and the bytes the tiled curve needs for the
+    single-tile point's test PSNR (the rest of each row: the JSON)."""
     from rd import bytes_at_psnr
     rows = []
     for _, s in sets:
-        curve = {v: sorted((r["bytes"], r["test_psnr"]) for r in s["rows"]
-                           if r["variant"] == v and r.get("test_psnr") is not None) for v in ("single", "tiled")}
-        if len(curve["tiled"]) < 2:
+        pts = {v: {r.get("ratio", s["ratio"]): r for r in s["rows"] if r["variant"] == v
+                   and r.get("test_psnr") is not None} for v in ("single", "tiled")}
+        curve = sorted((r["bytes"], r["test_psnr"]) for r in pts["tiled"].values())
+        if len(curve) < 2:
             continue
-        for b, psnr in curve["single"]:
-            need, kind = bytes_at_psnr(curve["tiled"], psnr)
+        for ratio, r in sorted(pts["single"].items(), reverse=True):
+            b, psnr = r["bytes"], r["test_psnr"]
+            t = pts["tiled"].get(ratio)
+            need, kind = bytes_at_psnr(curve, psnr)
             mark = {"interpolated": "", "at_most": "≤ ", "more_than": "> "}[kind]
-            rows.append([f"`{Path(s['scene']).stem}`", n(b), f2(psnr), f"{mark}{n(need)}", f"{mark}{need / b:.3f}"])
+            rows.append([f"`{Path(s['scene']).stem}`", f"{ratio:g}×", f"{n(b)} / {f2(psnr)}",
+                         "–" if t is None else f"{n(t['bytes'])} / {f2(t['test_psnr'])} ({t.get('tiles', '–')})",
+                         f"{mark}{n(need)}", f"{mark}{need / b:.3f}"])
     if not rows:
         return []
     return (["## Cost of tiling (test PSNR, 8 views at 800 px; issue 17: ≤ 1.02)", ""]
-            + table(["scene", "single-tile bytes", "its test dB", "tiled bytes for that dB", "ratio"], rows))
+            + table(["scene", "ratio", "single tile: bytes / dB", "tiled: bytes / dB (tiles)",
+                     "tiled bytes for single's dB", "ratio"], rows))
 
 
 def page_golden(gold: dict) -> str:
