@@ -178,6 +178,10 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
         const float ca = cp[3 * g], cb = cp[3 * g + 1], cc = cp[3 * g + 2];
         const float o = op[g];
         const float cr = colp[3 * g], cgn = colp[3 * g + 1], cbl = colp[3 * g + 2];
+        // Below `faint` o * exp(power) < 1/255 by a 0.1 % margin, far beyond float32 rounding:
+        // those pixels (the box's corners outside the alpha ellipse) would be skipped after the
+        // exp, so skipping them before it changes nothing (o = 0: +inf, every pixel skipped).
+        const float faint = std::log(1.0f / (255.0f * o)) - 1e-3f;
         double acc = 0.0;
         for (int py = by0; py < by1; ++py) {
           const float dy = my - static_cast<float>(py);
@@ -186,7 +190,7 @@ std::vector<torch::Tensor> rasterize(torch::Tensor means, torch::Tensor conic, t
             if (done[li]) continue;
             const float dx = mx - static_cast<float>(px);
             const float power = -0.5f * (ca * dx * dx + cc * dy * dy) - cb * dx * dy;
-            if (power > 0.0f) continue;
+            if (power > 0.0f || power < faint) continue;
             const float alpha = std::min(0.99f, o * std::exp(power));
             if (alpha < 1.0f / 255.0f) continue;
             const float t = T[li];
