@@ -42,9 +42,6 @@ NOTES = {
     "loss_proxy.json": dict(command=".venv/bin/python bench/bench_loss_proxy.py --scenes "
                             "houseplant_sh0,measuring_jug_sh3 --count 12"),
     "loss_proxy_jug60.json": dict(command="the same on measuring_jug_sh3 with --ratio 60"),
-    "search_scaling.json": dict(command=".venv/bin/python bench/bench_search.py --scenes none --scaling "
-                                "--fractions 0.125,0.25,0.5,1", commit="390a095", machine=VM + ", idle",
-                                when="2026-12-02 05:43 UTC"),
     "search_above_ceiling.json": dict(command=".venv/bin/python bench/bench_search.py --scenes "
                                       "measuring_jug_sh3 --ratios 4,6 --noise", commit="fb9cefb",
                                       machine=VM + ", idle", when="2026-12-02 02:54-03:04 UTC"),
@@ -293,15 +290,13 @@ def _monotone(rs: list) -> bool:
     return all(b["psnr"] >= a["psnr"] for a, b in zip(rs, rs[1:]))
 
 
-def page_search(rd: dict, scaling, above) -> str:
+def page_search(rd: dict, above) -> str:
     meta = rd["meta"]
     g = [r for r in rd["rows"] if r["codec"] == "gsz" and "depth" in r]
     runs = _rd_gsz_sources(rd)         # listed in full on rd.md (the pages share 40 kB)
     src = [dict(json="rd.json", label="gsz rows", command=f"the {len(runs)} gsz runs rd.md lists",
                 commit=", ".join(r["commit"].split()[0] for r in runs if r.get("commit")),
                 machine=runs[0]["machine"] if runs else None, when="see rd.md")]
-    if scaling is not None:
-        src.append(dict(json="search_scaling.json"))
     if above is not None:
         src.append(dict(json="search_above_ceiling.json"))
     lines = header("Size search", "`encode_to_budget` (what `gsz-encode --size/--ratio` runs) at every budget of "
@@ -340,14 +335,7 @@ def page_search(rd: dict, scaling, above) -> str:
         rows.append([f"**{scene}**"] + [""] * (len(head) - 1))
         rows += [[b.replace("x", "×")] + [c for v in variants for c in point(by[v].get(b))] for b in budgets]
     lines += table(head, rows)
-    if scaling is not None:
-        stages = ["importance", "vq", "tables", "sh-model", "calibrate", "eval", "screen", "geometry"]
-        lines += ["## Scaling with N (flowers subsampled, budget = PLY bytes × fraction / 20)", ""]
-        lines += table(["fraction", "N", "bytes / target", "search s", "CPU s", "encoded / screened", "τ"]
-                       + [f"{s} s" for s in stages],
-                       [[f"{r['scaling']:g}", n(r["n"]), f"{n(r['bytes'])} / {n(r['target'])}", f1(r["seconds"]),
-                         f1(r["cpu_seconds"]), f"{r['candidates']} / {r['screened']}", r["reserve"]]
-                        + [f1(r["stage_seconds"].get(s)) for s in stages] for r in scaling])
+    lines += ["How the search scales with N: the 1-6 M scenes of [scale.md](scale.md).", ""]
     if above is not None:
         lines += ["## Budgets above the 8-bit SH ceiling (measuring_jug_sh3)", "",
                   "A budget above the best file the scene allows gives that file, smaller than the budget "
@@ -357,8 +345,7 @@ def page_search(rd: dict, scaling, above) -> str:
         lines += table(["variant", "budget", "target B", "bytes", "test dB", "depth", "kept SH", "search s"], rows)
         lines += ["Before the SH spend (2c45cc2): [docs/design/sh-spend.md](../design/sh-spend.md).", ""]
     lines += ["Reproduce: `bench/rd.py --skip-peers` (every point; `--report` prints the "
-              "tables), `bench/bench_search.py --scaling` and "
-              "`--scenes measuring_jug_sh3 --ratios 4,6 --noise`.", ""]
+              "tables), `bench/bench_search.py --scenes measuring_jug_sh3 --ratios 4,6 --noise`.", ""]
     return "\n".join(lines)
 
 
@@ -565,8 +552,10 @@ def page_scale(sets: list) -> str:
     lines += table(["stage"] + [c for c, _ in cols],
                    [[st] + [("–" if st not in r["stage_seconds"] else f1(r['stage_seconds'][st])) for _, r in cols]
                     for st in stages])
-    lines += ["Scenes: `bench/big_scene.py --gaussians 1.2M --sh 3 -o bench/.cache/big_1.2M_sh3.ply` "
-              "(3M likewise).  Why and where tiles: [docs/design/tiles.md](../design/tiles.md).", ""]
+    lines += ["Scenes: `bench/big_scene.py --gaussians 1.2M --sh 3 [--noise] -o bench/.cache/big_1.2M_sh3.ply` "
+              "(3M, 6M likewise); `big_1.2M_tiny_noised`, a trained capture's stand-in: `--objects "
+              "tiny_graphdeco_iter7000_sh3 --noise`.  Why and where tiles: "
+              "[docs/design/tiles.md](../design/tiles.md).", ""]
     return "\n".join(lines)
 
 
@@ -667,11 +656,10 @@ def build(json_dir: Path = JSON_DIR) -> dict:
     rd = load("rd.json", json_dir)
     if rd:
         add("rd.md", "rate–distortion vs SOG, SPZ, compressed.ply", ["rd.json"], page_rd(rd, json_dir))
-        sc, ab = (load(x, json_dir) for x in ("search_scaling.json", "search_above_ceiling.json"))
-        add("search.md", "the size search at every RD point, scaling with N, budgets above the ceiling",
-            ["rd.json"] + [x for x, d in (("search_scaling.json", sc), ("search_above_ceiling.json", ab),
-                                          ) if d is not None],
-            page_search(rd, sc, ab))
+        ab = load("search_above_ceiling.json", json_dir)
+        add("search.md", "the size search at every RD point, budgets above the ceiling",
+            ["rd.json"] + (["search_above_ceiling.json"] if ab is not None else []),
+            page_search(rd, ab))
     ev = [(x, d) for x in ("eval_views.json", "eval_views_losses.json")
           if (d := load(x, json_dir)) is not None]
     if ev:
