@@ -162,7 +162,13 @@ def main(argv=None):
                          "cpu_seconds": r.cpu_seconds, "candidates": len(r.search.candidates),
                          "screened": sum(s["skipped"] for s in r.search.screened), "reserve": r.reserve,
                          "load_before": load0, "native": _native(), "stage_seconds": prog.seconds})
-    Path(a.out).write_text(json.dumps(rows, indent=1, default=float))
+    import subprocess
+    commit = subprocess.run(["git", "-C", str(Path(__file__).resolve().parent), "rev-parse", "--short", "HEAD"],
+                            capture_output=True, text=True).stdout.strip() or None
+    res = {"command": "bench/bench_search.py " + " ".join(sys.argv[1:] if argv is None else argv),
+           "commit": commit, "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+           "machine": {"nproc": os.cpu_count()}, "rows": rows}
+    Path(a.out).write_text(json.dumps(res, indent=1, default=float))
     print(f"wrote {a.out}")
     return 0
 

@@ -297,7 +297,11 @@ def page_search(rd: dict, above) -> str:
     src = [dict(json="rd.json", label="gsz rows", command=f"the {len(runs)} gsz runs rd.md lists",
                 commit=", ".join(r["commit"].split()[0] for r in runs if r.get("commit")),
                 machine=runs[0]["machine"] if runs else None, when="see rd.md")]
-    if above is not None:
+    if isinstance(above, dict):        # bench_search.py records its run; older JSONs are bare rows
+        src.append(dict(json="search_above_ceiling.json", command=above.get("command"), commit=above.get("commit"),
+                        machine=machine_of(above.get("machine")), when=above.get("when")))
+        above = above["rows"]
+    elif above is not None:
         src.append(dict(json="search_above_ceiling.json"))
     lines = header("Size search", "`encode_to_budget` (what `gsz-encode --size/--ratio` runs) at every budget of "
                    "the RD benchmark: how close to the budget, what it chose, how long it took.", src)
