@@ -42,9 +42,6 @@ NOTES = {
     "loss_proxy.json": dict(command=".venv/bin/python bench/bench_loss_proxy.py --scenes "
                             "houseplant_sh0,measuring_jug_sh3 --count 12"),
     "loss_proxy_jug60.json": dict(command="the same on measuring_jug_sh3 with --ratio 60"),
-    "search_above_ceiling.json": dict(command=".venv/bin/python bench/bench_search.py --scenes "
-                                      "measuring_jug_sh3 --ratios 4,6 --noise", commit="fb9cefb",
-                                      machine=VM + ", idle", when="2026-12-02 02:54-03:04 UTC"),
     "stream.json": dict(command=".venv/bin/python bench/bench_stream.py", commit="71b11a3",
                         machine=VM + ", a test run beside it for ~3 min", when="2026-12-02 05:15-05:29 UTC"),
     "golden.json": dict(command="golden.py's usage: `bench/golden.py --write bench/out/golden.json`",
