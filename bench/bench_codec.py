@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -24,6 +25,12 @@ ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared" / "data"
 SCENES = ["houseplant_sh0", "measuring_jug_sh3", "flowers_daffodils_sh2", "plaza_taebak_crop_sh0",
           "showroom_lacadiere_crop_sh0", "tiny_graphdeco_iter7000_sh3"]
+
+
+def git_commit() -> str | None:
+    """The checkout's short commit (None outside git): what every bench JSON records."""
+    out = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    return out.stdout.strip() or None
 
 
 def add_noise(cloud, seed=0):

@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bench_codec import git_commit     # bench/ is the script's folder, first on sys.path
+
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = Path(os.environ.get("GSZ_SHARED", ROOT.parent / "shared")) / "data"
 CACHE = ROOT / "bench" / ".cache" / "decode"
@@ -196,8 +198,7 @@ def main(argv=None) -> int:
                   f"{s['container']:.3f} | {s['geometry']:.3f} | {s['attributes']:.3f} | {s['sh']:.3f} | "
                   f"{s['finish']:.3f} |" + (f" {s['octree_encode']:.3f} |" if a.encode else ""))
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True).stdout.strip() or None
+    commit = git_commit()
     Path(a.out).write_text(json.dumps(dict(command=" ".join([Path(sys.argv[0]).name] + (argv or sys.argv[1:])),
                                            commit=commit, machine=f"{os.cpu_count()} cores",
                                            uptime_before=before, uptime_after=after, results=results), indent=1))

@@ -28,6 +28,8 @@ import sys
 import time
 from pathlib import Path
 
+from bench_codec import git_commit     # bench/ is the script's folder, first on sys.path
+
 ROOT = Path(__file__).resolve().parent.parent
 BIN = Path(sys.executable).parent
 OUT_DIR = ROOT / "bench" / ".cache" / "scale"
@@ -147,8 +149,7 @@ def main(argv=None) -> int:
     ratios = [float(x) for x in a.ratios.split(",")] if a.ratios else [a.ratio]
     rows = [run_variant(v.strip(), a.scene, ratio, a)
             for ratio in ratios for v in a.variants.split(",") if v.strip()]
-    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True).stdout.strip()
+    commit = git_commit()
     res = {"scene": str(a.scene), "ratio": a.ratio, "tile_gaussians": a.tile_gaussians, "commit": commit,
            "cores": os.cpu_count(), "uptime_before": uptime, "rows": rows,
            "command": "bench/bench_scale.py " + " ".join(argv if argv is not None else sys.argv[1:])}

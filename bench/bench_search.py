@@ -23,7 +23,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared" / "data"
 sys.path.insert(0, str(ROOT / "bench"))
-from bench_codec import SCENES, add_noise  # noqa: E402
+from bench_codec import SCENES, add_noise, git_commit  # noqa: E402
 
 
 def plot(scene, rows, path):
@@ -162,9 +162,7 @@ def main(argv=None):
                          "cpu_seconds": r.cpu_seconds, "candidates": len(r.search.candidates),
                          "screened": sum(s["skipped"] for s in r.search.screened), "reserve": r.reserve,
                          "load_before": load0, "native": _native(), "stage_seconds": prog.seconds})
-    import subprocess
-    commit = subprocess.run(["git", "-C", str(Path(__file__).resolve().parent), "rev-parse", "--short", "HEAD"],
-                            capture_output=True, text=True).stdout.strip() or None
+    commit = git_commit()
     res = {"command": "bench/bench_search.py " + " ".join(sys.argv[1:] if argv is None else argv),
            "commit": commit, "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
            "machine": {"nproc": os.cpu_count()}, "rows": rows}

@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "bench"))
+from bench_codec import git_commit  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -53,8 +53,7 @@ def main(argv=None) -> int:
                    "seconds": round(time.perf_counter() - t0, 1)}
             rows.append(row)
             print(json.dumps(row), flush=True)
-    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True).stdout.strip()
+    commit = git_commit()
     entry = {"scene": a.scene.name, "noised": a.noise, "views": a.views, "width": a.width, "commit": commit,
              "command": "bench/bench_sh_paths.py " + " ".join(argv if argv is not None else sys.argv[1:]),
              "rows": rows}

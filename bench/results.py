@@ -524,13 +524,14 @@ def page_scale(sets: list) -> str:
     single_ratio = [s for _, s in sets if not any(s is m for m in multi)]
     # stages per column: the grid scenes' local runs (a Ray run's and a noised scene's stages
     # are like their local / grid twin's; their peaks are in the table above)
-    cols = []
+    cols = {}
     for s in single_ratio:
         for r in s["rows"]:
             label = f"{Path(s['scene']).stem} {r['variant']}"
-            # one column per scene and variant: the Ray run's local twin is the first run's file
-            if r["variant"] != "ray" and "noised" not in label and label not in dict(cols):
-                cols.append((label, r))
+            if r["variant"] != "ray" and "noised" not in label:
+                # one column per scene and variant: the Ray run's local twin is the first run's file
+                cols.setdefault(label, r)
+    cols = list(cols.items())
     test_db = (lambda r: "–" if r.get("test_psnr") is None else f"{r['test_psnr']:.2f} / {r['test_ssim']:.4f}")
     # a local row of the Ray run repeats the first run's file (same sha256): its row once
     shown, rows = set(), []
