@@ -171,10 +171,22 @@ def test_auto_takes_the_klt_on_a_trained_capture():
 
 
 @pytest.mark.skipif(not native.enabled(), reason="native accelerator not built")
-def test_native_assembly_turns_kept_vectors_and_codewords_as_the_reference_does():
-    # the C row loop's KLT (kept tiles and codewords) against klt_to_rgb on the same stored values
-    rng = np.random.default_rng(9)
-    d, m, k = 24, 700, 5
+@pytest.mark.parametrize("d", [9, 24, 45])
+@pytest.mark.parametrize("simd", [False, True])
+def test_native_assembly_turns_kept_vectors_and_codewords_as_the_reference_does(d, simd):
+    # the C row loop's KLT (kept tiles, whole and partial, and codewords) against klt_to_rgb on
+    # the same stored values, by the AVX2/FMA product and the portable one (where the CPU has
+    # no AVX2 both runs take the portable one)
+    rng = np.random.default_rng(9 + d)
+    m, k = 700, 5
+    was = native.module().klt_simd(simd)
+    try:
+        _native_klt_case(rng, d, m, k)
+    finally:
+        native.module().klt_simd(was)
+
+
+def _native_klt_case(rng, d, m, k):
     flags = (rng.random(m) < 0.6).astype(np.int64)
     p = int(flags.sum())
     kept = rng.integers(0, 1024, (d, p)).astype(np.uint16)

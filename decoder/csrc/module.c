@@ -648,16 +648,33 @@ PyDoc_STRVAR(rans_simd_doc,
 "sets it (True only takes where the CPU has AVX2).  Returns the setting before the call.  The\n"
 "two loops give the same values; the switch is for tests and benchmarks.");
 
-static PyObject *py_rans_simd(PyObject *self, PyObject *args)
+/* on=None -> -1 (ask only), else 0 / 1; -2 on a Python error */
+static int simd_arg(PyObject *args)
 {
     PyObject *on = Py_None;
-    if (!PyArg_ParseTuple(args, "|O", &on)) return NULL;
-    int v = -1;
-    if (on != Py_None) {
-        v = PyObject_IsTrue(on);
-        if (v < 0) return NULL;
-    }
+    if (!PyArg_ParseTuple(args, "|O", &on)) return -2;
+    if (on == Py_None) return -1;
+    const int v = PyObject_IsTrue(on);
+    return v < 0 ? -2 : v;
+}
+
+static PyObject *py_rans_simd(PyObject *self, PyObject *args)
+{
+    const int v = simd_arg(args);
+    if (v == -2) return NULL;
     return PyBool_FromLong(rans_simd(v) > 0);
+}
+
+PyDoc_STRVAR(klt_simd_doc,
+"klt_simd(on=None) -> bool\n\n"
+"Whether sh_assemble's KLT product may use its AVX2/FMA loop (where the CPU has both); as\n"
+"rans_simd.  The two loops give the same bits (exact integer sums); for tests and benchmarks.");
+
+static PyObject *py_klt_simd(PyObject *self, PyObject *args)
+{
+    const int v = simd_arg(args);
+    if (v == -2) return NULL;
+    return PyBool_FromLong(klt_simd(v) > 0);
 }
 
 /* ================================================================== model sets, varints */
@@ -1200,6 +1217,7 @@ static PyMethodDef methods[] = {
     {"planes_to_f32", py_planes_to_f32, METH_VARARGS, planes_to_f32_doc},
     {"quat_from_trig", py_quat_from_trig, METH_VARARGS, quat_from_trig_doc},
     {"rans_simd", py_rans_simd, METH_VARARGS, rans_simd_doc},
+    {"klt_simd", py_klt_simd, METH_VARARGS, klt_simd_doc},
     {"voxel_positions", py_voxel_positions, METH_VARARGS, voxel_positions_doc},
     {"sh_assemble", py_sh_assemble, METH_VARARGS, sh_assemble_doc},
     {"all_finite", py_all_finite, METH_O, all_finite_doc},
@@ -1228,6 +1246,7 @@ PyMODINIT_FUNC PyInit__native(void)
     raht_static_init();
     octree_static_init();
     rans_simd(-1);
+    klt_simd(-1);
     PyObject *m = PyModule_Create(&moddef);
     if (!m) return NULL;
     if (PyModule_AddIntConstant(m, "ABI", GSZ_NATIVE_ABI) < 0
