@@ -207,8 +207,9 @@ def _moves(loss, rate, pick):
     """(dr, dl, fin): every option's rate and loss change against ``pick`` [G, Q], and where
     both are finite (a usable move)."""
     rows = np.arange(loss.shape[0])
-    dr = rate - rate[rows, pick][:, None]
-    dl = loss - loss[rows, pick][:, None]
+    with np.errstate(invalid="ignore"):     # inf - inf where a pick is unusable: masked by fin
+        dr = rate - rate[rows, pick][:, None]
+        dl = loss - loss[rows, pick][:, None]
     return dr, dl, np.isfinite(dr) & np.isfinite(dl)
 
 
