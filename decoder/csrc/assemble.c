@@ -231,7 +231,7 @@ static void klt_product_base(float *restrict out, const int64_t *restrict at, in
 #if GSZ_KLT_AVX2
 /* Register-blocked: 4 vectors x 12 columns of accumulators (12 ymm) per pass over d, so each
  * step loads 3 matrix vectors and 4 broadcasts for 12 fused multiply-adds (the tile-wide loop it
- * replaced stored its accumulators every step: ~1.4x slower at D = 45). */
+ * replaced stored its accumulators every step: 1.8x slower at D = 45). */
 __attribute__((target("avx2,fma")))
 static inline void klt_store_rows(float *restrict out, const int64_t *restrict at, int64_t t0, int64_t n,
                                   int64_t D, int64_t j0, int64_t w, const __m256d *r)
