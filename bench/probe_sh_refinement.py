@@ -1,8 +1,8 @@
 """Whole-render estimate of refining SH codewords with the scalar path (issue 18; docs/design/
 high-rate-gap.md), outside the format: at a file's own SH bytes, the SH rest its Gaussians
 would get from (a) the scalar path alone, (b) an importance-weighted codebook alone and
-(c) a codebook plus the scalar path on the residual (every vector: codeword + refinement),
-each put into the decoded file in place of its SH and rendered (gsz-eval's protocol, 8 default
+(c) a codebook plus the scalar path on the residual (every vector: codeword + refinement) and
+(d) a codebook with the most important vectors kept (today's classes path, ``--kept``), each put into the decoded file in place of its SH and rendered (gsz-eval's protocol, 8 default
 test views) against the original.
 
     .venv/bin/python bench/probe_sh_refinement.py ORIGINAL.ply FILE.gsz [--sizes 64,256,1024,4096]
@@ -32,6 +32,10 @@ CLASSES = 8
 CODEWORD_BITS = 8
 
 
+def _entropy_bits(p: float) -> float:
+    return 0.0 if p <= 0 or p >= 1 else float(-(p * np.log2(p) + (1 - p) * np.log2(1 - p)))
+
+
 def reconstruct(x: np.ndarray, blocks: int, pick: np.ndarray) -> np.ndarray:
     """x [C, L] quantised group-wise at the picked widths (0: the group's mean; q: the format's
     min-max grid), float64."""
@@ -59,7 +63,10 @@ def main(argv=None) -> int:
     p.add_argument("original")
     p.add_argument("file")
     p.add_argument("--sizes", default="64,256,1024,4096", help="codebook sizes")
+    p.add_argument("--kept", default="0.1,0.25,0.5",
+                   help="shares of the most important vectors kept beside a codebook (the classes path)")
     a = p.parse_args(argv)
+    a.kept = [float(v) for v in a.kept.split(",") if v.strip()]
     from gsz.decoder import decode, read_ply
     from gsz.decoder.container import read_container
     from gsz.encoder.bit_allocation import allocate
@@ -96,6 +103,15 @@ def main(argv=None) -> int:
         pick = allocate(loss, rate, bits, method="fast")
         return reconstruct(np.ascontiguousarray(v.T), CLASSES, pick).T
 
+    def scalar_part(v: np.ndarray, bits: float):
+        # the kept vectors are the first rows (importance order): their classes are blocks of them
+        loss, rate = tables(np.ascontiguousarray(v.T), CLASSES)
+        w = np.array([imp[order][:len(v)][c * len(v) // CLASSES:(c + 1) * len(v) // CLASSES].mean()
+                      for c in range(CLASSES)]) / max(imp.mean(), 1e-30)
+        loss = loss * np.tile(w, v.shape[1])[:, None]
+        pick = allocate(loss, rate, bits, method="fast")
+        return reconstruct(np.ascontiguousarray(v.T), CLASSES, pick).T
+
     def row(name: str, xhat: np.ndarray, bits: float) -> None:
         back = np.empty_like(xhat)
         back[order] = xhat
@@ -119,6 +135,19 @@ def main(argv=None) -> int:
             row(f"codebook {k}", cb[idx], cost)
             if budget - cost > 0:
                 row(f"codebook {k} + scalar residual", cb[idx] + scalar(x - cb[idx], budget - cost), budget)
+            for share in a.kept:
+                # today's classes path: the most important share kept (the scalar path on their
+                # own vectors), the rest codewords; labels of the rest and a flag a vector paid
+                top = int(round(share * n))
+                rest = idx[top:]
+                cr = np.bincount(rest, minlength=k)
+                cr = cr[cr > 0]
+                flags = n * _entropy_bits(share)
+                paid = float(-(cr * np.log2(cr / max(rest.size, 1))).sum()) + k * x.shape[1] * CODEWORD_BITS + flags
+                if 0 < top and paid < budget:
+                    xhat = cb[idx].copy()
+                    xhat[:top] = scalar_part(x[:top], budget - paid)
+                    row(f"codebook {k} + top {100 * share:g} % kept (classes path)", xhat, budget)
         else:
             print(f"| codebook {k} | {cost / n:.1f} (over the budget) | | |")
     return 0
