@@ -2,7 +2,8 @@
 high-rate-gap.md), outside the format: at a file's own SH bytes, the SH rest its Gaussians
 would get from (a) the scalar path alone, (b) an importance-weighted codebook alone and
 (c) a codebook plus the scalar path on the residual (every vector: codeword + refinement) and
-(d) a codebook with the most important vectors kept (today's classes path, ``--kept``), each put into the decoded file in place of its SH and rendered (gsz-eval's protocol, 8 default
+(d) a codebook with the most important vectors kept (today's classes path, ``--kept``) and, with
+``--bands``, (e) band 1 (or bands 1-2) by the scalar path and the higher bands a codebook, each put into the decoded file in place of its SH and rendered (gsz-eval's protocol, 8 default
 test views) against the original.
 
     .venv/bin/python bench/probe_sh_refinement.py ORIGINAL.ply FILE.gsz [--sizes 64,256,1024,4096]
@@ -63,6 +64,8 @@ def main(argv=None) -> int:
     p.add_argument("original")
     p.add_argument("file")
     p.add_argument("--sizes", default="64,256,1024,4096", help="codebook sizes")
+    p.add_argument("--bands", action="store_true",
+                   help="also the low band(s) by the scalar path and the higher bands a codebook")
     p.add_argument("--kept", default="0.1,0.25,0.5",
                    help="shares of the most important vectors kept beside a codebook (the classes path)")
     a = p.parse_args(argv)
@@ -150,6 +153,28 @@ def main(argv=None) -> int:
                     row(f"codebook {k} + top {100 * share:g} % kept (classes path)", xhat, budget)
         else:
             print(f"| codebook {k} | {cost / n:.1f} (over the budget) | | |")
+    if a.bands:
+        # issue 18's per-band choice: the low band(s) by the scalar path (in their own
+        # principal axes), the higher bands a codebook
+        src = rgb[order]
+        for split, name in ((9, "band 1"), (24, "bands 1-2")):
+            if split >= src.shape[1]:
+                continue
+            low, high = src[:, :split], src[:, split:]
+            mu = low.mean(axis=0)
+            _, ax = np.linalg.eigh(np.cov(low.T))
+            ax = ax[:, ::-1]
+            for k in [int(v) for v in a.sizes.split(",")]:
+                cb = np.asarray(train_codebook(high.astype(np.float32), imp[order], k, seed=0), np.float64)
+                idx = np.asarray(assign(high.astype(np.float32), cb.astype(np.float32)))
+                cnt = np.bincount(idx, minlength=k)
+                cnt = cnt[cnt > 0]
+                cost = float(-(cnt * np.log2(cnt / n)).sum()) + k * high.shape[1] * CODEWORD_BITS
+                if cost >= budget:
+                    continue
+                low_hat = scalar((low - mu) @ ax, budget - cost) @ ax.T + mu
+                rgb_hat = np.concatenate([low_hat, cb[idx]], axis=1)
+                row(f"{name} scalar path + codebook {k} on the higher bands", (rgb_hat - mean) @ axes, budget)
     return 0
 
 
