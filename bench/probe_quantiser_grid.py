@@ -94,6 +94,7 @@ def compare(name: str, x: np.ndarray, blocks: int, budgets) -> None:
 def vq_rows(x: np.ndarray, blocks: int, budgets, sizes) -> None:
     """x [N, D]: scalar path alone against codebook + scalar residual."""
     from bench_sh_klt_probe import tables
+    from probe_sh_refinement import _label_bits
     from gsz.encoder.vq import assign, train_codebook
     n, d = x.shape
     print(f"sh klt: codebook + scalar residual, budgets (bits a vector): " + " ".join(f"{b:g}" for b in budgets))
@@ -102,9 +103,7 @@ def vq_rows(x: np.ndarray, blocks: int, budgets, sizes) -> None:
     for k in sizes:
         cb = np.asarray(train_codebook(x.astype(np.float32), None, k, seed=0), np.float64)
         idx = np.asarray(assign(x.astype(np.float32), cb.astype(np.float32)))
-        cnt = np.bincount(idx, minlength=k)
-        cnt = cnt[cnt > 0]
-        label_bits = float(-(cnt * np.log2(cnt / n)).sum()) + k * d * 10
+        label_bits = _label_bits(idx, k) + k * d * 10
         res = x - cb[idx]
         l2, r2 = tables(res.T, blocks)
         print(f"  K={k:<5d} ({label_bits / n:5.2f} b)" + " ".join(

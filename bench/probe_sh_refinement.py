@@ -37,6 +37,13 @@ def _entropy_bits(p: float) -> float:
     return 0.0 if p <= 0 or p >= 1 else float(-(p * np.log2(p) + (1 - p) * np.log2(1 - p)))
 
 
+def _label_bits(idx: np.ndarray, k: int) -> float:
+    """Zeroth-order entropy of the labels idx (values below k), in bits for all of them."""
+    cnt = np.bincount(idx, minlength=k)
+    cnt = cnt[cnt > 0]
+    return float(-(cnt * np.log2(cnt / max(idx.size, 1))).sum())
+
+
 def reconstruct(x: np.ndarray, blocks: int, pick: np.ndarray) -> np.ndarray:
     """x [C, L] quantised group-wise at the picked widths (0: the group's mean; q: the format's
     min-max grid), float64."""
@@ -94,26 +101,25 @@ def main(argv=None) -> int:
     imp = np.asarray(compute_importance(original, cams.train), np.float64)[oi]
     order = np.argsort(-imp, kind="stable")          # importance classes, one block each
     x = ((rgb - mean) @ axes)[order]                 # [n, D] in class order
-    cls = np.repeat(np.arange(CLASSES), np.diff(np.linspace(0, n, CLASSES + 1).astype(np.int64)))
-    w_block = np.array([imp[order][cls == c].mean() for c in range(CLASSES)]) / max(imp.mean(), 1e-30)
     refs = render_views(original, cams.test)
     print(f"{n:,} Gaussians matched; SH budget {budget / 8:,.0f} B = {budget / n:.1f} bits a vector")
 
     def scalar(v: np.ndarray, bits: float):
+        """The scalar path on v, the first len(v) vectors in importance order: its classes are
+        blocks of them, each block's loss weighted by its mean importance."""
         loss, rate = tables(np.ascontiguousarray(v.T), CLASSES)
-        d = v.shape[1]
-        loss = loss * np.tile(w_block, d)[:, None]
-        pick = allocate(loss, rate, bits, method="fast")
-        return reconstruct(np.ascontiguousarray(v.T), CLASSES, pick).T
-
-    def scalar_part(v: np.ndarray, bits: float):
-        # the kept vectors are the first rows (importance order): their classes are blocks of them
-        loss, rate = tables(np.ascontiguousarray(v.T), CLASSES)
-        w = np.array([imp[order][:len(v)][c * len(v) // CLASSES:(c + 1) * len(v) // CLASSES].mean()
+        ranked = imp[order][:len(v)]
+        w = np.array([ranked[c * len(v) // CLASSES:(c + 1) * len(v) // CLASSES].mean()
                       for c in range(CLASSES)]) / max(imp.mean(), 1e-30)
         loss = loss * np.tile(w, v.shape[1])[:, None]
         pick = allocate(loss, rate, bits, method="fast")
         return reconstruct(np.ascontiguousarray(v.T), CLASSES, pick).T
+
+    def codebook(v: np.ndarray, k: int):
+        """(codewords of v's rows, labels, their cost in bits: labels' entropy + codewords)."""
+        cb = np.asarray(train_codebook(v.astype(np.float32), imp[order], k, seed=0), np.float64)
+        idx = np.asarray(assign(v.astype(np.float32), cb.astype(np.float32)))
+        return cb, idx, _label_bits(idx, k) + k * v.shape[1] * CODEWORD_BITS
 
     def row(name: str, xhat: np.ndarray, bits: float) -> None:
         back = np.empty_like(xhat)
@@ -129,11 +135,7 @@ def main(argv=None) -> int:
     print(f"| file | {budget / n:.1f} | – | {res['psnr']:.2f} |", flush=True)
     row("scalar path", scalar(x, budget), budget)
     for k in [int(s) for s in a.sizes.split(",")]:
-        cb = np.asarray(train_codebook(x.astype(np.float32), imp[order], k, seed=0), np.float64)
-        idx = np.asarray(assign(x.astype(np.float32), cb.astype(np.float32)))
-        cnt = np.bincount(idx, minlength=k)
-        cnt = cnt[cnt > 0]
-        cost = float(-(cnt * np.log2(cnt / n)).sum()) + k * x.shape[1] * CODEWORD_BITS
+        cb, idx, cost = codebook(x, k)
         if cost <= budget:
             row(f"codebook {k}", cb[idx], cost)
             if budget - cost > 0:
@@ -142,14 +144,10 @@ def main(argv=None) -> int:
                 # today's classes path: the most important share kept (the scalar path on their
                 # own vectors), the rest codewords; labels of the rest and a flag a vector paid
                 top = int(round(share * n))
-                rest = idx[top:]
-                cr = np.bincount(rest, minlength=k)
-                cr = cr[cr > 0]
-                flags = n * _entropy_bits(share)
-                paid = float(-(cr * np.log2(cr / max(rest.size, 1))).sum()) + k * x.shape[1] * CODEWORD_BITS + flags
+                paid = _label_bits(idx[top:], k) + k * x.shape[1] * CODEWORD_BITS + n * _entropy_bits(share)
                 if 0 < top and paid < budget:
                     xhat = cb[idx].copy()
-                    xhat[:top] = scalar_part(x[:top], budget - paid)
+                    xhat[:top] = scalar(x[:top], budget - paid)
                     row(f"codebook {k} + top {100 * share:g} % kept (classes path)", xhat, budget)
         else:
             print(f"| codebook {k} | {cost / n:.1f} (over the budget) | | |")
@@ -165,11 +163,7 @@ def main(argv=None) -> int:
             _, ax = np.linalg.eigh(np.cov(low.T))
             ax = ax[:, ::-1]
             for k in [int(v) for v in a.sizes.split(",")]:
-                cb = np.asarray(train_codebook(high.astype(np.float32), imp[order], k, seed=0), np.float64)
-                idx = np.asarray(assign(high.astype(np.float32), cb.astype(np.float32)))
-                cnt = np.bincount(idx, minlength=k)
-                cnt = cnt[cnt > 0]
-                cost = float(-(cnt * np.log2(cnt / n)).sum()) + k * high.shape[1] * CODEWORD_BITS
+                cb, idx, cost = codebook(high, k)
                 if cost >= budget:
                     continue
                 low_hat = scalar((low - mu) @ ax, budget - cost) @ ax.T + mu
