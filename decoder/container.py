@@ -22,8 +22,9 @@ MAGIC = b"\x89GSZ\r\n\x1a\n"
 VERSION_MAJOR = 1
 #: the newest minor version this decoder knows (1.2 added spatial tiles, 1.3 SH classes, 1.4
 #: direct-coded octree points, 1.5 RAHT leaf weights, 1.6 the SH colour transform, 1.7 its DC
-#: colour bit, 1.8 its SH KLT bit); an encoder writes the lowest minor whose features the file uses
-VERSION_MINOR = 8
+#: colour bit, 1.8 its SH KLT bit, 1.9 SH codeword refinement); an encoder writes the lowest minor
+#: whose features the file uses
+VERSION_MINOR = 9
 MINOR_LAYERS = 1
 MINOR_TILES = 2
 MINOR_SH_CLASSES = 3
@@ -32,6 +33,7 @@ MINOR_RAHT_WEIGHTS = 5
 MINOR_SH_COLOUR = 6
 MINOR_DC_COLOUR = 7
 MINOR_SH_KLT = 8
+MINOR_SH_REFINE = 9
 HEADER_SIZE = 64
 CHUNK_ENTRY_SIZE = 24
 

@@ -23,7 +23,7 @@ from .layer import (FIELDS, GAUSSIANS_PER_BYTE, LAYER_DATA_CHUNKS, LayerState,  
                     tile_table)
 from .threads import cores
 from .geometry import read_geometry_header
-from .layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_SHXF,
+from .layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHRF, CHUNK_SHVQ, CHUNK_SHXF,
                      CHUNK_TILE, KNOWN_CHUNKS)
 from .pages import small_pages
 from .tiles import check_region, select_tiles
@@ -34,7 +34,8 @@ CHUNK_NAMES = {CHUNK_GEOM: "geometry (octree)", CHUNK_ATTR: "attributes (RAHT + 
                CHUNK_SHVQ: "SH (codebook + kept + indices)", CHUNK_META: "metadata (JSON)",
                CHUNK_TILE: "tile table", CHUNK_SHCL: "SH importance classes",
                CHUNK_RWGT: "RAHT leaf weights (importance classes)",
-               CHUNK_SHXF: "SH colour transform (luma/chroma, KLT)"}
+               CHUNK_SHXF: "SH colour transform (luma/chroma, KLT)",
+               CHUNK_SHRF: "SH codeword refinement (indices of the kept vectors)"}
 
 
 def read_meta(container: Container) -> dict:

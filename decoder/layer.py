@@ -26,7 +26,8 @@ from .container import DEFAULT_MAX_GAUSSIANS, LAYER_SHIFT, TILE_SHIFT, Chunk
 from .errors import GszError, GszFormatError, GszLimitError
 from .geometry import read_geometry_header
 from .io_util import check_input_file
-from .layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_SHXF, CHUNK_TILE
+from .layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHRF, CHUNK_SHVQ, CHUNK_SHXF,
+                     CHUNK_TILE)
 from .pages import small_pages
 from .raht import build_raht_tree
 from .rotation import quaternion_f32_from_trig
@@ -80,9 +81,9 @@ def guard(fn, path):
         raise GszFormatError(f"malformed data ({type(e).__name__}: {e})", path) from None
 
 
-#: Chunk types that carry one part's data (GSZ.md §4.1); SHCL (1.3), RWGT (1.5) and SHXF (1.6)
-#: are optional.
-LAYER_DATA_CHUNKS = (CHUNK_GEOM, CHUNK_ATTR, CHUNK_SHVQ, CHUNK_SHCL, CHUNK_RWGT, CHUNK_SHXF)
+#: Chunk types that carry one part's data (GSZ.md §4.1); SHCL (1.3), RWGT (1.5), SHXF (1.6) and
+#: SHRF (1.9) are optional.
+LAYER_DATA_CHUNKS = (CHUNK_GEOM, CHUNK_ATTR, CHUNK_SHVQ, CHUNK_SHCL, CHUNK_RWGT, CHUNK_SHXF, CHUNK_SHRF)
 
 
 @dataclass
@@ -148,7 +149,7 @@ def plan_parts(entries, sh_degree: int) -> Plan:
         name = ctype.decode("ascii")
         layer, tile = (flags >> LAYER_SHIFT) & 0xFF, (flags >> TILE_SHIFT) & 0xFFFF
         tiled = tile_chunk is not None
-        if ctype in (CHUNK_SHVQ, CHUNK_SHCL) and sh_degree == 0:
+        if ctype in (CHUNK_SHVQ, CHUNK_SHCL, CHUNK_SHRF) and sh_degree == 0:
             raise GszFormatError(f"{name} chunk in a file of SH degree 0 (chunk {i})")
         if tile and not tiled:
             raise GszFormatError(f"chunk {i} ({name}) belongs to tile {tile}, but the file has no TILE chunk")
@@ -283,7 +284,8 @@ def _read_sh(chunks: dict, header, state: LayerState, m: int, dest: OutputRows, 
         return read_sh_checked(chunks[CHUNK_SHVQ], m, header.sh_degree, state.codebook,
                                chunks.get(CHUNK_SHCL), dest,
                                voxel_classes=None if rwgt is None else rwgt.classes,
-                               colour_chunk=chunks.get(CHUNK_SHXF), klt=klt)
+                               colour_chunk=chunks.get(CHUNK_SHXF), klt=klt,
+                               refine_chunk=chunks.get(CHUNK_SHRF))
     return np.zeros((m, 0, 3), np.float32), state.codebook, True
 
 

@@ -25,7 +25,7 @@ import threading
 import numpy as np
 
 #: ABI number the Python side expects (GSZ_NATIVE_ABI in csrc/gsz_common.h).
-ABI = 19
+ABI = 20
 
 _module = None
 _why_not = ""

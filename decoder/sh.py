@@ -41,6 +41,18 @@ coded in (GSZ.md §8.2)::
       u8  D                 0: the matrix of an earlier layer of the tile; else 3K
       i16 klt[D][D]         (D > 0) row i: stored component i in RGB components, times 2^-14
 
+SHRF chunk (format 1.9, optional per part): the part's kept vectors are residuals of a codeword
+each (GSZ.md §8.3)::
+
+    u64 n, byte[n]          rANS stream of P codeword indices (one model), one per kept vector in
+                            the order the kept ChannelSet stores them; the codebook is this
+                            layer's or an earlier layer's of the tile
+
+A stored kept vector j is then the f32 sum of its dequantised values and codeword ``indices[j]``
+(both rounded to f32 first), before any SHXF transform: a codebook takes the coarse shape of a
+trained capture's SH, and the kept set quantises only what it misses, where a codebook alone
+leaves the upper-mid rates short (docs/design/sh-refine.md).
+
 A view-dependent change in a real capture is mostly a change of brightness, so its three colour
 channels are strongly correlated; coded as luma and two chroma differences they take fewer bits
 (docs/design/sh-colour.md).  In a trained capture the components of one vector are correlated
@@ -254,18 +266,29 @@ def read_sh_classes(data, num_kept: int, voxel_classes=None):
     return classes
 
 
+def read_sh_refine(data, num_kept: int, codebook_size: int) -> np.ndarray:
+    """Decode an SHRF chunk: int64 [P] the codeword index of each stored kept vector."""
+    r = Reader(data, "SHRF chunk")
+    r.check(num_kept > 0, "SH codeword refinement for a part without kept SH vectors")
+    r.check(codebook_size > 0, "SH codeword refinement but no SH codebook in this or an earlier layer")
+    idx = decode_stream_single(r.blob(), num_kept)
+    r.check(bool(np.all((idx >= 0) & (idx < codebook_size))), "SHRF chunk: codeword index out of range")
+    r.expect_end()
+    return idx
+
+
 def read_sh(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None,
             classes_chunk=None, dest: OutputRows = FRESH, voxel_classes=None, colour_chunk=None,
-            klt: np.ndarray | None = None):
+            klt: np.ndarray | None = None, refine_chunk=None):
     """Decode one layer's SHVQ chunk: (sh_rest, codebook) of :func:`read_sh_checked`."""
     sh_rest, codebook, _ = read_sh_checked(data, num_points, sh_degree, codebook, classes_chunk, dest,
-                                           voxel_classes, colour_chunk, klt)
+                                           voxel_classes, colour_chunk, klt, refine_chunk)
     return sh_rest, codebook
 
 
 def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray | None = None,
                     classes_chunk=None, dest: OutputRows = FRESH, voxel_classes=None,
-                    colour_chunk=None, klt: np.ndarray | None = None):
+                    colour_chunk=None, klt: np.ndarray | None = None, refine_chunk=None):
     """Decode one layer's SHVQ chunk.
 
     codebook    the [D, K_cb] float64 codebook an earlier layer carried, or None
@@ -276,6 +299,8 @@ def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray 
     klt         the part's KLT matrix int16 [D, D] (:func:`part_klt`: its own or its tile's), or
                 None: the vectors are turned by it (kept vectors, and the codewords where
                 indices use them), a stored value beyond KLT_MAX_ABS rejected
+    refine_chunk   the part's SHRF chunk, or None: the kept vectors are residuals of the
+                codewords it names (added back before the colour transform)
     returns     (sh_rest float32 [M, K, 3], codebook [D, K_cb] float64 or None, finite): the
                 codebook of this layer when it carries one, else the one passed in; finite:
                 whether every sh_rest value is finite when the native path assembled them
@@ -302,9 +327,10 @@ def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray 
         kcb = 0 if codebook is None else codebook.shape[1]
     classes = None if classes_chunk is None else read_sh_classes(classes_chunk, p, voxel_classes)
     colour = SH_COLOUR_RGB if colour_chunk is None else read_sh_colour(colour_chunk) & SH_COLOUR_LUMA_CHROMA
+    refine = None if refine_chunk is None else read_sh_refine(refine_chunk, p, kcb)
     if native.enabled():
         sh_rest, finite = _assemble_native(r, m, k, d, p, kcb, codebook, classes, dest, voxel_classes,
-                                           colour, klt)
+                                           colour, klt, refine)
         return sh_rest, codebook, finite
     kept = None
     if p:
@@ -333,8 +359,11 @@ def read_sh_checked(data, num_points: int, sh_degree: int, codebook: np.ndarray 
         dest = np.flatnonzero(kept_mask) if idx.size else None
         if classes is not None:
             dest = (np.arange(m) if dest is None else dest)[class_order(classes)]
+        cb32 = None if refine is None else codebook.astype(np.float32)
         for j0 in range(0, p, _KEPT_BLOCK):
             j1 = min(p, j0 + _KEPT_BLOCK)
+            if cb32 is not None:   # the residuals' codewords added back, in float32
+                kept[:, j0:j1] += cb32[:, refine[j0:j1]]
             if colour:             # on the stored planes: contiguous runs, the block in cache
                 luma_chroma_planes_to_rgb(kept[:, j0:j1])
             block = np.ascontiguousarray(kept[:, j0:j1].T, dtype=np.float32)
@@ -360,7 +389,7 @@ _KEPT_BLOCK = 8192
 
 def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebook, classes,
                      dest: OutputRows = FRESH, voxel_classes=None, colour: int = SH_COLOUR_RGB,
-                     klt: np.ndarray | None = None):
+                     klt: np.ndarray | None = None, refine: np.ndarray | None = None):
     """read_sh's kept vectors, flags and indices, assembled in one C pass (same checks): the
     kept set stays uint16 symbols until that pass dequantises them into the float32 rows."""
     flags = None
@@ -380,5 +409,6 @@ def _assemble_native(r: Reader, m: int, k: int, d: int, p: int, kcb: int, codebo
     out = dest.empty("sh_rest", (m, d))
     finite = native.module().sh_assemble(flags, kept, steps, lo, idx, np.ascontiguousarray(cb, dtype=np.float64),
                                          out, None if classes is None else np.ascontiguousarray(classes, np.int64),
-                                         colour, None if klt is None else klt.astype(np.float64))
+                                         colour, None if klt is None else klt.astype(np.float64),
+                                         None if refine is None else np.ascontiguousarray(refine, np.int64))
     return out.reshape(m, k, 3), bool(finite)

@@ -57,6 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
     fixed.add_argument("--rel-error", type=float, default=None, help="auto-depth position-error budget, relative to the robust scene diagonal")
     fixed.add_argument("--sh-bits", type=int, default=None, help="bit-width of SH codebook and kept vectors (default: --bits)")
     fixed.add_argument("--sh-classes", type=int, default=None, help="importance classes of the kept SH vectors, 2-16 (format 1.3; default: none)")
+    fixed.add_argument("--sh-refine", action="store_true", default=None,
+                       help="code the kept SH vectors as corrections of their nearest codeword (format 1.9)")
     both = p.add_argument_group("both modes")
     both.add_argument("--codebook", type=int, default=None,
                       help=f"SH vector-quantisation codebook size K (fixed configuration default {d.codebook}; "
@@ -131,6 +133,7 @@ def _run_fixed(a, prog) -> EncodeReport:
                          codebook=EncodeOptions.codebook if a.codebook is None else a.codebook,
                          keep=a.keep, blocks=a.blocks, depth=a.depth, rel_error=a.rel_error, beta=a.beta,
                          sh_bits=a.sh_bits, sh_classes=a.sh_classes or EncodeOptions.sh_classes,
+                         sh_refine=bool(a.sh_refine),
                          train_views=a.train_views, importance_width=a.importance_width,
                          layers=a.layers, first_layer=a.first_layer, seed=a.seed,
                          tile_gaussians=a.tile_gaussians or None, executor=a.executor,
@@ -149,7 +152,8 @@ def _run_search(a, prog) -> EncodeReport:
 
     fixed_only = [flag for flag, v in (("--reserve", a.reserve), ("--bits", a.bits), ("--keep", a.keep),
                                        ("--depth", a.depth), ("--rel-error", a.rel_error),
-                                       ("--sh-bits", a.sh_bits), ("--sh-classes", a.sh_classes))
+                                       ("--sh-bits", a.sh_bits), ("--sh-classes", a.sh_classes),
+                                       ("--sh-refine", a.sh_refine))
                   if v is not None]
     if fixed_only:
         raise GszUsageError("--size/--ratio/--profile choose the reserve, depth, bit-widths and kept SH "

@@ -28,8 +28,8 @@ from ..decoder.cloud import GaussianCloud, MadeRows
 from ..decoder.container import (CHUNK_ENTRY_SIZE, CHUNK_REQUIRED, FRAME_RDF, LAYER_SHIFT, Chunk, FileHeader,
                                  write_container)
 from ..decoder.errors import GszUsageError
-from ..decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_SHXF,
-                              RAHT_CHANNELS, ROTATION_EULER_ZYX)
+from ..decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_META, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHRF, CHUNK_SHVQ,
+                              CHUNK_SHXF, RAHT_CHANNELS, ROTATION_EULER_ZYX)
 from ..decoder.morton import morton_encode
 from ..decoder.raht import build_raht_tree
 from ..decoder.rotation import quaternion_to_euler
@@ -235,6 +235,8 @@ class EncodeOptions(SceneOptions):
     sh_classes       importance classes of the kept SH vectors (2..16: an SHCL chunk, format
                      1.3, and one block per class; 1: none).  At one fixed width they only
                      order the vectors; the size search gives each class its own widths
+    sh_refine        the kept SH vectors as residuals of their nearest codeword (an SHRF chunk,
+                     format 1.9): every vector takes a codeword, the kept ones a correction
     """
 
     reserve: float = 0.8
@@ -246,6 +248,7 @@ class EncodeOptions(SceneOptions):
     rel_error: float | None = None
     sh_bits: int | None = None
     sh_classes: int = 1
+    sh_refine: bool = False
 
     def validate(self) -> "EncodeOptions":
         def bad(msg):
@@ -893,27 +896,33 @@ class ShPayloads:
     ``cb_bits``, default ``sh_bits``).  Each tile's codebook (compacted to the codewords its
     layers use) goes with its first layer that has codeword indices (layer 0 when none has), so
     a layer whose Gaussians all keep their exact vectors does not wait for it; the tile's other
-    layers refer to it."""
+    layers refer to it.
+
+    ``refine``: the kept vectors are coded as residuals of their nearest codeword (an SHRF chunk
+    per part with kept vectors, GSZ.md §8.3): every voxel takes a codeword, the kept ones a
+    quantised correction on top (docs/design/sh-refine.md)."""
 
     def __init__(self, stage: Stage, codebook: np.ndarray, keep: int, sh_bits: int, blocks: int,
                  cb_blocks: int | None = None, index: np.ndarray | None = None, classes: int = 1,
-                 cb_bits: int | None = None):
+                 cb_bits: int | None = None, refine: bool = False):
         from .rans import encode_stream
         from .vq import assign, compact
 
         m, d = stage.sh.shape
         self.stage, self.sh_bits, self.m, self.d = stage, int(sh_bits), m, d
         self.keep = keep = min(int(keep), m)
+        self.refine = bool(refine) and keep > 0
         kept = top_k_mask(stage.importance, keep)
         rest = ~kept
+        coded = np.ones(m, bool) if self.refine else rest      # voxels that take a codeword
         near = None
         if stage.num_tiles > 1:
             near = tile_assignment(stage, codebook, assign(stage.sh, codebook) if index is None
                                    else np.asarray(index, np.int64), assign)
-        elif rest.any():
+        elif coded.any():
             near = np.zeros(m, np.int64)
-            near[rest] = (assign(stage.sh, codebook, rows=np.flatnonzero(rest)) if index is None
-                          else np.asarray(index)[rest])
+            near[coded] = (assign(stage.sh, codebook, rows=np.flatnonzero(coded)) if index is None
+                           else np.asarray(index)[coded])
         #: per tile: (voxels taking a codeword, the tile's reconstructed codebook [K_t, D]
         #: float32, each voxel's row in it): an [M, D] array per plan would be 216 MB at 1.2 M
         self._codewords = []
@@ -926,14 +935,20 @@ class ShPayloads:
         #: per part: SHCL payload (None: kept vectors in Morton order) and, with classes, the
         #: importance weight of each block (= class) of the kept set, mean 1 over the stage
         self.class_chunks = [None] * len(stage.layers)
+        #: per part: SHRF payload (None: the part's kept vectors are not residuals)
+        self.refine_chunks = [None] * len(stage.layers)
         self.block_weights = [None] * len(stage.layers)
         self.classes = int(classes)
         self._weight = None
+        #: with ``refine``: every voxel's row in the stacked reconstructed tile codebooks
+        self._cw_row = np.zeros(m if self.refine else 0, np.int32)
+        self._books = []
+        book_rows = 0
         for t in range(stage.num_tiles):
             # every tile carries the codewords its Gaussians use (a tile decodes on its own)
             parts = [(pi, l) for pi, l in enumerate(stage.layers) if l.tile == t]
             members = np.concatenate([l.index for _, l in parts])
-            r = members[rest[members]]
+            r = members[coded[members]]
             idx_all = np.zeros(m, np.int64)
             if r.size:
                 cb, idx = compact(codebook, near[r])
@@ -942,15 +957,23 @@ class ShPayloads:
                 cb = np.zeros((1, d), np.float32)
             cb_bytes, cb_rec = write_channel_set(
                 cb.T, cb_bits, sh_set_blocks(cb.shape[0], blocks) if cb_blocks is None else cb_blocks)
-            self._codewords.append((r, np.ascontiguousarray(cb_rec.T, np.float32),
-                                    idx_all[r].astype(np.int32)))
+            rec32 = np.ascontiguousarray(cb_rec.T, np.float32)
+            self._codewords.append((r, rec32, idx_all[r].astype(np.int32)))
+            if self.refine:
+                self._cw_row[r] = idx_all[r] + book_rows
+                self._books.append(rec32)
+                book_rows += rec32.shape[0]
             self.stats["codebook_size"] += int(cb.shape[0])
             self.stats["codebook_bytes"] += len(cb_bytes)
             kept_counts = [int(kept[l.index].sum()) for _, l in parts]
-            cb_part = next((pi for (pi, l), p in zip(parts, kept_counts) if p < l.num_points), parts[0][0])
+            # the codebook goes with the tile's first part whose Gaussians use a codeword
+            cb_part = next((pi for (pi, l), p in zip(parts, kept_counts)
+                            if p < l.num_points or (self.refine and p)), parts[0][0])
             for (pi, layer), p in zip(parts, kept_counts):
                 self._code_part(pi, layer, kept, p, idx_all, cb_bytes if pi == cb_part else None,
                                 int(cb.shape[0]), blocks, encode_stream)
+        self._books = (np.concatenate(self._books) if self._books
+                       else np.zeros((0, d), np.float32))
 
     def _code_part(self, pi, layer, kept, p, idx_all, cb_bytes, cb_size, blocks, encode_stream):
         """Head (codebook when ``cb_bytes``) and tail (kept flags, codeword indices) of part pi."""
@@ -971,6 +994,11 @@ class ShPayloads:
             w = self._class_weight()
             self.block_weights[pi] = np.array([w[sel[s:e]].mean() for s, e in _block_bounds(p, q)])
         self.kept_sets[pi] = (sel, q if q > 1 else sh_set_blocks(p, blocks))
+        if self.refine and p:
+            # each kept vector's codeword, in the order its channel set stores it
+            ref = encode_stream(idx_all[sel], np.zeros(p, np.int64), 1)
+            self.refine_chunks[pi] = Writer().blob(ref).getvalue()
+            self.stats["index_bytes"] += len(ref) + 8
         w = Writer()
         w.u32(cb_size if cb_bytes is not None else 0).u32(p).u16(d)
         if cb_bytes is not None:
@@ -998,12 +1026,13 @@ class ShPayloads:
     def fixed_bytes(self) -> int:
         """Bytes of the payloads apart from the kept vectors' channel sets (SHCL chunks and
         their table entries included)."""
-        cls = [c for c in self.class_chunks if c is not None]
+        cls = [c for c in self.class_chunks + self.refine_chunks if c is not None]
         return (sum(map(len, self._heads)) + sum(map(len, self._tails))
                 + sum(map(len, cls)) + CHUNK_ENTRY_SIZE * len(cls))
 
     def kept_vectors(self, layer: int) -> np.ndarray:
-        """float32 [D, P_l]: the kept vectors of a layer as their channel set codes them."""
+        """float32 [D, P_l]: the kept vectors of a layer as their channel set codes them (with
+        ``refine``, minus their codewords)."""
         sel = self.kept_sets[layer][0]
         out = np.empty((self.d, sel.size), np.float32)
         # gathered ROW_CHUNK rows at a time: a whole [P_l, D] gather besides its transpose was
@@ -1011,9 +1040,16 @@ class ShPayloads:
         # columns
 
         def gather(s: int, e: int) -> None:
-            out[:, s:e] = self.stage.sh[sel[s:e]].T
+            rows = self.stage.sh[sel[s:e]]
+            if self.refine:
+                rows = np.asarray(rows, np.float32) - self._books[self._cw_row[sel[s:e]]]
+            out[:, s:e] = rows.T
         for_ranges(sel.size, ROW_CHUNK, gather)
         return out
+
+    def codewords_of(self, voxels: np.ndarray) -> np.ndarray:
+        """float32 [n, D]: the reconstructed codeword of each of ``voxels`` (``refine`` only)."""
+        return self._books[self._cw_row[voxels]]
 
     def payloads(self, kept_bits=None, decoded: bool = True):
         """(payloads per layer, SH as decoded [M, K, 3] output order, stats).  ``kept_bits``:
@@ -1041,7 +1077,8 @@ class ShPayloads:
             if sel.size:
                 body, rec = next(coded)
                 if out is not None:
-                    out[pos[sel]] = rec.T
+                    # the decoder's float32 sum of the residual and its codeword (GSZ.md §8.3)
+                    out[pos[sel]] = rec.T + self.codewords_of(sel) if self.refine else rec.T
                 stats["kept_bytes"] += len(body)
             payloads.append(self._heads[li] + body + self._tails[li])
         k = self.m and self.d // 3
@@ -1110,10 +1147,16 @@ class ShPayloads:
             # the kept rows gathered a range at a time (the stage's SH rows are references to
             # the input's: whole, 1 GB at 6 M voxels)
             src = sh[order[a:b][kept]]
+            ref = None
+            if self.refine:         # residuals requantised, their codewords added back
+                ref = books[cw_row[a:b][kept]]
+                src = np.asarray(src, np.float32) - ref
             if in_c:
                 src = np.ascontiguousarray(src, np.float32).reshape(-1, d)
                 at = np.cumsum(kept, dtype=np.int64) - 1          # a kept row's row of src
                 native.module().sh_requant_rows(src, at, gr, cw_row[a:b], books, lo, step, top, out)
+                if ref is not None:
+                    out[kept] += ref
                 return out.reshape(b - a, -1, 3)
             if kept.any():
                 gr = gr[kept]
@@ -1129,6 +1172,8 @@ class ShPayloads:
                 v *= s_g
                 v += m_g
                 out[kept] = v
+                if ref is not None:
+                    out[kept] += ref
             if not kept.all():
                 out[~kept] = books[cw_row[a:b][~kept]]
             return out.reshape(b - a, -1, 3)
@@ -1170,11 +1215,11 @@ def _code_channel_set(job):
 
 
 def assemble(stage: Stage, attr: list, decoded, sh: list | None, sh_rest, meta: dict,
-             sh_classes: list | None = None):
+             sh_classes: list | None = None, sh_refine: list | None = None):
     """The .gsz bytes and the cloud the decoder will reconstruct (:func:`write_file`; decoded,
     sh_rest in output order)."""
     positions = stage.positions()
-    data, meta_len = write_file(stage, positions, attr, sh, meta, sh_classes)
+    data, meta_len = write_file(stage, positions, attr, sh, meta, sh_classes, sh_refine)
     if sh is not None:
         sh_rest = decoded_sh_rest(sh_rest, stage.sh_colour)     # what the decoder turns them into
     if stage.sh_colour & SH_COLOUR_DC:
@@ -1212,7 +1257,7 @@ def sh_colour_payload_bytes(stage: Stage) -> int:
 
 
 def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None, meta: dict,
-               sh_classes: list | None = None) -> tuple[bytes, int]:
+               sh_classes: list | None = None, sh_refine: list | None = None) -> tuple[bytes, int]:
     """(the .gsz bytes, META chunk bytes) of ``stage`` with its decoded ``positions`` (output
     order, :meth:`Stage.positions`).
 
@@ -1222,11 +1267,12 @@ def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None,
                 direct-coded geometry (OCTREE.md scheme 1) 1.4.  A stage coded in a colour
                 transform (``stage.sh_colour``) gets an SHXF chunk per part and version 1.6,
                 1.7 when it turns the DC colour, 1.8 with the SH KLT (its matrix in each
-                tile's first layer)."""
+                tile's first layer).
+    sh_refine   per part the SHRF payload or None; any SHRF makes the file version 1.9."""
     import zstandard
     from ..decoder.container import (MINOR_DIRECT, MINOR_LAYERS, MINOR_RAHT_WEIGHTS, MINOR_SH_CLASSES,
-                                     MINOR_DC_COLOUR, MINOR_SH_COLOUR, MINOR_SH_KLT, MINOR_TILES, TILE_SHIFT,
-                                     VERSION_MAJOR)
+                                     MINOR_DC_COLOUR, MINOR_SH_COLOUR, MINOR_SH_KLT, MINOR_SH_REFINE,
+                                     MINOR_TILES, TILE_SHIFT, VERSION_MAJOR)
     from ..decoder.geometry import octree_scheme
     from ..decoder.octree import SCHEME_DIRECT
     from ..decoder.layout import CHUNK_TILE
@@ -1259,6 +1305,8 @@ def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None,
         if sh is not None:
             if sh_classes is not None and sh_classes[pi] is not None:
                 chunks.append(Chunk(CHUNK_SHCL, sh_classes[pi], flags))
+            if sh_refine is not None and sh_refine[pi] is not None:
+                chunks.append(Chunk(CHUNK_SHRF, sh_refine[pi], flags))
             chunks.append(Chunk(CHUNK_SHVQ, sh[pi], flags))
     meta_bytes = zstandard.ZstdCompressor(level=19).compress(
         json.dumps(meta, sort_keys=True, separators=(",", ":"), default=float).encode())
@@ -1267,7 +1315,8 @@ def write_file(stage: Stage, positions: np.ndarray, attr: list, sh: list | None,
                         bbox_min=tuple(positions.min(0)),
                         bbox_max=tuple(positions.max(0)),
                         version=(VERSION_MAJOR,
-                                 MINOR_SH_KLT if stage.sh_colour & SH_COLOUR_KLT
+                                 MINOR_SH_REFINE if any(c.type == CHUNK_SHRF for c in chunks)
+                                 else MINOR_SH_KLT if stage.sh_colour & SH_COLOUR_KLT
                                  else MINOR_DC_COLOUR if stage.sh_colour & SH_COLOUR_DC
                                  else MINOR_SH_COLOUR if any(c.type == CHUNK_SHXF for c in chunks)
                                  else MINOR_RAHT_WEIGHTS if any(c.type == CHUNK_RWGT for c in chunks)
@@ -1350,7 +1399,7 @@ def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, st
     sh_blocks = default_blocks(opts.sh_bits or opts.bits) if opts.blocks is None else int(opts.blocks)
     with progress.stage("attributes", f"{opts.bits} bits, {blocks} blocks"):
         attr, decoded, attr_stats = attribute_chunks(stage, opts.bits, blocks)
-    sh = sh_rest = sh_classes = None
+    sh = sh_rest = sh_classes = sh_refine = None
     sh_stats = {}
     if cloud.sh_degree > 0:
         k = default_codebook_size(m, opts.codebook)
@@ -1358,12 +1407,14 @@ def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, st
             cb = train_sh_codebook(stage, k, seed=opts.seed, iters=opts.vq_iters, progress=progress)
             keep = int(round(0.01 * m)) if opts.keep is None else int(opts.keep)
             payloads = ShPayloads(stage, cb, keep, int(opts.sh_bits or opts.bits), sh_blocks,
-                                  classes=int(opts.sh_classes))
+                                  classes=int(opts.sh_classes), refine=bool(opts.sh_refine))
             sh, sh_rest, sh_stats = payloads.payloads()
-            sh_classes = payloads.class_chunks
+            sh_classes, sh_refine = payloads.class_chunks, payloads.refine_chunks
     options_json = dict(asdict(opts), depth=stage.depth, blocks=blocks)
     if int(opts.sh_classes) == 1:   # the files of the default stay as they were
         del options_json["sh_classes"]
+    if not opts.sh_refine:
+        del options_json["sh_refine"]
     if opts.sh_colour == "auto":    # so too here: the file's SHXF chunks say what auto chose
         del options_json["sh_colour"]
     for k in ("executor", "workers"):      # where the work ran does not shape the file
@@ -1375,11 +1426,11 @@ def _encode_stage(cloud, opts: EncodeOptions, importance, executor, progress, st
     with progress.stage("container"):
         meta = {"encoder": encoder_name(), "codec": "mesongs++", "options": options_json,
                 "input_gaussians": n_in, "voxels": m}
-        data, out_cloud, meta_len = assemble(stage, attr, decoded, sh, sh_rest, meta, sh_classes)
+        data, out_cloud, meta_len = assemble(stage, attr, decoded, sh, sh_rest, meta, sh_classes, sh_refine)
     sizes = {"geometry": stage.geometry_bytes, "attributes": sum(map(len, attr)), **attr_stats,
              "metadata": meta_len}
     if sh is not None:
-        sizes["sh"] = sum(map(len, sh)) + sum(len(c) for c in sh_classes if c)
+        sizes["sh"] = sum(map(len, sh)) + sum(len(c) for c in sh_classes + sh_refine if c)
         sizes.update({f"sh_{k}": v for k, v in sh_stats.items() if k.endswith("bytes")})
     sizes["container_overhead"] = len(data) - sum(sizes[k] for k in ("geometry", "attributes", "metadata")) \
         - sizes.get("sh", 0)

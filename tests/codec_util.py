@@ -27,7 +27,8 @@ def encoded(name: str, n: int | None = None, **kw):
 
 
 def lowest_version(data: bytes) -> str:
-    """The version a file's features call for (GSZ.md: the lowest minor they need): 1.8 with an
+    """The version a file's features call for (GSZ.md: the lowest minor they need): 1.9 with an
+    SHRF chunk, else 1.8 with an
     SHXF chunk that sets the KLT bit (bit 2), 1.7 with one that turns the DC colour (bit 1), 1.6
     with another SHXF chunk, else 1.5 with an RWGT chunk, else 1.4 with a direct-coded octree (scheme 1), else 1.3 with an SHCL chunk,
     else 1.2 with tiles, else 1.1."""
@@ -35,6 +36,8 @@ def lowest_version(data: bytes) -> str:
     from gsz.decoder.geometry import octree_scheme
     c = read_container(data)
     types = {ch.type for ch in c.chunks}
+    if b"SHRF" in types:
+        return "1.9"
     if b"SHXF" in types:
         bits = [ch.data[0] for ch in c.chunks if ch.type == b"SHXF"]
         return "1.8" if any(b & 4 for b in bits) else "1.7" if any(b & 2 for b in bits) else "1.6"

@@ -341,7 +341,7 @@ static uint32_t klt_tile(const float *restrict tile, int64_t n, int64_t D, int64
 static uint32_t kept_tile(const uint16_t *kept, int64_t P, const double *steps, const double *lo,
                           int64_t B, int64_t b, int64_t D, int colour, const double *m, int64_t Jp,
                           double *y, uint32_t *far, const int64_t *at, int64_t t0, int64_t t1,
-                          float *tile, float *out)
+                          const int64_t *ridx, const double *cb, int64_t K, float *tile, float *out)
 {
     uint32_t bad = 0;
     const int64_t n = t1 - t0;
@@ -350,6 +350,16 @@ static uint32_t kept_tile(const uint16_t *kept, int64_t P, const double *steps, 
         const double st = steps[d * B + b], l0 = lo[d * B + b];
         float *col = tile + d * SH_TILE;
         bad |= n == SH_TILE ? dequant_col(src, st, l0, col, SH_TILE) : dequant_col(src, st, l0, col, n);
+        if (ridx) {
+            /* SHRF (GSZ.md §8.3): the stored vector is the residual of a codeword, added back
+             * in float32 (one rounded sum) before any colour transform */
+            const double *cw = cb + d * K;
+            for (int64_t t = 0; t < n; t++) {
+                const float f = col[t] + (float)cw[ridx[t0 + t]];
+                col[t] = f;
+                bad |= !f32_finite(f);
+            }
+        }
     }
     if (colour)
         for (int64_t j = 0; j + 2 < D; j += 3) {
@@ -371,8 +381,11 @@ static uint32_t kept_tile(const uint16_t *kept, int64_t P, const double *steps, 
 int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *steps,
                     const double *lo, int64_t B, const int64_t *classes, int64_t P,
                     const int64_t *idx, int64_t nidx, const double *cb, int64_t K, int64_t M,
-                    int64_t D, int colour, const double *klt, float *out, int *finite, Err *e)
+                    int64_t D, int colour, const double *klt, const int64_t *ridx, float *out,
+                    int *finite, Err *e)
 {
+    for (int64_t j = 0; ridx && j < P; j++)
+        if (ridx[j] < 0 || ridx[j] >= K) return fail(e, "SHRF chunk: codeword index out of range");
     /* the codebook as rows (a codeword is one contiguous copy) and the output row of every kept
      * vector; the [D, P] kept symbols are then dequantised tile by tile (reading them row by row,
      * one Gaussian at a time, strides P values per component: D streams that miss the cache) */
@@ -461,7 +474,8 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
             const int64_t s1 = s0 + base + (b < extra);
             for (int64_t t0 = s0; t0 < s1; t0 += SH_TILE) {
                 const int64_t t1 = t0 + SH_TILE < s1 ? t0 + SH_TILE : s1;
-                bad |= kept_tile(kept, P, steps, lo, B, b, D, colour, kp_m, Jp, ky, &far, at, t0, t1, tile, out);
+                bad |= kept_tile(kept, P, steps, lo, B, b, D, colour, kp_m, Jp, ky, &far, at, t0, t1, ridx, cb, K,
+                                 tile, out);
                 if (far) break;
             }
             s0 = s1;

@@ -35,7 +35,7 @@
 #include <string.h>
 
 /* Bumped whenever a signature changes, so a stale build is ignored (decoder/native.py). */
-#define GSZ_NATIVE_ABI 19
+#define GSZ_NATIVE_ABI 20
 
 /* the stages' functions are internal to the extension: not exported from the shared object */
 #if defined(__GNUC__) && !defined(_WIN32)

@@ -924,7 +924,8 @@ static PyObject *py_voxel_positions(PyObject *self, PyObject *args)
 }
 
 PyDoc_STRVAR(sh_assemble_doc,
-"sh_assemble(flags, kept, steps, lo, idx, codebook, out, classes=None, colour=0, klt=None)\n\n"
+"sh_assemble(flags, kept, steps, lo, idx, codebook, out, classes=None, colour=0, klt=None,\n"
+"            refine=None)\n\n"
 "SH rest vectors (GSZ.md §8) as float32 out [M, D]: Gaussian i takes the next kept vector\n"
 "when flags[i] == 1 (flags: int64 [M], or None when P = 0), else codeword idx[next] of\n"
 "codebook (float64 [D, K]).  kept: the kept set's symbols, uint16 [D, P] channel-major, in B\n"
@@ -933,33 +934,37 @@ PyDoc_STRVAR(sh_assemble_doc,
 "class by class.  colour 1 (SHXF, §8.2): every row's triplets turned from luma/chroma to RGB;\n"
 "klt (float64 [D, D] integers, SHXF bit 2, or None): every row turned by the exact KLT inverse\n"
 "(the codewords only when idx is not empty), a stored value beyond +-256 raising GszFormatError.\n"
+"refine (int64 [P], SHRF, or None): stored kept vector j is the residual of codeword refine[j],\n"
+"added back in float32 before the colour transform.\n"
 "A flag other than 0/1, a kept count other than P or an index >= K raises\n"
 "GszFormatError.  Returns whether every value written to out is finite.");
 
 static PyObject *py_sh_assemble(PyObject *self, PyObject *args)
 {
-    PyObject *o[9] = {NULL, NULL, NULL, NULL, NULL, NULL, NULL, Py_None, Py_None};
+    PyObject *o[10] = {NULL, NULL, NULL, NULL, NULL, NULL, NULL, Py_None, Py_None, Py_None};
     int colour = 0;
-    if (!PyArg_ParseTuple(args, "OOOOOOO|OiO", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7],
-                          &colour, &o[8]))
+    if (!PyArg_ParseTuple(args, "OOOOOOO|OiOO", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7],
+                          &colour, &o[8], &o[9]))
         return NULL;
     if (colour != 0 && colour != 1) {
         PyErr_SetString(PyExc_ValueError, "sh_assemble: colour must be 0 or 1");
         return NULL;
     }
-    const int has_flags = o[0] != Py_None, has_classes = o[7] != Py_None, has_klt = o[8] != Py_None;
+    const int has_flags = o[0] != Py_None, has_classes = o[7] != Py_None, has_klt = o[8] != Py_None,
+              has_refine = o[9] != Py_None;
     if (has_klt && colour) {
         PyErr_SetString(PyExc_ValueError, "sh_assemble: colour 1 and a KLT exclude each other");
         return NULL;
     }
-    /* flags, kept, steps, lo, idx, codebook, out, classes, klt */
-    const Py_ssize_t isz[9] = {8, 2, 8, 8, 8, 8, 4, 8, 8};
-    const char kind[9] = {'i', 'u', 'f', 'f', 'i', 'f', 'f', 'i', 'f'};
-    Py_buffer v[9];
+    /* flags, kept, steps, lo, idx, codebook, out, classes, klt, refine */
+    const Py_ssize_t isz[10] = {8, 2, 8, 8, 8, 8, 4, 8, 8, 8};
+    const char kind[10] = {'i', 'u', 'f', 'f', 'i', 'f', 'f', 'i', 'f', 'i'};
+    Py_buffer v[10];
     memset(v, 0, sizeof v);
     int nv = 0, ok = 1;
-    for (; nv < 9; nv++) {
-        if ((nv == 0 && !has_flags) || (nv == 7 && !has_classes) || (nv == 8 && !has_klt)) continue;
+    for (; nv < 10; nv++) {
+        if ((nv == 0 && !has_flags) || (nv == 7 && !has_classes) || (nv == 8 && !has_klt)
+            || (nv == 9 && !has_refine)) continue;
         if (getbuf(o[nv], &v[nv], isz[nv], kind[nv], nv == 6, "sh_assemble argument") < 0) { ok = 0; break; }
     }
     if (!ok) {
@@ -979,15 +984,18 @@ static PyObject *py_sh_assemble(PyObject *self, PyObject *args)
         fail(&e, "sh_assemble: classes length is not the kept count");
     if (!e.failed && has_klt && v[8].len / 8 != D * D)
         fail(&e, "sh_assemble: the KLT matrix is not D x D");
+    if (!e.failed && has_refine && v[9].len / 8 != P)
+        fail(&e, "sh_assemble: refine length is not the kept count");
     if (!e.failed) {
         const int64_t K = v[5].len / 8 / D;
         Py_BEGIN_ALLOW_THREADS
         sh_assemble_run(has_flags ? v[0].buf : NULL, v[1].buf, v[2].buf, v[3].buf, B,
                         has_classes ? v[7].buf : NULL, P, v[4].buf, nidx, v[5].buf, K, M, D,
-                        colour, has_klt ? v[8].buf : NULL, v[6].buf, &finite, &e);
+                        colour, has_klt ? v[8].buf : NULL, has_refine ? v[9].buf : NULL, v[6].buf,
+                        &finite, &e);
         Py_END_ALLOW_THREADS
     }
-    for (int i = 0; i < 9; i++) if (v[i].obj) PyBuffer_Release(&v[i]);
+    for (int i = 0; i < 10; i++) if (v[i].obj) PyBuffer_Release(&v[i]);
     if (e.failed) return raise_err(&e);
     return PyBool_FromLong(finite);
 }

@@ -44,7 +44,8 @@ int klt_simd(int on);
 int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *steps,
                     const double *lo, int64_t B, const int64_t *classes, int64_t P,
                     const int64_t *idx, int64_t nidx, const double *cb, int64_t K, int64_t M,
-                    int64_t D, int colour, const double *klt, float *out, int *finite, Err *e);
+                    int64_t D, int colour, const double *klt, const int64_t *ridx, float *out,
+                    int *finite, Err *e);
 
 /* ------------------------------------------------------------------ rate.c (encoder) */
 #define RATE_BITS 16                 /* gsz.decoder.quant.MAX_BITS: the out arrays' q axis */

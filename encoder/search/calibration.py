@@ -127,11 +127,13 @@ class _Rounds:
                 sh_chunk_ = sh_plan.chunk
             extra = {"sh_keep": sh_plan.keep if sh_plan else 0}
             classes = sh_plan.payloads.class_chunks if sh_plan else None
+            refine = sh_plan.payloads.refine_chunks if sh_plan else None
             positions = stage.positions()
             data, meta_len = write_file(stage, positions, attr, sh_chunk_,
-                                        search_meta(stage, self.target, extra), classes)
+                                        search_meta(stage, self.target, extra), classes, refine)
         g = np.arange(len(pick))
-        sh_bytes = sum(map(len, sh_chunk_)) + sum(len(c) for c in classes if c) if sh_plan else 0
+        sh_bytes = (sum(map(len, sh_chunk_)) + sum(len(c) for c in classes + refine if c)
+                    if sh_plan else 0)
         # the decoded scene is made when the round is rendered: its SH (1 GB at 6 M voxels) is
         # coded again then rather than held by every round and plan
         sh_bits = kept_bits if self.kept else None

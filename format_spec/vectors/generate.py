@@ -86,6 +86,11 @@ VECTORS = [
     # codewords alike turned by the integer inverse
     ("sh3_jug_2k_klt", "measuring_jug_sh3_12k.ply", 2000, 3,
      dict(reserve=1.0, bits=10, codebook=32, keep=600, layers=2, first_layer=0.3, sh_colour="klt")),
+    # format 1.9: the kept vectors as residuals of a codeword each (SHRF chunks), two layers (the
+    # codebook in layer 0: both layers' kept vectors refer to it), 4 classes, KLT
+    ("sh3_jug_2k_refine", "measuring_jug_sh3_12k.ply", 2000, 3,
+     dict(reserve=1.0, bits=8, codebook=32, keep=1200, layers=2, first_layer=0.3, sh_classes=4,
+          sh_refine=True, sh_colour="klt")),
 ]
 #: vectors whose scales and opacities get seeded Gaussian noise of this sigma before encoding
 NOISED = {"sh0_plant_3000_laplace": 0.05}
@@ -115,10 +120,10 @@ def intermediates(data: bytes) -> list[dict]:
     from gsz.decoder.geometry import read_geometry
     from gsz.decoder.groups import read_channel_set
     from gsz.decoder.attributes import read_raht_weights
-    from gsz.decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHVQ, CHUNK_SHXF,
-                                    KNOWN_CHUNKS)
+    from gsz.decoder.layout import (CHUNK_ATTR, CHUNK_GEOM, CHUNK_RWGT, CHUNK_SHCL, CHUNK_SHRF, CHUNK_SHVQ,
+                                    CHUNK_SHXF, KNOWN_CHUNKS)
     from gsz.decoder.octree import read_scheme
-    from gsz.decoder.sh import read_sh_classes, read_sh_colour
+    from gsz.decoder.sh import read_sh_classes, read_sh_colour, read_sh_refine
     from gsz.decoder.morton import morton_encode
     from gsz.decoder.raht import build_raht_tree, raht_inverse
     from gsz.decoder.rans import decode_stream
@@ -177,6 +182,9 @@ def intermediates(data: bytes) -> list[dict]:
                     classes = rwgt.classes[flags == 1]
                 row["shcl"] = {"Q": int(cdata[0]), "classes_sha256": sha(classes, "u1"),
                                "classes_first": classes[:8].tolist()}
+            if CHUNK_SHRF in got:       # GSZ.md section 8.3: the stored kept vectors' codewords
+                ref = read_sh_refine(c.chunks[got[CHUNK_SHRF]].data, p, codebook_size.get(part.tile, 0))
+                row["shrf"] = {"indices_sha256": sha(ref, "<u4"), "indices_first": ref[:8].tolist()}
             idx = decode_stream(r.blob(), np.zeros(m - p, np.int64))
             sh["codebook_size_used"] = codebook_size.get(part.tile, 0)
             sh["indices_sha256"] = sha(idx, "<u4")

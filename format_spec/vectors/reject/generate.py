@@ -381,6 +381,7 @@ def _part_vectors(sh1: bytes, lay2: bytes, add) -> None:
     _shcl_vectors(sh1, m, add)
     _rwgt_vectors(sh1, m, add)
     _shxf_vectors(sh1, add)
+    _shrf_vectors(sh1, m, add)
 
 
 def with_shcl(base: bytes, m: int, payload: bytes, *, kept_all: bool = True, flags: int = 1) -> bytes:
@@ -418,6 +419,46 @@ def _shcl_vectors(sh1: bytes, m: int, add) -> None:
         "layer 0 has two SHCL chunks")
     add("shcl_in_sh0_file", with_header(two, "<B", 24, 0), "GSZ.md §4 SHCL when sh_degree = 0",
         "SHCL chunk in a file of SH degree 0")
+
+
+def with_shrf(base: bytes, m: int, payload: bytes, *, kcb: int = 1, kept_all: bool = True,
+              flags: int = 1) -> bytes:
+    """``base`` with a ``kcb``-word codebook, every one of its ``m`` SH vectors kept (when
+    ``kept_all``; else none) and an SHRF chunk (GSZ.md §8.3) of ``payload`` before its SHVQ."""
+    if kept_all:
+        base = with_shvq(base, kcb, m, kept=simple_set(9, m), flags=single_stream(body=model_body([1], lo=[1])),
+                         indices=single_stream(0))
+    else:
+        base = with_shvq(base, kcb, 0)
+    h, chunks = split(base)
+    i = next(k for k, c in enumerate(chunks) if c[0] == b"SHVQ")
+    return join(h, chunks[:i] + [[b"SHRF", flags, payload]] + chunks[i:])
+
+
+def _shrf_vectors(sh1: bytes, m: int, add) -> None:
+    """SHRF (GSZ.md §8.3): the valid form is a 1-word codebook, every vector kept, each the
+    residual of word 0 (one SINGLE model)."""
+    ok = blob(single_stream(body=model_body([1], lo=[0])))
+    add("shrf_index_above_codebook", with_shrf(sh1, m, blob(single_stream(body=model_body([1], lo=[1])))),
+        "GSZ.md §8.3 index < K_cb", "SHRF chunk: codeword index out of range")
+    add("shrf_without_codebook", with_shrf(sh1, m, ok, kcb=0), "GSZ.md §8.3 needs a codebook",
+        "SH codeword refinement but no SH codebook")
+    add("shrf_without_kept_vectors", with_shrf(sh1, m, ok, kept_all=False), "GSZ.md §8.3 P > 0",
+        "SH codeword refinement for a part without kept SH vectors")
+    add("shrf_two_models", with_shrf(sh1, m, blob(single_stream(2))), "GSZ.md §8.3 one model (model id 0)",
+        "2 models, more than the 1 its use can name")
+    add("shrf_trailing_byte", with_shrf(sh1, m, ok + b"\x00"), "GSZ.md §8.3 nothing after",
+        "SHRF chunk: 1 unexpected trailing bytes")
+    two = with_shrf(sh1, m, ok)
+    add("shrf_twice_in_a_layer", twice(two, b"SHRF"), "GSZ.md §4 one SHRF per part",
+        "layer 0 has two SHRF chunks")
+    add("shrf_in_sh0_file", with_header(two, "<B", 24, 0), "GSZ.md §4 SHRF when sh_degree = 0",
+        "SHRF chunk in a file of SH degree 0")
+
+
+def blob(data: bytes) -> bytes:
+    """A u64-length-prefixed blob (GSZ.md §1)."""
+    return struct.pack("<Q", len(data)) + data
 
 
 def with_rwgt(base: bytes, payload: bytes, *, flags: int = 1) -> bytes:
