@@ -38,7 +38,7 @@ class SearchDetails:
     """What only the size search (:func:`gsz.encoder.search.encode_to_budget`) reports."""
 
     deviation: float            # (.gsz bytes - target) / target: <= 0, within the tolerance unless ``note``
-    sh_path: str | None         # the SH rest's coding: "vq", "classes" or "scalar"; None without it
+    sh_path: str | None         # the SH rest's coding: "vq", "classes", "scalar" or "refine"; None without it
     layer_blocks: list          # [L] blocks per channel of each layer's ATTR chunk
     calibration: list           # the chosen file's rounds {round, solver_budget_bytes, predicted_bytes, actual_bytes}
     calibration_all: list       # every calibrated candidate {reserve, bytes, rounds, sh_path}

@@ -13,7 +13,7 @@ from gsz.decoder.errors import GszFormatError
 from gsz.decoder.layout import CHUNK_SHRF, CHUNK_SHVQ
 from gsz.encoder.pipeline import EncodeOptions, encode
 
-from codec_util import FAST, decoded_on_both_paths, lowest_version, sample, sh3_off_grid
+from codec_util import FAST, decoded_on_both_paths, lowest_version, render_psnr, sample, sh3_off_grid
 
 
 def _rmse(a, b) -> float:
@@ -128,3 +128,30 @@ def test_refine_is_a_fixed_configuration_option(tmp_path):
     assert main([str(SAMPLE_SH3), "-o", str(out), "--sh-refine", "--bits", "8", "--codebook", "64",
                  "--keep", "2000", "-q"]) == 0
     assert out.read_bytes()[8:12] == bytes([1, 0, 9, 0]) and len(decode(str(out))) > 0
+
+
+def test_search_refines_the_codebook_where_the_sh_are_continuous():
+    """SH like a trained capture's (a few shared factors, no palette) in KLT axes: at a budget
+    where the codebook path keeps few vectors exact, every vector as its codeword plus an
+    allocated correction renders far better, within the budget, and decodes on both paths."""
+    from gsz.encoder.search import SearchOptions, encode_to_budget
+    from test_sh_klt import _correlated
+    fast = dict(train_views=8, eval_views=3, eval_width=240, importance_width=240, sh_colour="klt")
+    cloud, target = _correlated(6000), 100_000
+    refined = encode_to_budget(cloud, target, options=SearchOptions(**fast))
+    plain = encode_to_budget(cloud, target, options=SearchOptions(**fast, sh_refine=False))
+    assert refined.report.search.sh_path == "refine" and plain.report.search.sh_path == "vq"
+    assert refined.report.sh_keep == refined.report.voxels
+    assert len(refined.data) <= target and lowest_version(refined.data) == "1.9"
+    decoded_on_both_paths(refined)
+    assert render_psnr(cloud, refined.cloud) > render_psnr(cloud, plain.cloud) + 3.0   # measured +9 dB
+
+
+def test_search_does_not_weigh_refinement_in_luma_chroma():
+    """Corrections are scalar-coded; outside the file's own axes they lost (trained tiny at 12x),
+    so a search in luma/chroma never encodes the refined path."""
+    from gsz.encoder.search import SearchOptions, encode_to_budget
+    from test_sh_klt import _correlated
+    fast = dict(train_views=8, eval_views=3, eval_width=240, importance_width=240, sh_colour="luma-chroma")
+    res = encode_to_budget(_correlated(6000), 100_000, options=SearchOptions(**fast))
+    assert "refine" not in {c.get("sh_path") for c in res.report.search.calibration_all}

@@ -41,7 +41,8 @@ class Encoded:
     codebook_size: int = 0
     codebook_bits: int | None = None  # the codebook's width a component (SearchOptions.codebook_bits)
     sh_path: str | None = None    # "vq" (codebook + kept vectors at 8 bits), "classes" (the same, kept vectors in
-    #                               importance classes, widths allocated) or "scalar"; None without SH
+    #                               importance classes, widths allocated), "scalar" or "refine" (every vector
+    #                               its codeword + an allocated correction); None without SH
     depth: int = 0
     num_points: int = 0           # Gaussians (voxels) in the file
     layer0_points: int = 0

@@ -108,7 +108,7 @@ PATH_LOST_MARGIN_DB = 0.1
 REWALK_ROUNDS = 3
 
 #: The SH paths as the search's log names them (tau.encode_tau).
-SH_PATH_NAMES = {"vq": "codebook", "classes": "classes", "scalar": "scalar"}
+SH_PATH_NAMES = {"vq": "codebook", "classes": "classes", "scalar": "scalar", "refine": "refined codebook"}
 
 #: Prepared stages and voxel grids the search keeps: the stage being encoded, and the grid
 #: screened last (the stage made next needs it).  A stage keeps what it needs of its grid, so
@@ -361,7 +361,8 @@ class BudgetSearch:
         before = self.best() if self.candidates else None
         encs = encode_tau(stage, self.target,
                           dataclasses.replace(sopts, sh_scalar=sopts.sh_scalar and "scalar" not in self.lost_paths,
-                                              sh_classes=sopts.sh_classes and "classes" not in self.lost_paths),
+                                              sh_classes=sopts.sh_classes and "classes" not in self.lost_paths,
+                                              sh_refine=sopts.sh_refine and "refine" not in self.lost_paths),
                           self.sh_models(stage), progress, self.log, self.judge.weights, min_keep=min_keep,
                           codebook="vq" not in self.lost_paths, errors=errors,
                           codebook_far_behind="vq" in self.far_behind,
@@ -371,7 +372,8 @@ class BudgetSearch:
         scored, paths = [], []
         for enc in encs:
             paths.append(enc.sh_path)
-            what = f"tau {tau}, depth {d}" + (f", {enc.sh_path} SH" if enc.sh_path in ("scalar", "classes") else "")
+            what = f"tau {tau}, depth {d}" + (f", {enc.sh_path} SH" if enc.sh_path in ("scalar", "classes", "refine")
+                                              else "")
             with progress.stage("eval", what):
                 p, views, partial = self.judge.score(enc.cloud, rival)
             enc.release()

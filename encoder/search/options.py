@@ -60,6 +60,9 @@ class SearchOptions(SceneOptions):
     sh_classes      also encode the codebook path with its kept vectors in importance
                     classes (SHCL, format 1.3), their widths in the allocation; the train
                     views decide (docs/design/sh-classes.md)
+    sh_refine       also encode every SH vector as its codeword plus a correction (SHRF,
+                    format 1.9), the corrections' widths in the allocation; the train views
+                    decide (docs/design/sh-refine.md)
     layer0_share    wanted fraction of the file bytes before layer 0 is decodable: when the
                     chosen file's layer 0 ends after more than 1.5x this, the layers are
                     re-split with a proportionally smaller layer 0 and that candidate re-encoded
@@ -88,6 +91,7 @@ class SearchOptions(SceneOptions):
     sh_scalar: bool = True
     sh_drop: bool = True
     sh_classes: bool = True
+    sh_refine: bool = True
     layer0_share: float = 0.1
     screen: bool = True
     overlap: bool = True

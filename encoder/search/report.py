@@ -45,7 +45,7 @@ def search_report(search, chosen: Candidate) -> EncodeReport:
               # the SH codebook's width a component (SearchOptions.codebook_bits), None without a codebook
               "sh_codebook": enc.codebook_bits if sh else None,
               # per part: the kept SH vectors' group widths [D][B_l] where they were allocated
-              # (sh_path "scalar" or "classes": one block per importance class, 0 = a constant
+              # (sh_path "scalar", "classes" or "refine": one block per importance class, 0 = a constant
               # group; or above the SH_BITS ceiling), else None (SH_BITS)
               "sh_kept": [None if b is None else b.tolist() for b in enc.kept_bits]},
         components={"geometry": enc.geometry_bytes, "attributes": enc.attr_bytes,

@@ -271,15 +271,16 @@ class ShModel:
         loss = (self.cum_vq[-1] - self.cum_vq[keep]) + base.cum_keep[min(keep, len(base.cum_keep) - 1)]
         return nbytes, loss
 
-    def encode(self, keep: int, code: bool = True, classes: int = 1) -> ShPlan:
+    def encode(self, keep: int, code: bool = True, classes: int = 1, refine: bool = False) -> ShPlan:
         """The plan of ``keep``; ``code=False`` leaves chunk None (the kept vectors' widths are
         allocated later: coding them all at SH_BITS first would be wasted, and at 1.2 M vectors
-        it is the largest transient of the search)."""
+        it is the largest transient of the search).  ``refine``: the kept vectors as residuals
+        of their codewords (ShPayloads)."""
         # the compacted codebook's row order is the raw one's, so the raw codebook with the
         # stage's assignment gives exactly what sh_chunk would compute itself
         payloads = ShPayloads(self.stage, self.raw_codebook, keep, SH_BITS, self.blocks,
                               cb_blocks=self.cb_blocks, index=self.index, classes=classes,
-                              cb_bits=self.cb_bits)
+                              cb_bits=self.cb_bits, refine=refine)
         chunk, _, stats = payloads.payloads(decoded=False) if code else (None, None, dict(payloads.stats))
         nb, loss = self.estimate(keep)
         return ShPlan(keep, chunk, stats, nb, loss, payloads)

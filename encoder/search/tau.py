@@ -7,6 +7,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from ...decoder.sh import SH_COLOUR_KLT
 from ..pipeline import SH_CLASS_MIN_SIZE, SH_CLASSES, Stage, sh_colour_payload_bytes
 from .calibration import Calibrated, calibrate, solve, solve_max, with_kept
 from .candidate import Encoded
@@ -50,6 +51,10 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
     with progress.stage("sh-plan", "codebook size and keep-count vs bit allocation"):
         sh_model, keep, vq_total = choose_sh(sh_models, loss, rate, target - base_fixed, weights, min_keep,
                                              sopts.codebook_bits)
+    # corrections are scalar-coded, which pays in the file's own axes (the KLT) and not in
+    # luma/chroma (trained tiny at 12x: -0.5 dB there, +0.1 in KLT axes; docs/design/sh-refine.md)
+    refine_model = (refine_codebook(sh_models, target - base_fixed)
+                    if sopts.sh_refine and stage.sh_colour & SH_COLOUR_KLT else None)
     sh_models = None        # the other codebooks' models go (16 bytes a voxel each)
     m, w_sh, keep_estimate = sh_model.m, 1.0 if weights is None else weights["sh"], keep
     # the codebook path is skipped (after it lost) only where the estimate keeps most vectors
@@ -112,10 +117,37 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
             # the SH take every byte the attributes leave: what the depth walk reads is whether
             # every attribute group sits at its best width (as the codebook path's saturation)
             yield _finish(stage, res, _attributes_at_max(res, loss, rate), "scalar", log)
+            res = None
+    if refine_model is not None and m >= SH_CLASS_MIN_SIZE * SH_CLASSES:
+        # every vector its codeword plus a correction in importance classes, the corrections'
+        # widths allocated (width 0: the class's mean shift only): the codebook takes the
+        # coarse shape, the allocation what it misses (docs/design/sh-refine.md)
+        with progress.stage("sh-plan", f"every SH vector one of {refine_model.codebook.shape[0]:,} codewords "
+                                       f"+ its correction, widths allocated"):
+            plan = refine_model.encode(m, code=False, classes=SH_CLASSES, refine=True)
+            refined = (plan, kept_tables(plan, w_sh, min_bits=1))
+        res = calibrate(*args, *refined, errors=errors, path="refine")
+        refined = None
+        if res is not None:
+            found = True
+            yield _finish(stage, res, _attributes_at_max(res, loss, rate), "refine", log)
     if not codebook and not found:
         res, saturated = _codebook_path(args, sh_model, keep_estimate, weights, errors)
         if res is not None:
             yield _finish(stage, res, saturated, "vq", log)
+
+
+#: The refined path's codebook is the largest of the search's whose estimated bytes stay within
+#: this share of the stage's room: its words are paid once, the corrections per vector, and a
+#: codebook sized for the codebook path alone (trained tiny at 12x: 1,066 words, a quarter of
+#: the room) leaves the corrections too little (docs/design/sh-refine.md)
+REFINE_CODEBOOK_SHARE = 0.1
+
+
+def refine_codebook(sh_models: list, room: float) -> ShModel | None:
+    """The codebook model of the refined SH path (REFINE_CODEBOOK_SHARE), None when none fits."""
+    fits = [mdl for mdl in sh_models if mdl.codebook_bytes <= REFINE_CODEBOOK_SHARE * room]
+    return max(fits, key=lambda mdl: mdl.codebook.shape[0]) if fits else None
 
 
 def _codebook_path(args, sh_model: ShModel, keep: int, weights, errors=None) -> tuple[Calibrated | None, bool]:
