@@ -24,7 +24,9 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
     budget is unreachable at this tau (one at a time: the caller scores and releases each scene
     before the next is made): the codebook path's, and the scalar SH path's too when
     its estimate beats the codebook's -- the caller renders both and keeps the better (the two
-    estimates are not the same kind of number; docs/design/sh-scalar.md).  ``min_keep``: keep at least
+    estimates are not the same kind of number; docs/design/sh-scalar.md) -- and, in KLT axes,
+    the refined codebook's (every vector a codeword plus an allocated correction;
+    docs/design/sh-refine.md).  ``min_keep``: keep at least
     this many exact SH vectors (the most important ones).  ``codebook`` False: the codebook path
     lost to another SH path as rendered earlier in the search, so where most vectors are kept
     exact it is encoded only when no other path fits (and the scalar path is weighed without
@@ -126,6 +128,7 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
                                        f"+ its correction, widths allocated"):
             plan = refine_model.encode(m, code=False, classes=SH_CLASSES, refine=True)
             refined = (plan, kept_tables(plan, w_sh, min_bits=1))
+        plan = None
         res = calibrate(*args, *refined, errors=errors, path="refine")
         refined = None
         if res is not None:
