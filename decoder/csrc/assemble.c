@@ -198,6 +198,25 @@ static inline uint32_t dequant_col(const uint16_t *restrict src, double st, doub
     return bad;
 }
 
+/* The codeword of each of the tile's n vectors added to its dequantised residual (SHRF, GSZ.md
+ * §8.3): tile[d][t] = tile[d][t] + cbf[r[t]][d], one float32 sum each.  cbf is the float32
+ * codebook row-major: a vector's word is D contiguous floats (3 cache lines at D = 45), where a
+ * component-major gather would touch a line per component. */
+static uint32_t add_codewords(float *restrict tile, const float *restrict cbf, const int64_t *restrict r,
+                              int64_t n, int64_t D)
+{
+    uint32_t bad = 0;
+    for (int64_t t = 0; t < n; t++) {
+        const float *w = cbf + r[t] * D;
+        for (int64_t d = 0; d < D; d++) {
+            const float f = tile[d * SH_TILE + t] + w[d];
+            tile[d * SH_TILE + t] = f;
+            bad |= !f32_finite(f);
+        }
+    }
+    return bad;
+}
+
 /* The tile's product straight to the output rows: row at[t] = (sum over d of y[d][t] * m[d][j])
  * * 2^-38 for the tile's first n vectors.  m is the matrix padded to Jp (a multiple of 12)
  * columns with zeros.  Exact integer sums, so any order, fused or not, gives the same bits. */
@@ -341,7 +360,7 @@ static uint32_t klt_tile(const float *restrict tile, int64_t n, int64_t D, int64
 static uint32_t kept_tile(const uint16_t *kept, int64_t P, const double *steps, const double *lo,
                           int64_t B, int64_t b, int64_t D, int colour, const double *m, int64_t Jp,
                           double *y, uint32_t *far, const int64_t *at, int64_t t0, int64_t t1,
-                          const int64_t *ridx, const double *cb, int64_t K, float *tile, float *out)
+                          const int64_t *ridx, const float *cbf, float *tile, float *out)
 {
     uint32_t bad = 0;
     const int64_t n = t1 - t0;
@@ -350,17 +369,9 @@ static uint32_t kept_tile(const uint16_t *kept, int64_t P, const double *steps, 
         const double st = steps[d * B + b], l0 = lo[d * B + b];
         float *col = tile + d * SH_TILE;
         bad |= n == SH_TILE ? dequant_col(src, st, l0, col, SH_TILE) : dequant_col(src, st, l0, col, n);
-        if (ridx) {
-            /* SHRF (GSZ.md §8.3): the stored vector is the residual of a codeword, added back
-             * in float32 (one rounded sum) before any colour transform */
-            const double *cw = cb + d * K;
-            for (int64_t t = 0; t < n; t++) {
-                const float f = col[t] + (float)cw[ridx[t0 + t]];
-                col[t] = f;
-                bad |= !f32_finite(f);
-            }
-        }
     }
+    if (ridx)           /* SHRF: the residuals' codewords added back before any colour transform */
+        bad |= add_codewords(tile, cbf, ridx + t0, n, D);
     if (colour)
         for (int64_t j = 0; j + 2 < D; j += 3) {
             float *a = tile + j * SH_TILE;
@@ -386,6 +397,11 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
 {
     for (int64_t j = 0; ridx && j < P; j++)
         if (ridx[j] < 0 || ridx[j] >= K) return fail(e, "SHRF chunk: codeword index out of range");
+    /* with SHRF: the codebook rounded to float32 once, a word's D components contiguous */
+    float *cbf = ridx ? malloc((size_t)(K ? K : 1) * (size_t)(D ? D : 1) * sizeof *cbf) : NULL;
+    if (ridx && !cbf) return fail_nomem(e);
+    for (int64_t j = 0; cbf && j < K; j++)
+        for (int64_t d = 0; d < D; d++) cbf[j * D + d] = (float)cb[d * K + j];
     /* the codebook as rows (a codeword is one contiguous copy) and the output row of every kept
      * vector; the [D, P] kept symbols are then dequantised tile by tile (reading them row by row,
      * one Gaussian at a time, strides P values per component: D streams that miss the cache) */
@@ -402,11 +418,11 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
     const int64_t Jp = (D + 11) / 12 * 12;
     double *kp_m = klt ? calloc((size_t)(D ? D : 1) * (size_t)(Jp ? Jp : 1), sizeof *kp_m) : NULL;
     if (!rows || !at || !rbad || !tile || (klt && (!ky || !kp_m))) {
-        free(rows); free(at); free(rbad); free(tile); free(ky); free(kp_m);
+        free(rows); free(at); free(rbad); free(tile); free(ky); free(kp_m); free(cbf);
         return fail_nomem(e);
     }
     if (klt && Jp > KLT_MAX_JP) {
-        free(rows); free(at); free(rbad); free(tile); free(ky); free(kp_m);
+        free(rows); free(at); free(rbad); free(tile); free(ky); free(kp_m); free(cbf);
         return fail(e, "sh_assemble: KLT matrix larger than 45 x 45");
     }
     for (int64_t d = 0; klt && d < D; d++) memcpy(kp_m + d * Jp, klt + d * D, (size_t)D * sizeof *kp_m);
@@ -474,7 +490,7 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
             const int64_t s1 = s0 + base + (b < extra);
             for (int64_t t0 = s0; t0 < s1; t0 += SH_TILE) {
                 const int64_t t1 = t0 + SH_TILE < s1 ? t0 + SH_TILE : s1;
-                bad |= kept_tile(kept, P, steps, lo, B, b, D, colour, kp_m, Jp, ky, &far, at, t0, t1, ridx, cb, K,
+                bad |= kept_tile(kept, P, steps, lo, B, b, D, colour, kp_m, Jp, ky, &far, at, t0, t1, ridx, cbf,
                                  tile, out);
                 if (far) break;
             }
@@ -489,6 +505,7 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
     free(tile);
     free(ky);
     free(kp_m);
+    free(cbf);
     *finite = !bad;
     return rc;
 }
