@@ -1024,8 +1024,8 @@ class ShPayloads:
 
     @property
     def fixed_bytes(self) -> int:
-        """Bytes of the payloads apart from the kept vectors' channel sets (SHCL chunks and
-        their table entries included)."""
+        """Bytes of the payloads apart from the kept vectors' channel sets (SHCL and SHRF chunks
+        and their table entries included)."""
         cls = [c for c in self.class_chunks + self.refine_chunks if c is not None]
         return (sum(map(len, self._heads)) + sum(map(len, self._tails))
                 + sum(map(len, cls)) + CHUNK_ENTRY_SIZE * len(cls))
