@@ -87,9 +87,11 @@ VECTORS = [
     ("sh3_jug_2k_klt", "measuring_jug_sh3_12k.ply", 2000, 3,
      dict(reserve=1.0, bits=10, codebook=32, keep=600, layers=2, first_layer=0.3, sh_colour="klt")),
     # format 1.9: the kept vectors as residuals of a codeword each (SHRF chunks), two layers (the
-    # codebook in layer 0: both layers' kept vectors refer to it), 4 classes, KLT
+    # codebook in layer 0: both layers' kept vectors refer to it; layer 0 keeps every vector,
+    # layer 1 600 of 1400), each part's kept vectors in 2 classes (SHCL: SHRF names the
+    # codewords in that stored order), KLT
     ("sh3_jug_2k_refine", "measuring_jug_sh3_12k.ply", 2000, 3,
-     dict(reserve=1.0, bits=8, codebook=32, keep=1200, layers=2, first_layer=0.3, sh_classes=4,
+     dict(reserve=1.0, bits=8, codebook=32, keep=1200, layers=2, first_layer=0.3, sh_classes=2,
           sh_refine=True, sh_colour="klt")),
 ]
 #: vectors whose scales and opacities get seeded Gaussian noise of this sigma before encoding
