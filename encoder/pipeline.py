@@ -923,9 +923,6 @@ class ShPayloads:
             near = np.zeros(m, np.int64)
             near[coded] = (assign(stage.sh, codebook, rows=np.flatnonzero(coded)) if index is None
                            else np.asarray(index)[coded])
-        #: per tile: (voxels taking a codeword, the tile's reconstructed codebook [K_t, D]
-        #: float32, each voxel's row in it): an [M, D] array per plan would be 216 MB at 1.2 M
-        self._codewords = []
         cb_bits = self.sh_bits if cb_bits is None else int(cb_bits)
         self.stats = {"kept": keep, "codebook_size": 0, "codebook_bytes": 0, "kept_bytes": 0, "index_bytes": 0,
                       "codebook_bits": cb_bits}
@@ -940,8 +937,9 @@ class ShPayloads:
         self.block_weights = [None] * len(stage.layers)
         self.classes = int(classes)
         self._weight = None
-        #: with ``refine``: every voxel's row in the stacked reconstructed tile codebooks
-        self._cw_row = np.zeros(m if self.refine else 0, np.int32)
+        #: every voxel's row in the tiles' reconstructed codebooks stacked (float32 [sum K_t, D]),
+        #: -1 where it takes none: an [M, D] array per plan would be 216 MB at 1.2 M
+        self._cw_row = np.full(m, -1, np.int32)
         self._books = []
         book_rows = 0
         for t in range(stage.num_tiles):
@@ -958,11 +956,9 @@ class ShPayloads:
             cb_bytes, cb_rec = write_channel_set(
                 cb.T, cb_bits, sh_set_blocks(cb.shape[0], blocks) if cb_blocks is None else cb_blocks)
             rec32 = np.ascontiguousarray(cb_rec.T, np.float32)
-            self._codewords.append((r, rec32, idx_all[r].astype(np.int32)))
-            if self.refine:
-                self._cw_row[r] = idx_all[r] + book_rows
-                self._books.append(rec32)
-                book_rows += rec32.shape[0]
+            self._cw_row[r] = idx_all[r] + book_rows
+            self._books.append(rec32)
+            book_rows += rec32.shape[0]
             self.stats["codebook_size"] += int(cb.shape[0])
             self.stats["codebook_bytes"] += len(cb_bytes)
             kept_counts = [int(kept[l.index].sum()) for _, l in parts]
@@ -1042,13 +1038,13 @@ class ShPayloads:
         def gather(s: int, e: int) -> None:
             rows = self.stage.sh[sel[s:e]]
             if self.refine:
-                rows = np.asarray(rows, np.float32) - self._books[self._cw_row[sel[s:e]]]
+                rows = np.asarray(rows, np.float32) - self.codewords_of(sel[s:e])
             out[:, s:e] = rows.T
         for_ranges(sel.size, ROW_CHUNK, gather)
         return out
 
     def codewords_of(self, voxels: np.ndarray) -> np.ndarray:
-        """float32 [n, D]: the reconstructed codeword of each of ``voxels`` (``refine`` only)."""
+        """float32 [n, D]: the reconstructed codeword of each of ``voxels`` (each takes one)."""
         return self._books[self._cw_row[voxels]]
 
     def payloads(self, kept_bits=None, decoded: bool = True):
@@ -1062,8 +1058,8 @@ class ShPayloads:
             pos = np.empty(self.m, np.int64)       # voxel -> its row in the output
             pos[order] = np.arange(self.m)
             out = np.empty((self.m, self.d), np.float32)
-            for r, rec, idx in self._codewords:
-                out[pos[r]] = rec[idx]
+            coded = np.flatnonzero(self._cw_row >= 0)
+            out[pos[coded]] = self.codewords_of(coded)
         stats = dict(self.stats)
         # without ``decoded`` the reconstruction is not made (180 MB a part of 2^20 kept vectors)
         jobs = ((self.kept_vectors(li), self.sh_bits if kept_bits is None else kept_bits[li], kb,
@@ -1099,13 +1095,9 @@ class ShPayloads:
         order = self.stage.order                 # output row -> its voxel
         pos = np.empty(m, np.int64)              # voxel -> its row in the output
         pos[order] = np.arange(m)
-        cw_row = np.full(m, -1, np.int32)        # output row -> its row in the stacked codebooks
-        books, off = [], 0
-        for r, rec, idx in self._codewords:
-            cw_row[pos[r]] = idx + off
-            books.append(rec)
-            off += rec.shape[0]
-        books = np.concatenate(books) if books else np.zeros((0, d), np.float32)
+        cw_row = np.empty(m, np.int32)           # output row -> its row in the stacked codebooks
+        cw_row[pos] = self._cw_row
+        books = self._books
         group = np.full(m, -1, np.int32)         # output row -> its kept group's row (-1: a codeword)
         lo, step, top = [np.zeros((0, d))], [np.zeros((0, d))], [np.zeros((0, d))]
         g = 0
