@@ -384,15 +384,24 @@ def _part_vectors(sh1: bytes, lay2: bytes, add) -> None:
     _shrf_vectors(sh1, m, add)
 
 
-def with_shcl(base: bytes, m: int, payload: bytes, *, kept_all: bool = True, flags: int = 1) -> bytes:
-    """``base`` with every one of its ``m`` SH vectors kept (flags all 1, no indices; when
-    ``kept_all``) and an SHCL chunk (GSZ.md §8.1) of ``payload`` before its SHVQ."""
-    if kept_all:
-        base = with_shvq(base, 0, m, kept=simple_set(9, m), flags=single_stream(body=model_body([1], lo=[1])),
-                         indices=single_stream(0))
+def every_vector_kept(base: bytes, m: int, kcb: int = 0) -> bytes:
+    """``base`` with a ``kcb``-word codebook and every one of its ``m`` SH vectors kept (flags all
+    1, no indices)."""
+    return with_shvq(base, kcb, m, kept=simple_set(9, m), flags=single_stream(body=model_body([1], lo=[1])),
+                     indices=single_stream(0))
+
+
+def before_shvq(base: bytes, ctype: bytes, payload: bytes, flags: int = 1) -> bytes:
+    """``base`` with a ``ctype`` chunk of ``payload`` right before its first SHVQ."""
     h, chunks = split(base)
     i = next(k for k, c in enumerate(chunks) if c[0] == b"SHVQ")
-    return join(h, chunks[:i] + [[b"SHCL", flags, payload]] + chunks[i:])
+    return join(h, chunks[:i] + [[ctype, flags, payload]] + chunks[i:])
+
+
+def with_shcl(base: bytes, m: int, payload: bytes, *, kept_all: bool = True, flags: int = 1) -> bytes:
+    """``base`` with every one of its ``m`` SH vectors kept (when ``kept_all``) and an SHCL chunk
+    (GSZ.md §8.1) of ``payload`` before its SHVQ."""
+    return before_shvq(every_vector_kept(base, m) if kept_all else base, b"SHCL", payload, flags)
 
 
 def shcl(q: int, stream: bytes) -> bytes:
@@ -425,14 +434,8 @@ def with_shrf(base: bytes, m: int, payload: bytes, *, kcb: int = 1, kept_all: bo
               flags: int = 1) -> bytes:
     """``base`` with a ``kcb``-word codebook, every one of its ``m`` SH vectors kept (when
     ``kept_all``; else none) and an SHRF chunk (GSZ.md §8.3) of ``payload`` before its SHVQ."""
-    if kept_all:
-        base = with_shvq(base, kcb, m, kept=simple_set(9, m), flags=single_stream(body=model_body([1], lo=[1])),
-                         indices=single_stream(0))
-    else:
-        base = with_shvq(base, kcb, 0)
-    h, chunks = split(base)
-    i = next(k for k, c in enumerate(chunks) if c[0] == b"SHVQ")
-    return join(h, chunks[:i] + [[b"SHRF", flags, payload]] + chunks[i:])
+    base = every_vector_kept(base, m, kcb) if kept_all else with_shvq(base, kcb, 0)
+    return before_shvq(base, b"SHRF", payload, flags)
 
 
 def _shrf_vectors(sh1: bytes, m: int, add) -> None:
