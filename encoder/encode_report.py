@@ -46,7 +46,7 @@ class SearchDetails:
     candidates: list            # encoded candidates by descending reserve {reserve, depth, first_layer,
     #                             bytes, train_psnr, train_view_psnr, layer0_too_late}
     screened: list              # taus judged by their exact-attribute bound {reserve, depth, bound_psnr,
-    #                             inferred, views, best_psnr, skipped}
+    #                             inferred, views, best_psnr, needed_psnr, skipped}
     dropped: list               # candidates given up after their hardest views {reserve, depth, bytes,
     #                             views, partial_psnr}
     train_psnr: float           # the chosen file's mean PSNR over the eval views (dB)

@@ -17,6 +17,11 @@ from .tables import concat_bits
 #: judged, 2 x 124 MB at 6 M Gaussians, beside the judged render that is its memory peak.
 SPILL_BYTES = 32 << 20
 
+#: dB of train PSNR a unit of tau is worth in a candidate's rank: the train views choose what
+#: pruning removes (the importance pass) and then judge the result, so a candidate that prunes
+#: more wins them by a margin it does not keep on other views (docs/design/tau-preference.md)
+TAU_PREFERENCE_DB = 2.0
+
 
 @dataclass(eq=False)
 class Encoded:
@@ -125,9 +130,14 @@ class Candidate:
     layer0_too_late: bool = False  # a re-split variant of it was tried (layers.resplit_layer0)
 
     @property
+    def score(self) -> float:
+        """Train PSNR with the larger reserve's preference (TAU_PREFERENCE_DB a unit of tau)."""
+        return self.train_psnr + TAU_PREFERENCE_DB * self.reserve
+
+    @property
     def rank(self) -> tuple:
-        """Candidates compare by train PSNR, ties to the larger reserve."""
-        return (self.train_psnr, self.reserve)
+        """Candidates compare by :attr:`score`, ties to the larger reserve."""
+        return (self.score, self.reserve)
 
     @property
     def data(self) -> bytes | None:

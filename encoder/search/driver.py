@@ -22,7 +22,7 @@ from ..pipeline import (EncodeOptionsError, EncodeResult, Stage, attribute_chunk
 from ..progress import Progress
 from ...decoder.sh import SH_COLOUR_DC, ShColour
 from ..sh_colour import choose_sh_colour, coded_cloud
-from .candidate import Candidate, best_of
+from .candidate import TAU_PREFERENCE_DB, Candidate, best_of
 from .codebooks import Codebooks
 from .depth_walk import depth_range, first_depth, rewalk_depth, start_depth, walk_depth
 from .judge import EVAL_DROP_MARGIN_DB, Judge
@@ -317,14 +317,17 @@ class BudgetSearch:
             with self.progress.stage("screen", f"tau {tau}, depth {d}: exact-attribute bound"):
                 # the grid's SH rest gathered for these renders only (1 GB at 6 M voxels)
                 bound, partial = self.judge.screen(self.vox_for(tau, d)[1].full_cloud(), best.view_psnr)
-        skip = bound <= best.train_psnr and not partial         # a partial mean only ever lets through
+        # what (tau, d) must render to outrank the best (Candidate.score)
+        need = best.score - TAU_PREFERENCE_DB * tau
+        skip = bound <= need and not partial         # a partial mean only ever lets through
         self.screened.append({"reserve": tau, "depth": d, "bound_psnr": bound, "inferred": inferred,
                               "views": 0 if inferred else (partial or len(self.judge.cameras)),
-                              "best_psnr": best.train_psnr, "skipped": skip})
+                              "best_psnr": best.train_psnr, "needed_psnr": need, "skipped": skip})
         if skip:
             what = "a larger tau's exact attributes reach" if inferred else "exact attributes reach"
-            self.progress.log(f"tau {tau}, depth {d}: {what} only {bound:.2f} dB <= {best.train_psnr:.2f} dB "
-                              f"(tau {best.reserve}, depth {best.depth}): skipped")
+            self.progress.log(f"tau {tau}, depth {d}: {what} only {bound:.2f} dB <= {need:.2f} dB, what it "
+                              f"needs to outrank tau {best.reserve}, depth {best.depth} "
+                              f"({best.train_psnr:.2f} dB): skipped")
         return skip
 
     def sh_models(self, stage: Stage) -> list:
@@ -522,7 +525,7 @@ class BudgetSearch:
         for tau in [best.reserve] + self.taus[max(0, i - 1):i]:
             flat.try_tau(tau, best.depth, best.first_layer)
         self.dropped.extend(flat.dropped)
-        if flat.candidates and flat.best().train_psnr > best.train_psnr:
+        if flat.candidates and flat.best().rank > best.rank:
             self.progress.log(f"without SH rest: train PSNR {flat.best().train_psnr:.2f} dB "
                               f"> {best.train_psnr:.2f} dB with them")
             self.add_candidate(flat.best())
@@ -531,7 +534,7 @@ class BudgetSearch:
         if not self.candidates:
             raise BudgetError(self.target, self._smallest_file())
         chosen = finalists(self.candidates, self.sopts)
-        chosen.sort(key=lambda c: (-c.train_psnr, -c.reserve))
+        chosen.sort(key=lambda c: c.rank, reverse=True)
         report = search_report(self, chosen[0])
         if report.search.note is not None:
             self.progress.log(report.search.note)

@@ -37,6 +37,7 @@ class SearchOptions(SceneOptions):
 
     reserves        tau grid, descending
     max_candidates  taus spread over the feasible range, encoded and compared by train PSNR
+                    (a smaller tau must win by TAU_PREFERENCE_DB a unit of tau)
     refine_steps    rounds of also trying the grid neighbours of the best tau so far
     depth_steps     octree levels away from the position-error default the search may go
                     (either way); after the tau search at the default depth it walks the depth
