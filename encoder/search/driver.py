@@ -297,8 +297,8 @@ class BudgetSearch:
         return best_of(self.candidates)
 
     def cannot_win(self, tau, d) -> bool:
-        """True when even exact attributes at (tau, depth d) render no better than the best
-        candidate so far (train views): then no allocation there can win and its encode is
+        """True when even exact attributes at (tau, depth d) cannot outrank the best candidate
+        so far (train views, Candidate.score): then no allocation there can win and its encode is
         skipped.  Checked only below the best tau or shallower than the best depth (fewer
         Gaussians / coarser positions: the bound falls, and above the best it would almost
         never prune); monotone in tau at one depth, so a tau below one that failed at the same
@@ -526,8 +526,9 @@ class BudgetSearch:
             flat.try_tau(tau, best.depth, best.first_layer)
         self.dropped.extend(flat.dropped)
         if flat.candidates and flat.best().rank > best.rank:
-            self.progress.log(f"without SH rest: train PSNR {flat.best().train_psnr:.2f} dB "
-                              f"> {best.train_psnr:.2f} dB with them")
+            f = flat.best()
+            self.progress.log(f"without SH rest: train PSNR {f.train_psnr:.2f} dB at tau {f.reserve} outranks "
+                              f"{best.train_psnr:.2f} dB at tau {best.reserve} with them")
             self.add_candidate(flat.best())
 
     def _result(self) -> EncodeResult:
