@@ -397,11 +397,10 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
 {
     for (int64_t j = 0; ridx && j < P; j++)
         if (ridx[j] < 0 || ridx[j] >= K) return fail(e, "SHRF chunk: codeword index out of range");
-    /* with SHRF: the codebook rounded to float32 once, a word's D components contiguous */
+    /* with SHRF: the codebook rounded to float32 once, a word's D components contiguous (the
+     * rows below before their colour transform) */
     float *cbf = ridx ? malloc((size_t)(K ? K : 1) * (size_t)(D ? D : 1) * sizeof *cbf) : NULL;
     if (ridx && !cbf) return fail_nomem(e);
-    for (int64_t j = 0; cbf && j < K; j++)
-        for (int64_t d = 0; d < D; d++) cbf[j * D + d] = (float)cb[d * K + j];
     /* the codebook as rows (a codeword is one contiguous copy) and the output row of every kept
      * vector; the [D, P] kept symbols are then dequantised tile by tile (reading them row by row,
      * one Gaussian at a time, strides P values per component: D streams that miss the cache) */
@@ -434,6 +433,7 @@ int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *st
             rows[j * D + d] = f;
             bad |= !f32_finite(f);
         }
+        if (cbf) memcpy(cbf + j * D, rows + j * D, (size_t)D * sizeof *cbf);
         if (colour) bad |= luma_chroma_row(rows + j * D, D);   /* once per codeword */
         /* the KLT once per codeword, where indices use the codebook (as the NumPy path) */
         if (klt && nidx) far |= klt_row(rows + j * D, D, klt, ky);
