@@ -128,7 +128,7 @@ def encode_tau(stage: Stage, target: int, sopts: SearchOptions, sh_models: list,
                                        f"+ its correction, widths allocated"):
             plan = refine_model.encode(m, code=False, classes=SH_CLASSES, refine=True)
             refined = (plan, kept_tables(plan, w_sh, min_bits=1))
-        plan = None
+        plan = None         # held by ``refined`` only, so both go before the yield (the caller renders)
         res = calibrate(*args, *refined, errors=errors, path="refine")
         refined = None
         if res is not None:
