@@ -1059,7 +1059,10 @@ class ShPayloads:
             pos[order] = np.arange(self.m)
             out = np.empty((self.m, self.d), np.float32)
             coded = np.flatnonzero(self._cw_row >= 0)
-            out[pos[coded]] = self.codewords_of(coded)
+
+            def put(s: int, e: int) -> None:    # a range at a time: the whole gather is 1 GB at 6 M
+                out[pos[coded[s:e]]] = self.codewords_of(coded[s:e])
+            for_ranges(coded.size, ROW_CHUNK, put)
         stats = dict(self.stats)
         # without ``decoded`` the reconstruction is not made (180 MB a part of 2^20 kept vectors)
         jobs = ((self.kept_vectors(li), self.sh_bits if kept_bits is None else kept_bits[li], kb,
