@@ -529,7 +529,7 @@ class BudgetSearch:
             f = flat.best()
             self.progress.log(f"without SH rest: train PSNR {f.train_psnr:.2f} dB at tau {f.reserve} outranks "
                               f"{best.train_psnr:.2f} dB at tau {best.reserve} with them")
-            self.add_candidate(flat.best())
+            self.add_candidate(f)
 
     def _result(self) -> EncodeResult:
         if not self.candidates:
