@@ -11,6 +11,7 @@ import numpy as np
 
 from ...decoder.cloud import MadeRows
 from ...decoder.groups import blocks_for
+from ...decoder.threads import for_ranges
 
 from ..groups import vector_tables
 from ..pipeline import ROW_CHUNK, ShPayloads, Stage, sh_set_blocks, tile_assignment
@@ -101,10 +102,16 @@ class ShStageStats:
         self.cum_keep = np.concatenate([[0.0], np.cumsum(err_keep)])
         if not rate:
             return
-        top = x[self.order[:p_max]]
+        # the most important vectors gathered straight into the [D, P] layout the rate model
+        # reads, a range at a time: a [P, D] gather and its transposed copy were ~700 MB at 6 M
+        top = np.empty((d, p_max), np.float32)
+
+        def gather(a: int, b: int) -> None:
+            top[:, a:b] = np.asarray(x[self.order[a:b]], np.float32).T
+        for_ranges(p_max, ROW_CHUNK, gather)
         # only the SH_BITS column is used: computing that width alone (plus the coarser grids
         # its binned-table candidates read) gives the same value at ~1/3 of the cost
-        self.bits_per_kept = float(rate_matrix(top.T, bk, (SH_BITS, SH_BITS))[:, :, SH_BITS - 1].sum()) / p_max
+        self.bits_per_kept = float(rate_matrix(top, bk, (SH_BITS, SH_BITS))[:, :, SH_BITS - 1].sum()) / p_max
 
 
 class Assigner:
