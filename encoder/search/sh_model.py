@@ -11,10 +11,9 @@ import numpy as np
 
 from ...decoder.cloud import MadeRows
 from ...decoder.groups import blocks_for
-from ...decoder.threads import for_ranges
 
 from ..groups import vector_tables
-from ..pipeline import ROW_CHUNK, ShPayloads, Stage, sh_set_blocks, tile_assignment
+from ..pipeline import ROW_CHUNK, ShPayloads, Stage, gather_columns, sh_set_blocks, tile_assignment
 from .options import SH_BITS
 
 #: Fractions of the Gaussians whose SH vectors are kept exact (most important first), tried
@@ -102,13 +101,8 @@ class ShStageStats:
         self.cum_keep = np.concatenate([[0.0], np.cumsum(err_keep)])
         if not rate:
             return
-        # the most important vectors gathered straight into the [D, P] layout the rate model
-        # reads, a range at a time: a [P, D] gather and its transposed copy were ~700 MB at 6 M
-        top = np.empty((d, p_max), np.float32)
-
-        def gather(a: int, b: int) -> None:
-            top[:, a:b] = np.asarray(x[self.order[a:b]], np.float32).T
-        for_ranges(p_max, ROW_CHUNK, gather)
+        # the most important vectors straight into the [D, P] layout the rate model reads
+        top = gather_columns(x, self.order[:p_max])
         # only the SH_BITS column is used: computing that width alone (plus the coarser grids
         # its binned-table candidates read) gives the same value at ~1/3 of the cost
         self.bits_per_kept = float(rate_matrix(top, bk, (SH_BITS, SH_BITS))[:, :, SH_BITS - 1].sum()) / p_max
