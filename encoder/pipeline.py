@@ -744,20 +744,18 @@ class AttributeJob:
     blocks: int
     leaf_weights: object = None
     scale_order: object = None
+    decode: bool = True
 
 
 def code_attributes(job: AttributeJob):
     """:func:`attribute_chunk` of a job (the executor's unit of work)."""
-    return attribute_chunk(job, job.raht_bits, job.scale_bits, job.blocks)
+    return attribute_chunk(job, job.raht_bits, job.scale_bits, job.blocks, job.decode)
 
 
-def attribute_chunk(layer: Layer, raht_bits, scale_bits, blocks: int):
+def attribute_chunk(layer: Layer, raht_bits, scale_bits, blocks: int, decode: bool = True):
     """One layer's ATTR chunk payload for the given bit-widths (int, or [7, B] / [3, B] arrays),
-    the attributes the decoder will reconstruct, and per-part byte counts."""
-    from ..decoder import native
-    from ..decoder.attributes import attributes_from_coefficients
-    from ..decoder.raht import raht_inverse
-
+    the attributes the decoder will reconstruct (None unless ``decode``), and per-part byte
+    counts."""
     w = Writer()
     w.u8(ROTATION_EULER_ZYX).u8(len(RAHT_CHANNELS)).array(layer.raht_dc, np.float64)
     # the two channel sets are independent: coded side by side where there are cores
@@ -765,46 +763,83 @@ def attribute_chunk(layer: Layer, raht_bits, scale_bits, blocks: int):
         lambda i: (write_channel_set(layer.raht_ac, raht_bits, blocks) if i == 0
                    else write_channel_set(layer.scales, scale_bits, blocks)), 2)
     w.bytes(ac_bytes).bytes(sc_bytes)
-    if layer.scale_order is not None:          # stored in class order: back to point order
-        rec = np.empty_like(sc_rec)
-        rec[:, layer.scale_order] = sc_rec
-        sc_rec = rec
-    if native.enabled():
-        # the decoder's own C path (bit-identical to the NumPy one): the inverse RAHT and the
-        # field conversions were ~1/4 of every calibration round of the size search
-        decoded = attributes_from_coefficients(layer.raht_dc, ac_rec, sc_rec, layer.codes, layer.depth,
-                                               leaf_weights=layer.leaf_weights)
-    else:
-        tree = build_raht_tree(layer.codes, layer.depth, layer.leaf_weights)
-        decoded = attributes_from_channels(raht_inverse(layer.raht_dc, ac_rec.T, tree), sc_rec)
+    decoded = layer_attributes(layer, layer.raht_dc, ac_rec, sc_rec) if decode else None
     return w.getvalue(), decoded, {"raht_bytes": len(ac_bytes), "scale_bytes": len(sc_bytes)}
 
 
-def attribute_chunks(stage: Stage, bits, blocks: int):
-    """Every layer's ATTR payload.  ``bits``: an int (uniform) or, per layer, a pair
-    (raht_bits [7, B_l], scale_bits [3, B_l]).  Returns ([payload per layer], decoded
-    Attributes in output order, summed byte counts)."""
+def layer_attributes(layer, dc: np.ndarray, ac: np.ndarray, direct: np.ndarray):
+    """The Attributes a decoder makes of a part's reconstructed coefficients: RAHT DC [7], AC
+    [7, M_l - 1] and the direct set [3, M_l] in the order the part stores it."""
+    from ..decoder import native
+    from ..decoder.attributes import attributes_from_coefficients
+    from ..decoder.raht import raht_inverse
+
+    if layer.scale_order is not None:          # stored in class order: back to point order
+        rec = np.empty_like(direct)
+        rec[:, layer.scale_order] = direct
+        direct = rec
+    if native.enabled():
+        # the decoder's own C path (bit-identical to the NumPy one): the inverse RAHT and the
+        # field conversions were ~1/4 of every calibration round of the size search
+        return attributes_from_coefficients(dc, ac, direct, layer.codes, layer.depth,
+                                            leaf_weights=layer.leaf_weights)
+    tree = build_raht_tree(layer.codes, layer.depth, layer.leaf_weights)
+    return attributes_from_channels(raht_inverse(dc, ac.T, tree), direct)
+
+
+def _gathered(stage: Stage, parts) -> "Attributes":
+    """The stage's Attributes in output order from each part's, in turn (an iterable): filled
+    part by part, no list of parts beside their concatenation."""
     from ..decoder.attributes import Attributes
 
-    payloads, stats = [], {"raht_bytes": 0, "scale_bytes": 0}
-    jobs = (AttributeJob(layer.raht_dc, layer.raht_ac, layer.scales, layer.codes, layer.depth,
-                         *((bits, bits) if np.isscalar(bits) else bits[li]), b, layer.leaf_weights,
-                         layer.scale_order)
-            for li, (layer, b) in enumerate(zip(stage.layers, stage.layer_blocks(blocks))))
-    ex = stage.executor if stage.num_tiles > 1 else None
     fields_, out, end = ("opacities", "rotations", "sh_dc", "scales"), None, 0
-    for data, dec, st in in_order(ex, code_attributes, jobs, gaussians=stage.num_points):
-        payloads.append(data)
-        if out is None:         # filled part by part: no list of parts beside their concatenation
+    for dec in parts:
+        if out is None:
             out = {f: np.empty((stage.num_points,) + getattr(dec, f).shape[1:], getattr(dec, f).dtype)
                    for f in fields_}
         n = len(dec.opacities)
         for f in fields_:
             out[f][end:end + n] = getattr(dec, f)
         end += n
-        for k in stats:
-            stats[k] += st[k]
-    return payloads, Attributes(**out), stats
+    return Attributes(**out)
+
+
+def payload_attributes(stage: Stage, payloads: list) -> "Attributes":
+    """The Attributes, in output order, that a decoder reconstructs from the stage's ATTR
+    payloads (one per part): the decoder's own parse, so a search round need not hold its
+    decoded attributes until it is rendered."""
+    from ..decoder.attributes import parse_attributes
+
+    def part(li: int):
+        layer = stage.layers[li]
+        dc, ac, direct = parse_attributes(payloads[li], len(layer.codes))
+        return layer_attributes(layer, dc, ac, direct)
+    return _gathered(stage, map(part, range(len(stage.layers))))
+
+
+def attribute_chunks(stage: Stage, bits, blocks: int, decode: bool = True):
+    """Every layer's ATTR payload.  ``bits``: an int (uniform) or, per layer, a pair
+    (raht_bits [7, B_l], scale_bits [3, B_l]).  Returns ([payload per layer], decoded
+    Attributes in output order -- None unless ``decode`` (:func:`payload_attributes` makes
+    them later) --, summed byte counts)."""
+    payloads, stats = [], {"raht_bytes": 0, "scale_bytes": 0}
+    jobs = (AttributeJob(layer.raht_dc, layer.raht_ac, layer.scales, layer.codes, layer.depth,
+                         *((bits, bits) if np.isscalar(bits) else bits[li]), b, layer.leaf_weights,
+                         layer.scale_order, decode)
+            for li, (layer, b) in enumerate(zip(stage.layers, stage.layer_blocks(blocks))))
+    ex = stage.executor if stage.num_tiles > 1 else None
+
+    def parts():
+        for data, dec, st in in_order(ex, code_attributes, jobs, gaussians=stage.num_points):
+            payloads.append(data)
+            for k in stats:
+                stats[k] += st[k]
+            yield dec
+    if decode:
+        return payloads, _gathered(stage, parts()), stats
+    for _ in parts():
+        pass
+    return payloads, None, stats
 
 
 def default_codebook_size(m: int, requested: int | None = None) -> int:

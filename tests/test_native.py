@@ -824,6 +824,33 @@ def test_encoder_reconstruction_identical():
             assert x.dtype == y.dtype == np.float32 and np.array_equal(x, y), (bits, f)
 
 
+@pytest.mark.parametrize("use_native", [True, False])
+def test_round_attributes_parsed_from_their_payloads_are_the_coded_ones(use_native):
+    """A size-search round keeps only its ATTR payloads and parses them again when it is
+    rendered (calibration.py): what that parse makes must be, bit for bit, the attributes the
+    coding reconstructed -- tiles, importance layers and class-ordered scales included."""
+    from gsz.encoder.pipeline import (EncodeOptions, attribute_chunks, compute_train_importance,
+                                      payload_attributes, prepare_stage)
+    if use_native and not native.native_available():
+        pytest.skip("native accelerator not built")
+    cloud = sample("sh3", 8000)
+    imp = compute_train_importance(cloud, EncodeOptions(train_views=6, importance_width=160))
+    stage = prepare_stage(cloud, imp, 0.8, layers=2, first_layer=0.4, tile_gaussians=2666)
+    assert stage.num_tiles > 1 and any(l.scale_order is not None for l in stage.layers)
+    old = native.set_enabled(use_native)
+    try:
+        for bits in (3, 11):
+            payloads, coded, _ = attribute_chunks(stage, bits, 8)
+            bare, none, _ = attribute_chunks(stage, bits, 8, decode=False)
+            assert none is None and bare == payloads
+            parsed = payload_attributes(stage, payloads)
+            for f in ("opacities", "rotations", "sh_dc", "scales"):
+                x, y = getattr(coded, f), getattr(parsed, f)
+                assert x.dtype == y.dtype == np.float32 and np.array_equal(x, y), (bits, f)
+    finally:
+        native.set_enabled(old)
+
+
 # ------------------------------------------------------------------ switches and fallbacks
 def _run(code: str, env_extra: dict) -> str:
     env = {**os.environ, **env_extra}

@@ -9,7 +9,7 @@ import numpy as np
 
 from ...decoder.pages import trim_heap
 
-from ..pipeline import attribute_chunks, decoded_cloud, write_file
+from ..pipeline import attribute_chunks, decoded_cloud, payload_attributes, write_file
 from .candidate import Encoded
 from .sh_model import ShPlan
 from .tables import group_meta_bytes, search_meta, split_bits, split_kept_bits
@@ -118,7 +118,9 @@ class _Rounds:
                                     self.kept_layers, len(stage.layers))
         trim_heap()         # a round's coding (every kept SH vector on the scalar path) peaks a stage
         with self.progress.stage("calibrate", f"tau {stage.reserve} round {rnd + 1}"):
-            attr, decoded, attr_stats = attribute_chunks(stage, layer_bits, self.sopts.blocks)
+            # the decoded attributes are made again from the payloads when the round is rendered
+            # (most rounds never are): held from here, they sat under every round's SH coding
+            attr, _, attr_stats = attribute_chunks(stage, layer_bits, self.sopts.blocks, decode=False)
             if sh_plan is None:
                 sh_chunk_ = None
             elif self.kept:
@@ -135,11 +137,13 @@ class _Rounds:
         sh_bytes = (sum(map(len, sh_chunk_)) + sum(len(c) for c in classes + refine if c)
                     if sh_plan else 0)
         # the decoded scene is made when the round is rendered: its SH (1 GB at 6 M voxels) is
-        # coded again then rather than held by every round and plan
+        # coded again then, its attributes parsed from the payloads, rather than held by every
+        # round and plan
         sh_bits = kept_bits if self.kept else None
+        del positions
 
         def scene():
-            return decoded_cloud(stage, positions, decoded,
+            return decoded_cloud(stage, stage.positions(), payload_attributes(stage, attr),
                                  None if sh_plan is None else sh_plan.decoded_sh(sh_bits))
         return Encoded(data=data, scene=scene, pick=pick, layer_bits=layer_bits, kept_bits=kept_bits,
                        sh_bytes=sh_bytes, attr_stats=attr_stats,

@@ -552,6 +552,6 @@ class BudgetSearch:
         if codebook is not None:
             sh, _, _ = sh_chunk(stage, codebook, 0, SH_BITS, self.sopts.blocks,
                                 cb_blocks=sh_set_blocks(len(codebook), self.sopts.blocks))
-        attr, _, _ = attribute_chunks(stage, 1, self.sopts.blocks)
+        attr, _, _ = attribute_chunks(stage, 1, self.sopts.blocks, decode=False)
         data, _ = write_file(stage, stage.positions(), attr, sh, search_meta(stage, 0, {"sh_keep": 0}))
         return len(data)

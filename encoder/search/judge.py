@@ -37,18 +37,20 @@ EVAL_DROP_MARGIN_DB = 1.0
 
 
 def view_psnr(refs, cloud, cameras, i: int) -> float:
-    """PSNR of ``cloud``'s 8-bit render of view ``i`` against ``refs[i]``, rendered from a trimmed
-    heap (a whole scene's render is a search's peak; the heap grew ~12 MB a view at 6 M)."""
+    """PSNR of ``cloud``'s 8-bit render of view ``i`` against ``refs[i]`` (uint8 [H, W, 3]: the
+    8-bit reference, an eighth of its float64 form held for the whole search), rendered from a
+    trimmed heap (a whole scene's render is a search's peak; the heap grew ~12 MB a view at 6 M)."""
     from ...evaluation.evaluate import render_views
     from ...evaluation.metrics import psnr
     trim_heap()
-    return psnr(refs[i], render_views(cloud, [cameras[i]])[0])
+    return psnr(refs[i] / 255.0, render_views(cloud, [cameras[i]])[0])
 
 
 def train_psnr(refs, cloud, cameras, best_views=None) -> tuple[float, list, int]:
     """(mean PSNR over the views rendered, per-view PSNRs (None where not rendered), 0 when every
-    view was rendered else how many were) with gsz-eval's protocol (8-bit renders, per-view PSNR,
-    plain mean) -- all the search compares candidates by; SSIM would cost more than the renders.
+    view was rendered else how many were) against ``refs`` (uint8, :func:`view_psnr`) with
+    gsz-eval's protocol (8-bit renders, per-view PSNR, plain mean) -- all the search compares
+    candidates by; SSIM would cost more than the renders.
     With ``best_views`` (the best candidate's per-view PSNRs) the candidate may be dropped early,
     see EVAL_DROP_MARGIN_DB."""
     if best_views is None:
@@ -116,16 +118,16 @@ class Judge:
     def __init__(self, cloud, sopts: SearchOptions, progress, cameras=None, sh_colour: int = 0):
         """``sh_colour``: the SHXF transform bits the search's clouds are coded in; every cloud
         is rendered in RGB (:func:`gsz.encoder.sh_colour.rgb_view`), as a decoder shows it."""
-        from ...evaluation.metrics import quantize_8bit
+        from ...evaluation.metrics import to_uint8
         from ...evaluation.render import render
         self.sh_colour = sh_colour
         cloud = self.rendered(cloud)
         self.cameras = eval_cameras(cloud, sopts, cameras)
         with progress.stage("eval-reference", f"{len(self.cameras)} train views"):
             # float renders (the first two also serve as the sensitivity's base), 8-bit as
-            # render_views makes them
+            # render_views makes them (k / 255 of these k: quantize_8bit's values)
             ref_float = [render(cloud, c).image for c in self.cameras]
-            self.refs = [quantize_8bit(np.asarray(img)) for img in ref_float]
+            self.refs = [to_uint8(np.asarray(img)) for img in ref_float]
         self.weights = None
         if sopts.weight_channels:
             trim_heap()
