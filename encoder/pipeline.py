@@ -22,7 +22,6 @@ from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
 
-from ..decoder.attributes import attributes_from_channels
 from ..decoder.bytesio import Writer
 from ..decoder.cloud import GaussianCloud, MadeRows
 from ..decoder.container import (CHUNK_ENTRY_SIZE, CHUNK_REQUIRED, FRAME_RDF, LAYER_SHIFT, Chunk, FileHeader,
@@ -767,24 +766,21 @@ def attribute_chunk(layer: Layer, raht_bits, scale_bits, blocks: int, decode: bo
     return w.getvalue(), decoded, {"raht_bytes": len(ac_bytes), "scale_bytes": len(sc_bytes)}
 
 
-def layer_attributes(layer, dc: np.ndarray, ac: np.ndarray, direct: np.ndarray):
+def layer_attributes(layer, dc: np.ndarray, ac: np.ndarray, direct: np.ndarray, dest=None):
     """The Attributes a decoder makes of a part's reconstructed coefficients: RAHT DC [7], AC
-    [7, M_l - 1] and the direct set [3, M_l] in the order the part stores it."""
-    from ..decoder import native
+    [7, M_l - 1] and the direct set [3, M_l] in the order the part stores it; the fields go to
+    ``dest`` (an OutputRows; None: fresh arrays)."""
     from ..decoder.attributes import attributes_from_coefficients
-    from ..decoder.raht import raht_inverse
+    from ..decoder.cloud import FRESH
 
     if layer.scale_order is not None:          # stored in class order: back to point order
         rec = np.empty_like(direct)
         rec[:, layer.scale_order] = direct
         direct = rec
-    if native.enabled():
-        # the decoder's own C path (bit-identical to the NumPy one): the inverse RAHT and the
-        # field conversions were ~1/4 of every calibration round of the size search
-        return attributes_from_coefficients(dc, ac, direct, layer.codes, layer.depth,
-                                            leaf_weights=layer.leaf_weights)
-    tree = build_raht_tree(layer.codes, layer.depth, layer.leaf_weights)
-    return attributes_from_channels(raht_inverse(dc, ac.T, tree), direct)
+    # the decoder's own inverse (its C path where built: the inverse RAHT and the field
+    # conversions were ~1/4 of every calibration round of the size search)
+    return attributes_from_coefficients(dc, ac, direct, layer.codes, layer.depth,
+                                        leaf_weights=layer.leaf_weights, dest=FRESH if dest is None else dest)
 
 
 def _gathered(stage: Stage, parts) -> "Attributes":
@@ -807,14 +803,25 @@ def _gathered(stage: Stage, parts) -> "Attributes":
 def payload_attributes(stage: Stage, payloads: list) -> "Attributes":
     """The Attributes, in output order, that a decoder reconstructs from the stage's ATTR
     payloads (one per part): the decoder's own parse, so a search round need not hold its
-    decoded attributes until it is rendered."""
-    from ..decoder.attributes import parse_attributes
+    decoded attributes until it is rendered.  Parts run side by side, each into its rows."""
+    from ..decoder.attributes import Attributes, parse_attributes
+    from ..decoder.cloud import OutputRows
 
-    def part(li: int):
-        layer = stage.layers[li]
+    n = stage.num_points
+    arrays = dict(opacities=np.empty(n, np.float32), rotations=np.empty((n, 4), np.float32),
+                  sh_dc=np.empty((n, 3), np.float32), scales=np.empty((n, 3), np.float32))
+    starts = np.cumsum([0] + [len(l.codes) for l in stage.layers])
+
+    def part(li: int) -> None:
+        layer, dest = stage.layers[li], OutputRows(arrays, int(starts[li]), int(starts[li + 1]))
         dc, ac, direct = parse_attributes(payloads[li], len(layer.codes))
-        return layer_attributes(layer, dc, ac, direct)
-    return _gathered(stage, map(part, range(len(stage.layers))))
+        dec = layer_attributes(layer, dc, ac, direct, dest)
+        for f, a in arrays.items():
+            got = getattr(dec, f)
+            if not dest.holds(f, got):
+                a[dest.start:dest.stop] = got.reshape(a[dest.start:dest.stop].shape)
+    thread_map(part, len(stage.layers))
+    return Attributes(**arrays)
 
 
 def attribute_chunks(stage: Stage, bits, blocks: int, decode: bool = True):
