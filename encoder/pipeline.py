@@ -777,8 +777,8 @@ def layer_attributes(layer, dc: np.ndarray, ac: np.ndarray, direct: np.ndarray, 
         rec = np.empty_like(direct)
         rec[:, layer.scale_order] = direct
         direct = rec
-    # the decoder's own inverse (its C path where built: the inverse RAHT and the field
-    # conversions were ~1/4 of every calibration round of the size search)
+    # the decoder's own inverse (its C path where built): the encoder's picture of a file is
+    # the decoder's
     return attributes_from_coefficients(dc, ac, direct, layer.codes, layer.depth,
                                         leaf_weights=layer.leaf_weights, dest=FRESH if dest is None else dest)
 
