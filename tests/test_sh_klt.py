@@ -145,7 +145,6 @@ def test_size_search_with_the_klt_stays_within_budget_and_judges_what_a_decoder_
     from gsz.encoder.search import SearchOptions, encode_to_budget
     from gsz.encoder.search.judge import eval_cameras, train_psnr
     from gsz.evaluation.evaluate import render_views
-    from gsz.evaluation.metrics import to_uint8
     cloud = _correlated(6000)
     target = 150_000                   # 12x: "auto" would not spend 4 kB on the matrix here
     sopts = SearchOptions(train_views=8, eval_views=3, eval_width=240, importance_width=240, sh_colour="klt")
@@ -155,7 +154,7 @@ def test_size_search_with_the_klt_stays_within_budget_and_judges_what_a_decoder_
     with native.numpy_only():
         assert decode(res.data).equals(res.cloud)
     cams = eval_cameras(cloud, sopts)
-    true, _, _ = train_psnr([to_uint8(im) for im in render_views(cloud, cams)], res.cloud, cams)
+    true, _, _ = train_psnr(render_views(cloud, cams), res.cloud, cams)
     assert abs(true - res.report.search.train_psnr) < 0.02
     # and it beats luma/chroma at the same budget on these correlated SH
     lc = encode_to_budget(cloud, target, options=dataclasses.replace(sopts, sh_colour="luma-chroma"))

@@ -37,18 +37,20 @@ EVAL_DROP_MARGIN_DB = 1.0
 
 
 def view_psnr(refs, cloud, cameras, i: int) -> float:
-    """PSNR of ``cloud``'s 8-bit render of view ``i`` against ``refs[i]`` (uint8 [H, W, 3]: the
-    8-bit reference, an eighth of its float64 form held for the whole search), rendered from a
-    trimmed heap (a whole scene's render is a search's peak; the heap grew ~12 MB a view at 6 M)."""
+    """PSNR of ``cloud``'s 8-bit render of view ``i`` against ``refs[i]`` (an image in [0, 1], or
+    uint8 [H, W, 3]: the judge holds its references so, an eighth of their float64 form),
+    rendered from a trimmed heap (a whole scene's render is a search's peak; the heap grew
+    ~12 MB a view at 6 M)."""
     from ...evaluation.evaluate import render_views
     from ...evaluation.metrics import psnr
     trim_heap()
-    return psnr(refs[i] / 255.0, render_views(cloud, [cameras[i]])[0])
+    ref = refs[i] / 255.0 if refs[i].dtype == np.uint8 else refs[i]
+    return psnr(ref, render_views(cloud, [cameras[i]])[0])
 
 
 def train_psnr(refs, cloud, cameras, best_views=None) -> tuple[float, list, int]:
     """(mean PSNR over the views rendered, per-view PSNRs (None where not rendered), 0 when every
-    view was rendered else how many were) against ``refs`` (uint8, :func:`view_psnr`) with
+    view was rendered else how many were) against ``refs`` (:func:`view_psnr`) with
     gsz-eval's protocol (8-bit renders, per-view PSNR, plain mean) -- all the search compares
     candidates by; SSIM would cost more than the renders.
     With ``best_views`` (the best candidate's per-view PSNRs) the candidate may be dropped early,
