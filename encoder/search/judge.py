@@ -44,7 +44,8 @@ def view_psnr(refs, cloud, cameras, i: int) -> float:
     from ...evaluation.evaluate import render_views
     from ...evaluation.metrics import psnr
     trim_heap()
-    ref = refs[i] / 255.0 if refs[i].dtype == np.uint8 else refs[i]
+    ref = np.asarray(refs[i])
+    ref = ref / 255.0 if ref.dtype == np.uint8 else ref
     return psnr(ref, render_views(cloud, [cameras[i]])[0])
 
 
