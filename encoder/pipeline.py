@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass, field, fields
 import numpy as np
 
 from ..decoder.bytesio import Writer
-from ..decoder.cloud import GaussianCloud, MadeRows
+from ..decoder.cloud import FRESH, GaussianCloud, MadeRows, OutputRows
 from ..decoder.container import (CHUNK_ENTRY_SIZE, CHUNK_REQUIRED, FRAME_RDF, LAYER_SHIFT, Chunk, FileHeader,
                                  write_container)
 from ..decoder.errors import GszUsageError
@@ -766,12 +766,11 @@ def attribute_chunk(layer: Layer, raht_bits, scale_bits, blocks: int, decode: bo
     return w.getvalue(), decoded, {"raht_bytes": len(ac_bytes), "scale_bytes": len(sc_bytes)}
 
 
-def layer_attributes(layer, dc: np.ndarray, ac: np.ndarray, direct: np.ndarray, dest=None):
+def layer_attributes(layer, dc: np.ndarray, ac: np.ndarray, direct: np.ndarray, dest: OutputRows = FRESH):
     """The Attributes a decoder makes of a part's reconstructed coefficients: RAHT DC [7], AC
     [7, M_l - 1] and the direct set [3, M_l] in the order the part stores it; the fields go to
-    ``dest`` (an OutputRows; None: fresh arrays)."""
+    ``dest``."""
     from ..decoder.attributes import attributes_from_coefficients
-    from ..decoder.cloud import FRESH
 
     if layer.scale_order is not None:          # stored in class order: back to point order
         rec = np.empty_like(direct)
@@ -780,7 +779,7 @@ def layer_attributes(layer, dc: np.ndarray, ac: np.ndarray, direct: np.ndarray, 
     # the decoder's own inverse (its C path where built): the encoder's picture of a file is
     # the decoder's
     return attributes_from_coefficients(dc, ac, direct, layer.codes, layer.depth,
-                                        leaf_weights=layer.leaf_weights, dest=FRESH if dest is None else dest)
+                                        leaf_weights=layer.leaf_weights, dest=dest)
 
 
 def _gathered(stage: Stage, parts) -> "Attributes":
@@ -805,7 +804,6 @@ def payload_attributes(stage: Stage, payloads: list) -> "Attributes":
     payloads (one per part): the decoder's own parse, so a search round need not hold its
     decoded attributes until it is rendered.  Parts run side by side, each into its rows."""
     from ..decoder.attributes import Attributes, parse_attributes
-    from ..decoder.cloud import OutputRows
 
     n = stage.num_points
     arrays = dict(opacities=np.empty(n, np.float32), rotations=np.empty((n, 4), np.float32),
