@@ -12,9 +12,11 @@ gives; native = decoder/csrc/):
   overlap), and Gaussians per second from the wall time;
 * stages, run one after the other (no overlap) and timed by the CPU time of the calling thread,
   best of --repeats: container parse + CRCs, geometry (octree decode), attribute entropy
-  decoding (RAHT coefficients and scales), SH (codebook, kept vectors, indices), finish (inverse
-  RAHT, rotations, float32 fields, positions, finiteness checks); with --encode also the octree
-  encoder on the decoded voxels (it must reproduce the file's geometry payload byte for byte).
+  decoding (RAHT coefficients and scales), SH (codebook, kept vectors, indices, with the
+  part's KLT turn and codeword refinement as the decoder reads them), finish (inverse
+  RAHT, rotations, float32 fields, positions, the DC colour turn, finiteness checks); with
+  --encode also the octree encoder on the decoded voxels (it must reproduce the file's
+  geometry payload byte for byte).
 
 Prints a markdown table and writes bench/out/decode.json.  Also prints ``uptime`` before and
 after: other jobs on the machine inflate wall times (compare the CPU columns).
@@ -82,9 +84,9 @@ def measure(path: Path, repeats: int, encode_too: bool = False, paths=("numpy", 
     from gsz.decoder.container import read_container
     from gsz.decoder.geometry import read_geometry_header
     from gsz.decoder.layer import _read_weights as read_weights      # the decoder's own
-    from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHVQ, KNOWN_CHUNKS
+    from gsz.decoder.layout import CHUNK_ATTR, CHUNK_GEOM, CHUNK_SHCL, CHUNK_SHRF, CHUNK_SHVQ, CHUNK_SHXF, KNOWN_CHUNKS
     from gsz.decoder.pages import small_pages
-    from gsz.decoder.sh import read_sh
+    from gsz.decoder.sh import part_klt, read_sh, turn_dc
 
     data = path.read_bytes()
     rows = {}
@@ -106,7 +108,7 @@ def measure(path: Path, repeats: int, encode_too: bool = False, paths=("numpy", 
         stages["container"], c = best_of(lambda: read_container(data, known_types=KNOWN_CHUNKS), repeats)
         plan = D.plan_parts(c.chunks, c.header.sh_degree).parts      # (layer, tile) parts
         totals = dict(geometry=0.0, attributes=0.0, sh=0.0, finish=0.0)
-        codebooks = {}                                                # per tile
+        codebooks, klts = {}, {}                                      # per tile
         pages = small_pages()                   # as decode() allocates (decoder/pages.py)
         pages.__enter__()
         for part in plan:
@@ -123,10 +125,12 @@ def measure(path: Path, repeats: int, encode_too: bool = False, paths=("numpy", 
                 return dc, ac, direct_in_point_order(direct, rwgt)
             dt, (dc, ac, direct) = best_of(attributes, repeats)
             totals["attributes"] += dt
-            if c.header.sh_degree > 0:
+            if c.header.sh_degree > 0:       # as the decoder's layer._read_sh: KLT and SHRF too
+                klt, klts[part.tile] = part_klt(ch.get(CHUNK_SHXF), c.header.sh_degree, klts.get(part.tile))
                 dt, (_, cb) = best_of(lambda: read_sh(ch[CHUNK_SHVQ], gh.num_points, c.header.sh_degree,
-                                                      codebook, ch.get(b"SHCL"), colour_chunk=ch.get(b"SHXF"),
-                                                      voxel_classes=None if rwgt is None else rwgt.classes),
+                                                      codebook, ch.get(CHUNK_SHCL), colour_chunk=ch.get(CHUNK_SHXF),
+                                                      voxel_classes=None if rwgt is None else rwgt.classes,
+                                                      klt=klt, refine_chunk=ch.get(CHUNK_SHRF)),
                                               repeats)
                 totals["sh"] += dt
                 codebooks[part.tile] = cb if codebook is None else codebook
@@ -135,6 +139,7 @@ def measure(path: Path, repeats: int, encode_too: bool = False, paths=("numpy", 
                 attrs = attributes_from_coefficients(dc, ac, direct, codes, gh.depth,
                                                      leaf_weights=leaf_weights_of(rwgt))
                 pos = gh.positions(codes)
+                turn_dc(ch.get(CHUNK_SHXF), attrs.sh_dc, c.header.sh_degree)
                 ok = native.module().all_finite if native.enabled() else (lambda a: np.isfinite(a).all())
                 return all(ok(a) for a in (pos, attrs.scales, attrs.rotations, attrs.opacities, attrs.sh_dc))
             dt, _ = best_of(finish, repeats)

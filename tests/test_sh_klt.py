@@ -172,11 +172,11 @@ def test_auto_takes_the_klt_on_a_trained_capture():
 
 @pytest.mark.skipif(not native.enabled(), reason="native accelerator not built")
 @pytest.mark.parametrize("d", [9, 24, 45])
-@pytest.mark.parametrize("simd", [False, True])
+@pytest.mark.parametrize("simd", [0, 1, 2])
 def test_native_assembly_turns_kept_vectors_and_codewords_as_the_reference_does(d, simd):
     # the C row loop's KLT (kept tiles, whole and partial, and codewords) against klt_to_rgb on
-    # the same stored values, by the AVX2/FMA product and the portable one (where the CPU has
-    # no AVX2 both runs take the portable one)
+    # the same stored values, by the portable product, the AVX2/FMA one and the AVX-512 one
+    # (each capped at what the CPU has: without AVX-512 level 2 runs the AVX2 loop)
     rng = np.random.default_rng(9 + d)
     m, k = 700, 5
     was = native.module().klt_simd(simd)
@@ -206,3 +206,15 @@ def _native_klt_case(rng, d, m, k):
         native.module().sh_assemble(flags, kept, steps, lo + 300.0, idx, cb, out, None, 0, klt.astype(np.float64))
     with pytest.raises(GszFormatError, match=r"KLT-coded SH value outside \+-256"):
         native.module().sh_assemble(flags, kept, steps, lo, idx, cb * 1e3, out, None, 0, klt.astype(np.float64))
+    # the kept vectors as residuals of a codeword each (SHRF): the sum in float32, then the KLT
+    r = rng.integers(0, k, p).astype(np.int64)
+    assert native.module().sh_assemble(flags, kept, steps, lo, idx, cb, out, None, 0, klt.astype(np.float64), r)
+    summed = stored + cb.T.astype(np.float32)[r]
+    want[flags == 1] = klt_to_rgb(summed, klt)
+    assert out.tobytes() == want.tobytes()
+    # a sum beyond the range, the residual and the codeword each within it: rejected
+    far_cb = cb.copy()
+    far_cb[:, r[p // 2]] = 200.0
+    with pytest.raises(GszFormatError, match=r"KLT-coded SH value outside \+-256"):
+        native.module().sh_assemble(flags, kept, steps, lo + 100.0, idx, far_cb, out, None, 0,
+                                    klt.astype(np.float64), r)

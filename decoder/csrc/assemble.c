@@ -145,17 +145,10 @@ static inline double klt_round(float v)
     return ((double)v * KLT_IN + KLT_ROUND) - KLT_ROUND;
 }
 
-/* Whether any of n floats is at or beyond the KLT's range (or not finite). */
-static inline uint32_t klt_far(const float *c, int64_t n)
-{
-    uint32_t far = 0;
-    for (int64_t t = 0; t < n; t++) far |= !(fabs((double)c[t]) < KLT_MAX_ABS);
-    return far;
-}
-
+/* rint(v * 2^24), and *far set when v is at or beyond the KLT's range (or not finite) */
 static inline double klt_int(float v, uint32_t *far)
 {
-    *far |= klt_far(&v, 1);
+    *far |= !(fabs((double)v) < KLT_MAX_ABS);
     return klt_round(v);
 }
 
@@ -220,6 +213,21 @@ static uint32_t add_codewords(float *restrict tile, const float *restrict cbf, c
 /* The tile's product straight to the output rows: row at[t] = (sum over d of y[d][t] * m[d][j])
  * * 2^-38 for the tile's first n vectors.  m is the matrix padded to Jp (a multiple of 12)
  * columns with zeros.  Exact integer sums, so any order, fused or not, gives the same bits. */
+/* vectors ahead whose output rows the products (and the row copy) prefetch: in class order
+ * (SHCL) the rows lie anywhere in the output, and a row's first write waited for its lines */
+#define ROWS_AHEAD 16
+
+/* Prefetch for writing the output rows of vectors [k0, k1) (a row of D floats spans up to
+ * four cache lines: its first line, every 64 bytes on, and its last byte). */
+static inline void prefetch_rows(const float *out, const int64_t *at, int64_t k0, int64_t k1, int64_t D)
+{
+    for (int64_t k = k0; k < k1; k++) {
+        const char *row = (const char *)(out + at[k] * D);
+        for (int64_t o = 0; o < D * 4; o += 64) __builtin_prefetch(row + o, 1, 3);
+        __builtin_prefetch(row + D * 4 - 1, 1, 3);
+    }
+}
+
 typedef void (*klt_product_fn)(float *restrict, const int64_t *restrict, int64_t, int64_t, int64_t,
                                const double *restrict, const double *restrict);
 static void klt_product_base(float *restrict out, const int64_t *restrict at, int64_t n, int64_t D,
@@ -228,6 +236,7 @@ static void klt_product_base(float *restrict out, const int64_t *restrict at, in
     /* four vectors at a time, their accumulators rows the inner loop runs along (vectorised) */
     double acc[4][KLT_MAX_JP];
     for (int64_t t0 = 0; t0 < n; t0 += 4) {
+        prefetch_rows(out, at, t0 + ROWS_AHEAD, t0 + ROWS_AHEAD + 4 < n ? t0 + ROWS_AHEAD + 4 : n, D);
         for (int k = 0; k < 4; k++)
             for (int64_t j = 0; j < Jp; j++) acc[k][j] = 0.0;
         for (int64_t d = 0; d < D; d++) {
@@ -285,6 +294,7 @@ static void klt_product_avx2(float *restrict out, const int64_t *restrict at, in
     a2 = _mm256_fmadd_pd(b, m2, a2)
     for (int64_t t0 = 0; t0 < n; t0 += 4) {
         const double *yb = y + t0 * D;
+        prefetch_rows(out, at, t0 + ROWS_AHEAD, t0 + ROWS_AHEAD + 4 < n ? t0 + ROWS_AHEAD + 4 : n, D);
         for (int64_t j0 = 0; j0 < Jp; j0 += 12) {
             __m256d a00 = _mm256_setzero_pd(), a01 = a00, a02 = a00, a10 = a00, a11 = a00, a12 = a00,
                     a20 = a00, a21 = a00, a22 = a00, a30 = a00, a31 = a00, a32 = a00;
@@ -303,16 +313,60 @@ static void klt_product_avx2(float *restrict out, const int64_t *restrict at, in
     }
 #undef KLT_FMA3
 }
+/* The same with 8-double vectors: 4 vectors x 24 columns (12 zmm) per pass over d, for a padded
+ * width that is a multiple of 24 (D = 24 and 45; D = 9 takes the AVX2 loop). */
+__attribute__((target("avx512f,avx512vl,fma")))
+static void klt_product_avx512(float *restrict out, const int64_t *restrict at, int64_t n, int64_t D,
+                               int64_t Jp, const double *restrict m, const double *restrict y)
+{
+#define KLT_FMA3(b, a0, a1, a2)                                                                \
+    a0 = _mm512_fmadd_pd(b, m0, a0);                                                           \
+    a1 = _mm512_fmadd_pd(b, m1, a1);                                                           \
+    a2 = _mm512_fmadd_pd(b, m2, a2)
+    const __m512d sc = _mm512_set1_pd(KLT_OUT);
+    for (int64_t t0 = 0; t0 < n; t0 += 4) {
+        const double *yb = y + t0 * D;
+        prefetch_rows(out, at, t0 + ROWS_AHEAD, t0 + ROWS_AHEAD + 4 < n ? t0 + ROWS_AHEAD + 4 : n, D);
+        for (int64_t j0 = 0; j0 < Jp; j0 += 24) {
+            __m512d a00 = _mm512_setzero_pd(), a01 = a00, a02 = a00, a10 = a00, a11 = a00, a12 = a00,
+                    a20 = a00, a21 = a00, a22 = a00, a30 = a00, a31 = a00, a32 = a00;
+            for (int64_t d = 0; d < D; d++) {
+                const double *md = m + d * Jp + j0, *yd = yb + d * 4;
+                const __m512d m0 = _mm512_loadu_pd(md), m1 = _mm512_loadu_pd(md + 8),
+                              m2 = _mm512_loadu_pd(md + 16);
+                KLT_FMA3(_mm512_set1_pd(yd[0]), a00, a01, a02);
+                KLT_FMA3(_mm512_set1_pd(yd[1]), a10, a11, a12);
+                KLT_FMA3(_mm512_set1_pd(yd[2]), a20, a21, a22);
+                KLT_FMA3(_mm512_set1_pd(yd[3]), a30, a31, a32);
+            }
+            const __m512d r[12] = {a00, a01, a02, a10, a11, a12, a20, a21, a22, a30, a31, a32};
+            const int64_t w = D - j0 < 24 ? D - j0 : 24;
+            /* lanes of the row's columns j0 + [0, w): the padding columns are never written */
+            const __mmask8 k2 = (__mmask8)(w >= 24 ? 0xFF : w <= 16 ? 0 : (1u << (w - 16)) - 1u),
+                           k1 = (__mmask8)(w >= 16 ? 0xFF : w <= 8 ? 0 : (1u << (w - 8)) - 1u),
+                           k0 = (__mmask8)(w >= 8 ? 0xFF : (1u << w) - 1u);
+            for (int k = 0; k < 4 && t0 + k < n; k++) {
+                float *row = out + at[t0 + k] * D + j0;
+                _mm256_mask_storeu_ps(row, k0, _mm512_cvtpd_ps(_mm512_mul_pd(r[3 * k], sc)));
+                _mm256_mask_storeu_ps(row + 8, k1, _mm512_cvtpd_ps(_mm512_mul_pd(r[3 * k + 1], sc)));
+                _mm256_mask_storeu_ps(row + 16, k2, _mm512_cvtpd_ps(_mm512_mul_pd(r[3 * k + 2], sc)));
+            }
+        }
+    }
+#undef KLT_FMA3
+}
 #endif
 
-/* 1: the AVX2/FMA product may run (the CPU has both), 0: not, -1: not yet asked */
-static int klt_avx2 = -1;
+/* The widest product the KLT may use: 0 the portable loop, 1 AVX2/FMA, 2 AVX-512 (for padded
+ * widths of 24 and 48; 12 takes AVX2); -1: not yet asked.  All give the same bits. */
+static int klt_level = -1;
 
-static int klt_cpu_has_avx2(void)
+static int klt_cpu_level(void)
 {
 #if GSZ_KLT_AVX2
     __builtin_cpu_init();
-    return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+    if (!__builtin_cpu_supports("avx2") || !__builtin_cpu_supports("fma")) return 0;
+    return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl") ? 2 : 1;
 #else
     return 0;
 #endif
@@ -320,37 +374,122 @@ static int klt_cpu_has_avx2(void)
 
 int klt_simd(int on)
 {
-    if (klt_avx2 < 0) klt_avx2 = klt_cpu_has_avx2();
-    const int was = klt_avx2;
-    if (on == 0) klt_avx2 = 0;
-    else if (on == 1) klt_avx2 = klt_cpu_has_avx2();
+    if (klt_level < 0) klt_level = klt_cpu_level();
+    const int was = klt_level, best = klt_cpu_level();
+    if (on >= 0) klt_level = on < best ? on : best;
     return was;
 }
 
-static klt_product_fn klt_product(void)
+static klt_product_fn klt_product(int64_t Jp)
 {
 #if GSZ_KLT_AVX2
-    if (klt_avx2 > 0) return klt_product_avx2;
+    if (klt_level >= 2 && Jp % 24 == 0) return klt_product_avx512;
+    if (klt_level >= 1) return klt_product_avx2;
 #endif
+    (void)Jp;
     return klt_product_base;
 }
 
-/* The KLT of a component-major tile's first n vectors, written to their output rows at[t]
- * (klt_row's arithmetic; the tile's columns past n are never read into a row); y: D x SH_TILE
- * doubles of scratch, the integers of 4 vectors at a time component by component (y[t / 4][d][t %
- * 4]: the product reads a 4-vector block contiguously), m the matrix padded to Jp columns. */
-static uint32_t klt_tile(const float *restrict tile, int64_t n, int64_t D, int64_t Jp,
-                         const double *restrict m, double *restrict y, const int64_t *restrict at,
-                         float *restrict out)
+/* One lane of klt_fill: stored value f (a residual: plus its codeword component w, one float32
+ * sum checked for finiteness into *nf) -> *y = rint(f * 2^24); returns 1 out of range. */
+static inline uint32_t klt_fill_one(float f, const float *w, double *y, uint32_t *nf)
+{
+    if (w) {
+        f = f + *w;
+        *nf |= !f32_finite(f);
+    }
+    *y = klt_round(f);
+    return !(fabs((double)f) < KLT_MAX_ABS);
+}
+
+/* The product's integers of a component-major tile's first n vectors (klt_row's arithmetic):
+ * y[t / 4][d][t % 4] = rint(v * 2^24), v = tile[d][t], or with cbf (SHRF, GSZ.md §8.3) v plus
+ * component d of codeword r[t] of the float32 codebook rows cbf (one float32 sum, checked for
+ * finiteness into *nf); the last 4-vector block's lanes past n are 0.  Returns 1 when a value is
+ * at or beyond the range (or not finite).  Lanes from t0 on: the portable loop, and the SIMD
+ * loop's tail. */
+static uint32_t klt_fill_base(const float *restrict tile, const float *restrict cbf, const int64_t *restrict r,
+                              int64_t t0, int64_t n, int64_t D, double *restrict y, uint32_t *nf)
 {
     uint32_t far = 0;
-    for (int64_t d = 0; d < D; d++) {
-        const float *c = tile + d * SH_TILE;
-        far |= n == SH_TILE ? klt_far(c, SH_TILE) : klt_far(c, n);
-        for (int64_t t = 0; t < SH_TILE; t++) y[(t >> 2) * D * 4 + d * 4 + (t & 3)] = klt_round(c[t]);
+    for (; t0 < n; t0 += 4) {
+        double *yb = y + t0 * D;
+        for (int64_t q = 0; q < 4; q++) {
+            const int64_t t = t0 + q;
+            const float *w = cbf && t < n ? cbf + r[t] * D : NULL;
+            for (int64_t d = 0; d < D; d++) {
+                if (t < n) far |= klt_fill_one(tile[d * SH_TILE + t], w ? w + d : NULL, yb + d * 4 + q, nf);
+                else yb[d * 4 + q] = 0.0;
+            }
+        }
     }
+    return far;
+}
+#if GSZ_KLT_AVX2
+/* The same, 4 vectors' component d at once: their 4 tile values are contiguous, and so are the
+ * 4 integers the product reads (the scalar loop's strided stores ran as long as the product). */
+__attribute__((target("avx2,fma")))
+static uint32_t klt_fill_avx2(const float *restrict tile, const float *restrict cbf, const int64_t *restrict r,
+                              int64_t n, int64_t D, double *restrict y, uint32_t *nf)
+{
+    const __m128 lim = _mm_set1_ps((float)KLT_MAX_ABS), sign = _mm_set1_ps(-0.0f);
+    const __m128i expo = _mm_set1_epi32(0x7F800000);
+    const __m256d in = _mm256_set1_pd(KLT_IN), rnd = _mm256_set1_pd(KLT_ROUND);
+    int inrange = 0xF, finite = 0xF;
+    int64_t t0 = 0;
+    for (; t0 + 4 <= n; t0 += 4) {
+        double *yb = y + t0 * D;
+        const float *w0 = cbf ? cbf + r[t0] * D : NULL, *w1 = cbf ? cbf + r[t0 + 1] * D : NULL,
+                    *w2 = cbf ? cbf + r[t0 + 2] * D : NULL, *w3 = cbf ? cbf + r[t0 + 3] * D : NULL;
+        for (int64_t d0 = 0; d0 < D; d0 += 4) {
+            /* the 4 codewords' components d0..d0+3: 4 row loads turned into 4 component columns */
+            __m128 wc[4] = {_mm_setzero_ps(), _mm_setzero_ps(), _mm_setzero_ps(), _mm_setzero_ps()};
+            const int64_t nd = D - d0 < 4 ? D - d0 : 4;
+            if (cbf && nd == 4) {
+                wc[0] = _mm_loadu_ps(w0 + d0);
+                wc[1] = _mm_loadu_ps(w1 + d0);
+                wc[2] = _mm_loadu_ps(w2 + d0);
+                wc[3] = _mm_loadu_ps(w3 + d0);
+                _MM_TRANSPOSE4_PS(wc[0], wc[1], wc[2], wc[3]);
+            } else if (cbf) {
+                for (int64_t i = 0; i < nd; i++) wc[i] = _mm_set_ps(w3[d0 + i], w2[d0 + i], w1[d0 + i], w0[d0 + i]);
+            }
+            for (int64_t i = 0; i < nd; i++) {
+                const int64_t d = d0 + i;
+                __m128 f = _mm_loadu_ps(tile + d * SH_TILE + t0);
+                if (cbf) {
+                    f = _mm_add_ps(f, wc[i]);
+                    finite &= ~_mm_movemask_ps(_mm_castsi128_ps(
+                        _mm_cmpeq_epi32(_mm_and_si128(_mm_castps_si128(f), expo), expo)));
+                }
+                inrange &= _mm_movemask_ps(_mm_cmp_ps(_mm_andnot_ps(sign, f), lim, _CMP_LT_OQ));
+                const __m256d v = _mm256_sub_pd(_mm256_add_pd(_mm256_mul_pd(_mm256_cvtps_pd(f), in), rnd), rnd);
+                _mm256_storeu_pd(yb + d * 4, v);
+            }
+        }
+    }
+    *nf |= finite != 0xF;
+    return (inrange != 0xF) | (t0 < n ? klt_fill_base(tile, cbf, r, t0, n, D, y, nf) : 0);
+}
+#endif
+
+/* The KLT of a component-major tile's first n vectors (with cbf: each plus its codeword r[t],
+ * klt_fill), written to their output rows at[t] (the tile's columns past n are never read into
+ * a row); y: D x SH_TILE doubles of scratch (klt_fill's layout: the product reads a 4-vector
+ * block contiguously), m the matrix padded to Jp columns.  Returns 1 (writing no row) when a
+ * value is out of range; *nf |= a codeword sum not finite. */
+static uint32_t klt_tile(const float *restrict tile, const float *restrict cbf, const int64_t *restrict r,
+                         int64_t n, int64_t D, int64_t Jp, const double *restrict m, double *restrict y,
+                         const int64_t *restrict at, float *restrict out, uint32_t *nf)
+{
+#if GSZ_KLT_AVX2
+    const uint32_t far = klt_level >= 1 ? klt_fill_avx2(tile, cbf, r, n, D, y, nf)
+                                        : klt_fill_base(tile, cbf, r, 0, n, D, y, nf);
+#else
+    const uint32_t far = klt_fill_base(tile, cbf, r, 0, n, D, y, nf);
+#endif
     if (far) return 1;
-    klt_product()(out, at, n, D, Jp, m, y);
+    klt_product(Jp)(out, at, n, D, Jp, m, y);
     return 0;
 }
 
@@ -370,6 +509,10 @@ static uint32_t kept_tile(const uint16_t *kept, int64_t P, const double *steps, 
         float *col = tile + d * SH_TILE;
         bad |= n == SH_TILE ? dequant_col(src, st, l0, col, SH_TILE) : dequant_col(src, st, l0, col, n);
     }
+    if (m) {            /* the KLT (never with luma/chroma), SHRF's codeword sums on the way */
+        *far |= klt_tile(tile, ridx ? cbf : NULL, ridx ? ridx + t0 : NULL, n, D, Jp, m, y, at + t0, out, &bad);
+        return bad;
+    }
     if (ridx)           /* SHRF: the residuals' codewords added back before any colour transform */
         bad |= add_codewords(tile, cbf, ridx + t0, n, D);
     if (colour)
@@ -378,11 +521,9 @@ static uint32_t kept_tile(const uint16_t *kept, int64_t P, const double *steps, 
             bad |= n == SH_TILE ? luma_chroma_cols(a, a + SH_TILE, a + 2 * SH_TILE, SH_TILE)
                                 : luma_chroma_cols(a, a + SH_TILE, a + 2 * SH_TILE, n);
         }
-    if (m) {
-        *far |= klt_tile(tile, n, D, Jp, m, y, at + t0, out);
-        return bad;
-    }
     for (int64_t t = 0; t < n; t++) {
+        if ((t & 3) == 0)
+            prefetch_rows(out, at + t0, t + ROWS_AHEAD, t + ROWS_AHEAD + 4 < n ? t + ROWS_AHEAD + 4 : n, D);
         float *row = out + at[t0 + t] * D;
         for (int64_t d = 0; d < D; d++) row[d] = tile[d * SH_TILE + t];
     }

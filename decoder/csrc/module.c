@@ -666,15 +666,28 @@ static PyObject *py_rans_simd(PyObject *self, PyObject *args)
 }
 
 PyDoc_STRVAR(klt_simd_doc,
-"klt_simd(on=None) -> bool\n\n"
-"Whether sh_assemble's KLT product may use its AVX2/FMA loop (where the CPU has both); as\n"
-"rans_simd.  The two loops give the same bits (exact integer sums); for tests and benchmarks.");
+"klt_simd(level=None) -> int\n\n"
+"The widest loop sh_assemble's KLT product may use: 0 portable, 1 AVX2/FMA, 2 AVX-512 (padded\n"
+"widths 24 and 48), capped at what the CPU has; True: the widest it has, False: 0, None: only\n"
+"ask.  Returns the level before the call.  Every loop gives the same bits (exact integer\n"
+"sums); for tests and benchmarks.");
 
 static PyObject *py_klt_simd(PyObject *self, PyObject *args)
 {
-    const int v = simd_arg(args);
-    if (v == -2) return NULL;
-    return PyBool_FromLong(klt_simd(v) > 0);
+    PyObject *on = Py_None;
+    if (!PyArg_ParseTuple(args, "|O", &on)) return NULL;
+    int v = -1;
+    if (PyBool_Check(on)) v = on == Py_True ? 1000 : 0;
+    else if (on != Py_None) {
+        const long l = PyLong_AsLong(on);
+        if (l == -1 && PyErr_Occurred()) return NULL;
+        if (l < 0) {
+            PyErr_SetString(PyExc_ValueError, "klt_simd: level must be 0 or more");
+            return NULL;
+        }
+        v = l > 1000 ? 1000 : (int)l;
+    }
+    return PyLong_FromLong(klt_simd(v));
 }
 
 /* ================================================================== model sets, varints */
