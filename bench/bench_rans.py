@@ -22,8 +22,11 @@ alone (``quantize_groups`` + ``dequantize_groups``, torch with one thread), the 
 
 With --block-loop: the native decoder's channel-set loop (``RansDecoder.decode_blocks``, uint16
 symbols, as for a kept SH set) on 45 channels x 200 k symbols in 8 blocks, one model per
-(channel, block) (rounded Laplace around 128, scale 12; the precisions fit_model_set picks), 4096 lanes; ns a
-symbol of the scalar loop and of the AVX2 loop (``_native.rans_simd``), best of --repeat.
+(channel, block), 4096 lanes, three times: 8-bit symbols (rounded Laplace around 128, scale 12),
+4-bit and 2-bit ones (around 7.5, scale 2, and around 1.5, scale 0.7, clipped to 0..2^q - 1: a
+refined file's kept set: the AVX2 loop decodes models of up to 8 values without gathers); the precisions
+fit_model_set picks; ns a symbol of the scalar loop and of the AVX2 loop (``_native.rans_simd``),
+best of --repeat.
 """
 from __future__ import annotations
 
@@ -100,6 +103,11 @@ def channel_set_bench(repeat: int, scenes=("houseplant_sh0", "flowers_daffodils_
 
 
 def block_loop_bench(repeat: int, C: int = 45, L: int = 200_000, B: int = 8) -> None:
+    for bits, centre, scale in ((8, 128, 12), (4, 7.5, 2.0), (2, 1.5, 0.7)):
+        block_loop_case(repeat, bits, centre, scale, C, L, B)
+
+
+def block_loop_case(repeat: int, bits: int, centre: float, scale: float, C: int, L: int, B: int) -> None:
     from gsz.decoder import native
     if not native.native_available():
         print("the native decoder is not built: nothing to time")
@@ -110,12 +118,13 @@ def block_loop_bench(repeat: int, C: int = 45, L: int = 200_000, B: int = 8) -> 
     tab = np.arange(m, dtype=np.int64)
     block = np.repeat(np.arange(B), split_lengths(L, B))     # the codec's blocks of a channel
     mids = tab[(np.arange(C)[:, None] * B + block[None, :]).ravel()]
-    sym = np.clip(np.round(rng.laplace(128, 12, mids.size)), 0, 255).astype(np.int64)
+    top = (1 << bits) - 1
+    sym = np.clip(np.round(rng.laplace(centre, scale, mids.size)), 0, top).astype(np.int64)
     models = fit_model_set(sym, mids, m)
     payload = encode_symbols(sym, mids, models, lanes=4096)
-    qmax = np.full(m, 255, np.int64)
+    qmax = np.full(m, top, np.int64)
     out = np.zeros(C * L, np.uint16)                 # touched once: the loops, not page faults
-    print(f"{C} channels x {L:,} symbols, {B} blocks, precisions "
+    print(f"{bits}-bit symbols: {C} channels x {L:,} symbols, {B} blocks, precisions "
           f"{sorted(set(models.prec.tolist()))}, 4096 lanes")
     for simd in (False, True):
         old = mod.rans_simd(simd)

@@ -477,7 +477,8 @@ def page_decode(d: dict) -> str:
                    + [f"{s} s" for s in stages], rows)
     lines += ["Files: the shared scenes at `gsz-encode --reserve 0.8 --bits 12 --blocks 1` (cached in "
               "bench/.cache/decode); `big_*`: [scale.md](scale.md)'s 1.2 M files (2 tiles decode in "
-              "parallel; stages summed over parts).", ""]
+              "parallel; stages summed over parts; `big_1.2M_tiny_noised`: the refined SH path, "
+              "every vector a codeword plus its correction, in the KLT).", ""]
     return "\n".join(lines)
 
 

@@ -683,6 +683,10 @@ def test_block_loop_avx2_and_scalar_identical(lanes):
     scale = np.exp(rng.uniform(-2, 7, m))
     sym = np.abs(np.round(rng.laplace(0, scale[mids]))).astype(np.int64)
     sym[mids == 3] = 5                               # a one-value model (a single slot run)
+    # models of 2, 3 (with gaps), 8 and 9 present values: up to 8 the AVX2 loop finds a value by
+    # comparing cumulative frequencies in registers, beyond it by gathers from the LUT
+    for g, values in ((6, [0, 1]), (9, [0, 3, 7]), (10, range(8)), (12, range(9))):
+        sym[mids == g] = rng.choice(np.asarray(values), int(np.count_nonzero(mids == g)), p=None)
     models = fit_model_set(sym, mids, m)
     payload = encode_symbols(sym, mids, models, lanes=lanes)
     qmax = np.array([int(sym[mids == g].max()) for g in range(m)], np.int64)

@@ -483,7 +483,7 @@ int rans_simd(int on)
  * scalar fast loop); eight words are loaded at a time, so groups stop 8 words before the end.
  * lut has 2^n + 1 readable slots (a 4-byte gather at slot 2^n - 1). */
 static __attribute__((target("avx2"), noinline)) void
-decode_block_avx2(const uint16_t *lut, const uint32_t *fc, const int32_t *val, unsigned n,
+decode_block_avx2(const uint16_t *lut, const uint32_t *fc, const int32_t *val, int64_t k, unsigned n,
                   RState *s, uint32_t *st32, int *live, int64_t len, double *fout,
                   uint16_t *uout, double step, double l0, int64_t qm, BlockOut *bo)
 {
@@ -500,15 +500,40 @@ decode_block_avx2(const uint16_t *lut, const uint32_t *fc, const int32_t *val, u
                   vq = _mm256_set1_epi32((int)qmax);
     const __m128i cnt = _mm_cvtsi32_si128((int)n);
     const __m256d vstep = _mm256_set1_pd(step), vl0 = _mm256_set1_pd(l0);
+    /* a model of at most 8 present values (the 1-3 bit groups most of a kept SH set codes
+     * with): its (cum, freq) entries and values in registers, a lane's value index the count
+     * of cumulative frequencies at or below its slot (the LUT's entry), and no gathers */
+    const int small = k >= 1 && k <= 8;
+    __m256i fcv = zero, valv = zero, cm[7];
+    if (small) {
+        uint32_t tf[8] = {0};
+        int32_t tv[8] = {0};
+        for (int64_t i = 0; i < k; i++) {
+            tf[i] = fc[i];
+            tv[i] = val[i];
+        }
+        fcv = _mm256_loadu_si256((const __m256i *)tf);
+        valv = _mm256_loadu_si256((const __m256i *)tv);
+        for (int64_t i = 0; i < 7; i++)      /* slot > cum - 1 for the values 1..k-1; never past them */
+            cm[i] = _mm256_set1_epi32(i + 1 < k ? (int)(fc[i + 1] >> 16) - 1 : 0x7FFFFFFF);
+    }
     __m256i badv = zero;
     uint32_t bad_q = 0;
     while (j < len) {
         if (lane + 8 <= lanes && j + 8 <= len && w + 8 <= nwords) {
             __m256i x = _mm256_loadu_si256((const __m256i *)(st32 + lane));
             const __m256i slot = _mm256_and_si256(x, vmask);
-            const __m256i k = _mm256_and_si256(_mm256_i32gather_epi32((const int *)lut, slot, 2), lo16);
-            const __m256i ent = _mm256_i32gather_epi32((const int *)fc, k, 4);
-            const __m256i v = _mm256_i32gather_epi32((const int *)val, k, 4);
+            __m256i ent, v;
+            if (small) {
+                __m256i ki = zero;
+                for (int i = 0; i < 7; i++) ki = _mm256_sub_epi32(ki, _mm256_cmpgt_epi32(slot, cm[i]));
+                ent = _mm256_permutevar8x32_epi32(fcv, ki);
+                v = _mm256_permutevar8x32_epi32(valv, ki);
+            } else {
+                const __m256i ki = _mm256_and_si256(_mm256_i32gather_epi32((const int *)lut, slot, 2), lo16);
+                ent = _mm256_i32gather_epi32((const int *)fc, ki, 4);
+                v = _mm256_i32gather_epi32((const int *)val, ki, 4);
+            }
             const __m256i f = _mm256_add_epi32(_mm256_and_si256(ent, lo16), one);
             const __m256i c = _mm256_srli_epi32(ent, 16);
             x = _mm256_add_epi32(_mm256_mullo_epi32(f, _mm256_srl_epi32(x, cnt)), _mm256_sub_epi32(slot, c));
@@ -636,7 +661,8 @@ static int decode_one_block(const RTab *t, LazyLut *z, RState *s, const RBlocks 
             if (f <= 0) break;
 #if GSZ_RANS_AVX2
             if (z->st32)
-                decode_block_avx2(lut, fc, val, n, s, z->st32, &z->st32_live, f,
+                decode_block_avx2(lut, fc, val, (m + 1 < t->nmodels ? t->sbase[m + 1] : t->nsym) - sb, n, s,
+                                  z->st32, &z->st32_live, f,
                                   bl->steps ? bl->fout + at + done : NULL,
                                   bl->steps ? NULL : bl->uout + at + done,
                                   bl->steps ? bl->steps[g] : 0.0, bl->steps ? bl->lo[g] : 0.0,

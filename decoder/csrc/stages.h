@@ -35,12 +35,13 @@ int quat_from_trig_run(const double *c, const double *s, int64_t M, float *q);
 int voxel_positions_run(const uint64_t *codes, int64_t M, int depth, const double org[3],
                         double side, float *out);
 int all_finite_run(const uint32_t *p, int64_t n);
+/* The widest loop the KLT product may use (on: 0 portable, 1 AVX2/FMA, 2 AVX-512, capped at
+ * what the CPU has; -1 ask only); returns the level before.  All give the same bits (exact
+ * integer sums). */
+int klt_simd(int on);
 /* SH rest vectors (flags NULL when no vector is kept; kept: uint16 symbols [D, P] dequantised
  * with steps / lo [D, B]; classes NULL without SHCL); GszFormatError on a bad flag / index.
  * *finite: whether every value written is finite. */
-/* Whether the KLT product may use its AVX2/FMA loop (on: 0 no, 1 where the CPU has it, -1 ask
- * only); returns the setting before.  Both loops give the same bits (exact integer sums). */
-int klt_simd(int on);
 int sh_assemble_run(const int64_t *flags, const uint16_t *kept, const double *steps,
                     const double *lo, int64_t B, const int64_t *classes, int64_t P,
                     const int64_t *idx, int64_t nidx, const double *cb, int64_t K, int64_t M,
