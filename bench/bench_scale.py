@@ -126,6 +126,17 @@ def add_eval(path: Path) -> int:
     return 0
 
 
+DEFAULT_OUT = ROOT / "bench" / "out" / "scale.json"
+
+
+def held_scene(path: Path):
+    """The scene whose rows the JSON at ``path`` holds, or None (no file, or not a scale JSON)."""
+    try:
+        return json.loads(path.read_text()).get("scene")
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scene", type=Path)
@@ -136,7 +147,10 @@ def main(argv=None) -> int:
     p.add_argument("--tile-gaussians", type=int, default=300_000)
     p.add_argument("--eval", action="store_true")
     p.add_argument("--sh-colour", default=None, help="gsz-encode's --sh-colour (default: its own, auto)")
-    p.add_argument("--out", type=Path, default=ROOT / "bench" / "out" / "scale.json")
+    p.add_argument("--out", type=Path, default=None,
+                   help="JSON to write (default bench/out/scale.json, which a run of another scene "
+                        "may not replace: the results page lists the per-scene JSONs' commands "
+                        "without their --out)")
     p.add_argument("--add-eval", type=Path, metavar="JSON",
                    help="add test scores to an earlier run's JSON from its files (nothing is encoded)")
     a = p.parse_args(argv)
@@ -144,6 +158,12 @@ def main(argv=None) -> int:
         return add_eval(a.add_eval.resolve())
     if a.scene is None:
         p.error("--scene is required (or --add-eval JSON)")
+    if a.out is None:
+        a.out = DEFAULT_OUT
+        held = held_scene(a.out)
+        if held is not None and Path(held).name != a.scene.name:
+            p.error(f"{a.out} holds the rows of {held}, not {a.scene}: pass --out (the results page "
+                    f"names each scene's JSON) so a run does not replace another scene's rows")
     OUT_DIR.mkdir(parents=True, exist_ok=True)
     uptime = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
     ratios = [float(x) for x in a.ratios.split(",")] if a.ratios else [a.ratio]
