@@ -5,6 +5,13 @@
 #include <stdlib.h>
 #include "stages.h"
 
+/* a cache-line prefetch (w = 1: for writing) where the compiler has one; elsewhere nothing */
+#if defined(__GNUC__)
+#define GSZ_PREFETCH(p, w) __builtin_prefetch((p), (w), 3)
+#else
+#define GSZ_PREFETCH(p, w) ((void)(p))
+#endif
+
 int planes_to_f32_run(const double *src, int64_t M, int64_t k, float *out)
 {
     uint32_t bad = 0;
@@ -225,8 +232,8 @@ static inline void prefetch_rows(const float *out, const int64_t *at, int64_t k0
 {
     for (int64_t k = k0; k < k1; k++) {
         const char *row = (const char *)(out + at[k] * D);
-        for (int64_t o = 0; o < D * 4; o += 64) __builtin_prefetch(row + o, 1, 3);
-        __builtin_prefetch(row + D * 4 - 1, 1, 3);
+        for (int64_t o = 0; o < D * 4; o += 64) GSZ_PREFETCH(row + o, 1);
+        GSZ_PREFETCH(row + D * 4 - 1, 1);
     }
 }
 
@@ -513,7 +520,7 @@ static uint32_t kept_tile(const uint16_t *kept, int64_t P, const double *steps, 
          * hardware's prefetchers lose (the loads waited on half the dequantisation's time) */
         if (t0 + (TILES_AHEAD + 1) * SH_TILE <= P)
             for (int64_t o = 0; o < SH_TILE * 2; o += 64)
-                __builtin_prefetch((const char *)(src + TILES_AHEAD * SH_TILE) + o, 0, 3);
+                GSZ_PREFETCH((const char *)(src + TILES_AHEAD * SH_TILE) + o, 0);
         bad |= n == SH_TILE ? dequant_col(src, st, l0, col, SH_TILE) : dequant_col(src, st, l0, col, n);
     }
     if (m) {            /* the KLT (never with luma/chroma), SHRF's codeword sums on the way */
